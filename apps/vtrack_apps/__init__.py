@@ -1,0 +1,1 @@
+"""vtrack applications: the ``vtrack`` command-line interface and the viewer app."""

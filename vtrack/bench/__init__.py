@@ -1,0 +1,12 @@
+"""Speed-against-error benchmarks (``vtrack bench``). Results go to ``docs/benchmarks/``.
+
+Each stage lives in a module ``vtrack.bench.<stage>`` exposing ``run(quick: bool) -> BenchTable``.
+"""
+
+#: stage name -> module; the CLI imports a stage's module only when it runs.
+STAGES: dict[str, str] = {
+    "tactile": "vtrack.bench.tactile",
+    "fusion": "vtrack.bench.fusion",
+    "tracking": "vtrack.bench.tracking",
+    "dome": "vtrack.bench.dome",
+}

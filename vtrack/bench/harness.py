@@ -1,0 +1,199 @@
+"""Benchmark harness: timing, machine info, and CSV + markdown + Pareto-plot output.
+
+A stage builds a :class:`BenchTable` of rows (one per method x operating point), each with at
+least ``method``, ``setting``, ``ms`` (median per unit of work) and an error column, then calls
+:func:`write_results`. The harness records thread count, machine and git revision.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import platform
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.paths import REPO_ROOT
+
+
+def benchmarks_dir() -> Path:
+    """``docs/benchmarks`` of the repository (override with ``VTRACK_BENCH_DIR``)."""
+    d = Path(os.environ.get("VTRACK_BENCH_DIR", REPO_ROOT / "docs" / "benchmarks"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def time_call(fn: Callable[[], Any], *, warmup: int = 1, repeat: int = 5,
+              min_seconds: float = 0.0) -> dict[str, float]:
+    """Time ``fn()``: warm-up calls, then at least ``repeat`` timed calls (and ``min_seconds`` total).
+
+    Returns median, p95, mean and min in milliseconds plus the number of timed calls.
+    """
+    for _ in range(max(0, warmup)):
+        fn()
+    times = []
+    t_start = time.perf_counter()
+    while len(times) < max(1, repeat) or (time.perf_counter() - t_start) < min_seconds:
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+        if len(times) > 10_000:
+            break
+    a = np.asarray(times)
+    return {"ms_median": float(np.median(a)), "ms_p95": float(np.percentile(a, 95)),
+            "ms_mean": float(a.mean()), "ms_min": float(a.min()), "n_timed": len(a)}
+
+
+def git_revision() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_ROOT, capture_output=True,
+                              text=True, timeout=5).stdout.strip() or "unknown"
+    except Exception:
+        return "unknown"
+
+
+def machine_info() -> dict[str, Any]:
+    info = {"machine": platform.machine(), "processor": platform.processor() or platform.machine(),
+            "cpus": os.cpu_count(), "python": platform.python_version(), "git": git_revision()}
+    try:
+        import torch  # noqa: F401  (only if already importable; records the thread setting)
+
+        info["torch_threads"] = torch.get_num_threads()
+    except Exception:
+        pass
+    return info
+
+
+@dataclass
+class BenchTable:
+    """Rows of one benchmark stage.
+
+    Args:
+        stage: name (file stem in docs/benchmarks).
+        error_key: column plotted on the y axis (lower is better unless ``higher_is_better``).
+        time_key: column plotted on the x axis (ms).
+        higher_is_better: e.g. F-score.
+    """
+
+    stage: str
+    error_key: str
+    time_key: str = "ms"
+    higher_is_better: bool = False
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    threads: int = 1
+
+    def add(self, **row: Any) -> None:
+        self.rows.append(row)
+
+    def pareto_mask(self) -> np.ndarray:
+        """Rows not dominated in (time, error): nothing else is both faster and better."""
+        if not self.rows:
+            return np.zeros(0, dtype=bool)
+        t = np.array([float(r.get(self.time_key, np.nan)) for r in self.rows])
+        e = np.array([float(r.get(self.error_key, np.nan)) for r in self.rows])
+        if self.higher_is_better:
+            e = -e
+        ok = np.isfinite(t) & np.isfinite(e)
+        mask = np.zeros(len(t), dtype=bool)
+        for i in np.nonzero(ok)[0]:
+            dominated = ok & (t <= t[i]) & (e <= e[i]) & ((t < t[i]) | (e < e[i]))
+            mask[i] = not dominated.any()
+        return mask
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        if not np.isfinite(v):
+            return str(v)
+        return f"{v:.4g}"
+    return str(v)
+
+
+def write_results(table: BenchTable, out_dir: Path | None = None, columns: list[str] | None = None) -> dict[str, Path]:
+    """Write ``<stage>.csv``, ``<stage>.md`` and ``<stage>.png`` (Pareto plot) and update the index."""
+    out_dir = out_dir or benchmarks_dir()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = table.rows
+    pareto = table.pareto_mask()
+    for r, p in zip(rows, pareto, strict=True):
+        r["pareto"] = bool(p)
+    cols = columns or list(dict.fromkeys(k for r in rows for k in r))
+    csv_path = out_dir / f"{table.stage}.csv"
+    with open(csv_path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r.get(k, "") for k in cols})
+    info = machine_info()
+    info["threads"] = table.threads
+    md_path = out_dir / f"{table.stage}.md"
+    lines = [f"# Benchmark: {table.stage}", "",
+             f"Error column: `{table.error_key}` ({'higher' if table.higher_is_better else 'lower'} is better); "
+             f"time column: `{table.time_key}`. Pareto-optimal rows are marked ★.", "",
+             f"Machine: {info['cpus']} CPUs, {info['processor']}, Python {info['python']}, "
+             f"threads {table.threads}, git `{info['git']}`, {time.strftime('%Y-%m-%d %H:%M')}.", ""]
+    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        cells = [_fmt(r.get(c, "")) for c in cols]
+        if r.get("pareto"):
+            cells[0] = "★ " + cells[0]
+        lines.append("| " + " | ".join(cells) + " |")
+    if table.notes:
+        lines += ["", *[f"- {n}" for n in table.notes]]
+    lines += ["", f"![{table.stage}]({table.stage}.png)", ""]
+    md_path.write_text("\n".join(lines))
+    png_path = out_dir / f"{table.stage}.png"
+    plot_pareto(table, png_path)
+    (out_dir / f"{table.stage}.json").write_text(json.dumps({"machine": info, "rows": rows}, indent=1, default=str))
+    _update_index(out_dir)
+    return {"csv": csv_path, "md": md_path, "png": png_path}
+
+
+def plot_pareto(table: BenchTable, path: Path) -> None:
+    """Scatter of error against time per method, Pareto front highlighted (log-x)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=110)
+    methods = list(dict.fromkeys(str(r.get("method", "")) for r in table.rows))
+    t = np.array([float(r.get(table.time_key, np.nan)) for r in table.rows])
+    e = np.array([float(r.get(table.error_key, np.nan)) for r in table.rows])
+    for m in methods:
+        idx = [i for i, r in enumerate(table.rows) if str(r.get("method", "")) == m]
+        ax.scatter(t[idx], e[idx], label=m, s=36)
+        for i in idx:
+            s = table.rows[i].get("setting", "")
+            if s != "":
+                ax.annotate(str(s), (t[i], e[i]), fontsize=6, alpha=0.7, xytext=(3, 3), textcoords="offset points")
+    mask = table.pareto_mask()
+    if mask.any():
+        order = np.argsort(t[mask])
+        ax.plot(t[mask][order], e[mask][order], "k--", lw=1, alpha=0.6, label="Pareto front")
+    if np.all(t[np.isfinite(t)] > 0) and np.isfinite(t).any():
+        ax.set_xscale("log")
+    ax.set_xlabel(f"{table.time_key} (lower is faster)")
+    ax.set_ylabel(f"{table.error_key} ({'higher' if table.higher_is_better else 'lower'} is better)")
+    ax.set_title(f"{table.stage}: speed against error")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _update_index(out_dir: Path) -> None:
+    stages = sorted(p.stem for p in out_dir.glob("*.md") if p.stem != "README")
+    lines = ["# Benchmarks", "", "Produced by `vtrack bench <stage>` (see each page for the command, machine and",
+             "git revision). Each stage: CSV, markdown table and Pareto plot (error against time).", ""]
+    lines += [f"- [{s}]({s}.md) — [csv]({s}.csv), [plot]({s}.png)" for s in stages]
+    (out_dir / "README.md").write_text("\n".join(lines) + "\n")

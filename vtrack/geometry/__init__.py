@@ -1,0 +1,1 @@
+"""Geometry core: SE(3) transforms, pinhole cameras, point clouds (numpy, float64)."""

@@ -1,0 +1,1 @@
+"""Input/output: the session format (Zarr v3), standard streams, and PLY/GLB export."""

@@ -1,0 +1,71 @@
+"""Scene-driven component registry with lazy imports.
+
+A component is named by a short key and points to ``"module:attribute"``. Nothing is imported
+until :func:`load` is called, so a touch-only scene never imports the RGB-D stack and a TSDF
+scene never imports torch. :func:`required_components` says which components a scene needs.
+
+Component classes expose ``from_scene(scene, **options)``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from vtrack.errors import VtrackError
+
+#: key -> "module:attribute". Modules are imported only when the component is loaded.
+COMPONENTS: dict[str, str] = {
+    "kinematics": "vtrack.kinematics.hand:HandKinematics",
+    "tactile": "vtrack.tactile.pipeline:TactilePipeline",
+    "dome": "vtrack.dome.reconstruct:DomeReconstructor",
+    "rgbd": "vtrack.fusion.rgbd:RGBDFrontend",
+    "reconstruction.tsdf": "vtrack.fusion.tsdf:TSDFReconstructor",
+    "reconstruction.neural_sdf": "vtrack.fusion.neural_sdf:NeuralSDFReconstructor",
+    "tracking.known_shape": "vtrack.tracking.tracker:KnownShapeTracker",
+    "tracking.slam": "vtrack.tracking.slam:SLAMTracker",
+}
+
+
+def required_components(scene: Any) -> list[str]:
+    """Component keys a scene needs, in pipeline order, from what it declares."""
+    keys: list[str] = []
+    modalities = scene.effective_modalities
+    if scene.hand is not None and "touch" in modalities:
+        keys.append("kinematics")
+    if "touch" in modalities:
+        if any(t.type != "dome" for t in scene.tactile):
+            keys.append("tactile")
+        if any(t.type == "dome" for t in scene.tactile):
+            keys.append("dome")
+    if "vision" in modalities:
+        keys.append("rgbd")
+    if scene.pipeline.reconstruction != "off":
+        keys.append(f"reconstruction.{scene.pipeline.reconstruction}")
+    if scene.pipeline.tracking != "off":
+        keys.append(f"tracking.{scene.pipeline.tracking}")
+    return keys
+
+
+def load(key: str) -> Any:
+    """Import and return the component class registered under ``key``."""
+    try:
+        target = COMPONENTS[key]
+    except KeyError:
+        raise VtrackError(f"unknown component '{key}' (known: {sorted(COMPONENTS)})") from None
+    module, _, attr = target.partition(":")
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as e:
+        raise VtrackError(f"component '{key}' is not available: cannot import {module} ({e})") from None
+    return getattr(mod, attr)
+
+
+def build(key: str, scene: Any, **options: Any) -> Any:
+    """Load component ``key`` and construct it from the scene."""
+    return load(key).from_scene(scene, **options)
+
+
+def build_all(scene: Any, **options: Any) -> dict[str, Any]:
+    """Build every component the scene needs (and only those)."""
+    return {key: build(key, scene, **options.get(key, {})) for key in required_components(scene)}
