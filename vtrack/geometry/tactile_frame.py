@@ -1,0 +1,66 @@
+"""The tactile sensor frame shared by the simulator, the tactile pipeline and fusion.
+
+Sensor frame (``sensor/<name>``), metres:
+- origin at the centre of the undeformed gel surface;
+- ``z`` = outward gel normal (from the sensor towards the touched object);
+- ``x`` = image column direction (u, to the right), ``y`` = image row direction (v, down).
+
+A height map ``h`` (mm, >= 0) is the indentation of the gel surface *into* the sensor at each
+pixel, so the contact surface point of pixel (row, col) is
+``((col - (W-1)/2) * s, (row - (H-1)/2) * s, -h / 1000)`` with ``s = mm_per_px / 1000``.
+The surface normal (pointing out of the gel, towards the object) from height gradients is
+``normalize([dh/dx, dh/dy, 1])`` with gradients in mm/mm (the surface is ``z = -h``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+
+def pixel_grid_to_sensor_xy(rows: np.ndarray, cols: np.ndarray, width: int, height: int,
+                            mm_per_px: float) -> np.ndarray:
+    """(N, 2) sensor-frame x, y in metres of pixel (row, col) centres."""
+    s = mm_per_px / 1000.0
+    return np.stack([(np.asarray(cols, np.float64) - (width - 1) / 2.0) * s,
+                     (np.asarray(rows, np.float64) - (height - 1) / 2.0) * s], axis=-1)
+
+
+def height_to_points(height_mm: np.ndarray, mm_per_px: float, mask: np.ndarray | None = None,
+                     stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Lift a height map to sensor-frame contact points (m) and their outward normals.
+
+    Args:
+        height_mm: (H, W) indentation in mm (NaN/Inf pixels are dropped).
+        mm_per_px: pixel pitch on the gel, mm.
+        mask: optional (H, W) boolean; only these pixels are lifted (e.g. the contact mask).
+        stride: keep every ``stride``-th row/column.
+
+    Returns:
+        points (N, 3) and unit normals (N, 3), both in the sensor frame.
+    """
+    h = np.asarray(height_mm, dtype=np.float64)
+    if h.ndim != 2:
+        raise InputError("height map must be 2-D", field="height_mm", expected="(H, W)", got=h.shape)
+    H, W = h.shape
+    finite = np.isfinite(h)
+    hz = np.where(finite, h, 0.0)
+    gy, gx = np.gradient(hz, mm_per_px) if min(H, W) > 1 else (np.zeros_like(hz), np.zeros_like(hz))
+    keep = finite.copy()
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != h.shape:
+            raise InputError("mask size differs from the height map", field="mask", expected=str(h.shape),
+                             got=m.shape)
+        keep &= m
+    if stride > 1:
+        sub = np.zeros_like(keep)
+        sub[::stride, ::stride] = True
+        keep &= sub
+    rows, cols = np.nonzero(keep)
+    xy = pixel_grid_to_sensor_xy(rows, cols, W, H, mm_per_px)
+    pts = np.concatenate([xy, -hz[rows, cols, None] / 1000.0], axis=1)
+    n = np.stack([gx[rows, cols], gy[rows, cols], np.ones(len(rows))], axis=-1)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return pts, n
