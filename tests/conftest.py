@@ -1,0 +1,30 @@
+"""Shared pytest fixtures."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+# Small ops are faster single-threaded on 2 cores, and tests must not fight each other for cores.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """``../shared/data`` beside the repository; tests needing it skip when it is absent."""
+    from vtrack.paths import shared_data_dir
+
+    d = shared_data_dir()
+    if not (d / "README.md").exists():
+        pytest.skip(f"shared data folder not found at {d} (expected beside the repository)")
+    return d
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _isolated_cache(tmp_path_factory) -> None:
+    """Use a per-run cache unless VTRACK_CACHE is set (so CI never reads stale generated data)."""
+    if "VTRACK_CACHE" not in os.environ:
+        os.environ["VTRACK_CACHE"] = str(tmp_path_factory.mktemp("vtrack_cache"))
