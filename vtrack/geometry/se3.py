@@ -126,11 +126,12 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     # Small angle: theta/sin ~ 1 + theta^2/6.
     out = np.where(small[..., None], w * (1.0 + theta**2 / 6.0)[..., None], out)
     if np.any(near_pi):
-        # Near pi the antisymmetric part vanishes; take the axis from the symmetric part
-        # B = (R + I)/2 = cos^2(theta/2)... ~ a a^T, choosing the best-conditioned column.
+        # Near pi the antisymmetric part vanishes; take the axis from the symmetric part:
+        # (R + R^T)/2 = cos(theta) I + (1 - cos(theta)) a a^T, choosing its best-conditioned column.
         Rp = R[near_pi]
         th = theta[near_pi]
-        S = 0.5 * (Rp + np.eye(3))
+        c = cos[near_pi][..., None, None]
+        S = (0.5 * (Rp + np.swapaxes(Rp, -1, -2)) - c * np.eye(3)) / (1.0 - c)
         diag = np.diagonal(S, axis1=-2, axis2=-1)
         k = np.argmax(diag, axis=-1)
         col = np.take_along_axis(S, k[:, None, None].repeat(3, axis=1), axis=2)[..., 0]

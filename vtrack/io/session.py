@@ -257,7 +257,7 @@ class SessionWriter:
             # Grow in whole chunks so metadata rewrites are rare.
             step = max(st["block"].values())
             cap = max(need, st["capacity"] + step)
-            for fname, arr in st["arrays"].items():
+            for arr in st["arrays"].values():
                 arr.resize((cap, *arr.shape[1:]))
             st["capacity"] = cap
         for fname, arr in st["arrays"].items():

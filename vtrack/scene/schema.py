@@ -224,9 +224,6 @@ class Scene(_Model):
                     )
         if self.pipeline.tracking == "known_shape" and self.object.mesh is None:
             raise ValueError("pipeline.tracking 'known_shape' needs object.mesh")
-        if "vision" in self.pipeline.modalities and not self.cameras and self.pipeline.reconstruction != "off":
-            # Not an error: vision is simply unavailable; the effective modalities drop it.
-            pass
         return self
 
     # Convenience accessors -------------------------------------------------------------

@@ -1,0 +1,44 @@
+"""Lazy, scene-driven loading: `import vtrack` and the scene/registry layer import no heavy back-end."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+HEAVY = ("torch", "open3d", "depthai", "pyvista", "viser")
+
+
+def _loaded_after(code: str) -> list[str]:
+    probe = textwrap.dedent(code) + textwrap.dedent(
+        f"""
+        import sys
+        print("LOADED:" + ",".join(m for m in {HEAVY!r} if m in sys.modules))
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    line = [ln for ln in out.stdout.splitlines() if ln.startswith("LOADED:")][-1]
+    return [m for m in line.removeprefix("LOADED:").split(",") if m]
+
+
+def test_import_vtrack_is_light() -> None:
+    assert _loaded_after("import vtrack") == []
+
+
+def test_scene_session_geometry_layers_are_light(shared_data) -> None:
+    loaded = _loaded_after(
+        """
+        import vtrack, vtrack.geometry.se3, vtrack.geometry.camera, vtrack.geometry.pointcloud
+        import vtrack.io.session, vtrack.io.streams, vtrack.registry
+        from vtrack.scene import load_scene
+        from vtrack.paths import default_scene_path
+        s = load_scene(default_scene_path())
+        vtrack.registry.required_components(s)
+        """
+    )
+    assert loaded == []
+
+
+def test_cli_help_is_light() -> None:
+    assert _loaded_after("import vtrack_apps.cli") == []
