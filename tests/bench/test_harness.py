@@ -1,0 +1,46 @@
+"""Benchmark harness: timing, Pareto front, CSV/MD/PNG output."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vtrack.bench.harness import BenchTable, time_call, write_results
+
+
+def test_time_call_measures_sleep() -> None:
+    r = time_call(lambda: time.sleep(0.01), warmup=1, repeat=5)
+    assert r["n_timed"] == 5
+    assert 9.0 <= r["ms_median"] < 60.0 and r["ms_p95"] >= r["ms_median"] and r["ms_min"] <= r["ms_median"]
+
+
+def test_pareto_front_lower_and_higher_is_better() -> None:
+    t = BenchTable("x", error_key="err")
+    for ms, err in [(1, 5.0), (2, 3.0), (3, 4.0), (4, 1.0), (5, 1.0), (0.5, float("nan"))]:
+        t.add(method="m", ms=ms, err=err)
+    assert t.pareto_mask().tolist() == [True, True, False, True, False, False]
+    f = BenchTable("y", error_key="f", higher_is_better=True)
+    for ms, s in [(1, 0.5), (2, 0.4), (3, 0.9)]:
+        f.add(method="m", ms=ms, f=s)
+    assert f.pareto_mask().tolist() == [True, False, True]
+
+
+def test_write_results_files(tmp_path: Path) -> None:
+    t = BenchTable("demo_stage", error_key="err", notes=["a note"])
+    rng = np.random.default_rng(0)
+    for m in ("a", "b"):
+        for s in (1, 2, 4):
+            t.add(method=m, setting=f"res{s}", ms=float(s * (1 + (m == "b"))), err=float(rng.random()))
+    paths = write_results(t, out_dir=tmp_path)
+    rows = list(csv.DictReader(open(paths["csv"])))
+    assert len(rows) == 6 and {"method", "setting", "ms", "err", "pareto"} <= set(rows[0])
+    md = paths["md"].read_text()
+    assert "★" in md and "a note" in md and "demo_stage.png" in md
+    from PIL import Image
+
+    im = np.asarray(Image.open(paths["png"]).convert("L"))
+    assert im.shape[0] > 200 and im.std() > 5  # a real plot, not a blank image
+    assert "demo_stage" in (tmp_path / "README.md").read_text()
