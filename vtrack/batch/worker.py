@@ -1,0 +1,146 @@
+"""What runs inside a worker process (local pool or Ray): one job -> one committed result folder.
+
+:func:`execute` never raises for a failing task: it returns an outcome dict, so the local and Ray
+engines report task errors identically. Only a dying worker (segfault, OOM kill, ``os._exit``)
+shows up as an engine-level crash, which the engines turn into the same kind of outcome.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import shutil
+import signal
+import sys
+import time
+import traceback
+import uuid
+from pathlib import Path
+from typing import Any
+
+#: Environment variables that cap BLAS/OpenMP threads; set before numpy/torch load in a worker.
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS",
+              "VECLIB_MAXIMUM_THREADS")
+
+
+def thread_env(threads: int) -> dict[str, str]:
+    return {k: str(max(1, int(threads))) for k in THREAD_ENV}
+
+
+def init_local_worker(threads: int, parent_pid: int) -> None:
+    """Initializer of local pool workers: thread caps, and die with the driver.
+
+    ``PR_SET_PDEATHSIG`` (Linux) makes the kernel SIGKILL the worker when the driver dies, so a
+    killed batch leaves no orphan that could keep writing into the output folder.
+    """
+    os.environ.update(thread_env(threads))
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL("libc.so.6", use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG = 1
+        except OSError:
+            pass
+        if os.getppid() != parent_pid:  # the driver died before prctl took effect
+            os._exit(1)
+
+
+def _apply_threads(threads: int) -> None:
+    for k, v in thread_env(threads).items():
+        os.environ.setdefault(k, v)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(max(1, int(threads)))
+
+
+def _inject_fault(job: dict[str, Any], stage: str) -> None:
+    """Testing hook: crash or delay on purpose, as described by ``job["fault"]`` (set by the runner
+    from a fault-plan file, see :func:`vtrack.batch.runner.load_fault_plan`)."""
+    fault = job.get("fault")
+    if not fault:
+        return
+    if stage == "start" and fault.get("delay_s"):
+        time.sleep(float(fault["delay_s"]))
+    if job.get("attempt", 1) > int(fault.get("times", 0)):
+        return
+    mode = fault.get("mode", "")
+    at = "before_commit" if mode.endswith("_before_commit") else "start"
+    if at != stage:
+        return
+    mode = mode.removesuffix("_before_commit")
+    if mode == "exit":
+        os._exit(17)
+    if mode == "kill":
+        os.kill(os.getpid(), signal.SIGKILL)
+    if mode == "raise":
+        raise RuntimeError(f"injected failure (attempt {job.get('attempt', 1)})")
+    if mode == "hang":
+        time.sleep(3600)
+
+
+def execute(job: dict[str, Any]) -> dict[str, Any]:
+    """Run one job: task into a temp folder, checksummed manifest last, atomic rename into place.
+
+    Returns:
+        outcome dict: ``key``, ``status`` ("ok" | "error"), ``retryable``, ``error``, ``traceback``,
+        ``metrics``, ``nonfinite`` (metric keys that were NaN/Inf, stored as null), ``seconds``
+        (task wall time), ``host``, ``pid``, ``attempt``, ``commit``.
+    """
+    from vtrack.batch import results
+    from vtrack.batch.tasks import resolve
+    from vtrack.errors import VtrackError
+
+    t0 = time.perf_counter()
+    out = {"key": job["key"], "attempt": job.get("attempt", 1), "host": platform.node(), "pid": os.getpid(),
+           "started_unix": time.time()}
+    out_root = Path(job["out_root"])
+    tmp = out_root / f"{results.TMP_PREFIX}{job['key']}-{uuid.uuid4().hex[:8]}"
+    try:
+        _apply_threads(job.get("threads", 1))
+        _inject_fault(job, "start")
+        fn = resolve(job["target"])
+        tmp.mkdir(parents=True)
+        kwargs = {**job.get("params", {}), **{k: tuple(v) for k, v in (job.get("chunk_args") or {}).items()}}
+        metrics = fn(job["session"], str(tmp), **kwargs)
+        if metrics is None:
+            metrics = {}
+        if not isinstance(metrics, dict):
+            raise TypeError(f"task returned {type(metrics).__name__}, expected a dict of metrics")
+        bad: list[str] = []
+        metrics = results.sanitize_metrics(metrics, bad=bad)
+        seconds = time.perf_counter() - t0
+        results.write_manifest(tmp, job, metrics, {
+            "attempt": out["attempt"], "host": out["host"], "pid": out["pid"], "seconds": seconds,
+            "nonfinite": bad, "finished_unix": time.time(), "vtrack_version": _version(),
+        })
+        _inject_fault(job, "before_commit")
+        out["commit"] = results.commit(tmp, out_root / job["key"], job)
+        out.update(status="ok", metrics=metrics, nonfinite=bad, seconds=seconds)
+    except Exception as e:
+        # Bad input is deterministic: retrying it would only fail again.
+        retryable = not (isinstance(e, VtrackError) and isinstance(e, ValueError))
+        out.update(status="error", retryable=retryable, error=f"{type(e).__name__}: {e}",
+                   traceback=traceback.format_exc(limit=8), seconds=time.perf_counter() - t0)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
+def warm_up(target: str) -> int:
+    """Import a task's module in this worker (so timing excludes import cost); returns the pid."""
+    from vtrack.batch.tasks import resolve
+
+    try:
+        resolve(target)
+    except Exception:
+        pass  # the real run reports it
+    return os.getpid()
+
+
+def _version() -> str:
+    from vtrack import __version__
+
+    return __version__
+
