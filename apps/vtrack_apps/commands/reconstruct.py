@@ -1,0 +1,43 @@
+"""``vtrack reconstruct``: object reconstruction from a session (known object poses)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("reconstruct")
+    def reconstruct(
+        session: Path = typer.Argument(..., help="session directory"),
+        out: Path = typer.Option(..., "--out", help="result folder (mesh.ply, cloud.ply, metrics.json, ...)"),
+        method: str = typer.Option("neural_sdf", "--method", help="tsdf | neural_sdf"),
+        modalities: str = typer.Option("vision,touch", "--modalities", help="vision, touch or vision,touch"),
+        tactile_source: str = typer.Option("auto", "--tactile-source",
+                                           help="auto | gt (GT height maps) | pipeline (tactile images)"),
+        online: bool = typer.Option(False, "--online", help="neural SDF: frame-by-frame with a time budget"),
+        iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = default)"),
+        voxel_mm: float = typer.Option(0.0, "--voxel-mm", help="TSDF voxel size in mm (0 = default 2)"),
+        no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
+        json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
+    ) -> None:
+        """Fuse vision and touch into an object mesh; write mesh, cloud, metrics and a screenshot."""
+        from vtrack.fusion.reconstruct import reconstruct_session
+        from vtrack_apps.output import report
+
+        opts = {}
+        if iters > 0:
+            opts["n_iters"] = iters
+        if voxel_mm > 0:
+            opts["voxel_size"] = voxel_mm / 1000.0
+        m = reconstruct_session(session, out, method=method, modalities=modalities, tactile_source=tactile_source,
+                                online=online, screenshot=not no_screenshot, **opts)
+        keys = ("method", "modalities", "tactile_source", "fscore", "precision", "recall", "chamfer_mm",
+                "normal_consistency", "seconds", "ms_per_frame", "frames")
+        report(f"reconstruct {session}", {k: m.get(k) for k in keys}, json_out)
+        if json_out:
+            from vtrack_apps.output import write_json
+
+            write_json(json_out, m)
+        typer.echo(f"wrote {out}/mesh.ply, cloud.ply, metrics.json, result.json")

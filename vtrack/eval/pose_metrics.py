@@ -1,0 +1,159 @@
+"""Tracking metrics over whole trajectories: ADD-S, ADD, position / rotation drift, error plots.
+
+All poses are ``T_world_object`` (N, 4, 4); model points are object-frame surface samples (m).
+
+Definitions (documented in docs/tracking.md):
+- ``add_s`` per frame: mean over true-pose model points of the distance to the closest
+  estimated-pose model point (symmetry-aware; m).
+- ``add`` per frame: mean distance between corresponding model points (m).
+- position error per frame: distance between the estimated and true position of the object
+  **centre** (centre of the model's bounding box, object frame), m. The centre lies on the
+  symmetry axis of a rotationally symmetric object, so rotation about that axis, which no
+  sensor can observe from geometry, does not count as position error. The error of the mesh
+  origin is reported too (``origin_drift_mm``).
+- rotation error per frame: angle of ``R_gt^T R_est`` (rad); for symmetric objects also the angle
+  between the estimated and true symmetry axes (``rot_drift_deg`` then uses that).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.geometry import se3
+
+
+def sample_model_points(vertices: np.ndarray, faces: np.ndarray, n: int = 1000, seed: int = 0) -> np.ndarray:
+    """Area-weighted uniform surface samples (n, 3) of a triangle mesh (object frame, m)."""
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    if len(F) == 0:
+        raise InputError("mesh has no faces", field="faces")
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(len(F), n, p=area / area.sum())
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1
+    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+    return a[idx] + u[:, None] * (b[idx] - a[idx]) + v[:, None] * (c[idx] - a[idx])
+
+
+def symmetry_axis(points: np.ndarray) -> np.ndarray:
+    """Unit symmetry axis (object frame) of a rotationally symmetric point set: the principal
+    axis whose second moment differs most from the other two."""
+    P = np.asarray(points, dtype=np.float64)
+    C = np.cov((P - P.mean(0)).T)
+    lam, U = np.linalg.eigh(C)
+    gaps = [abs(lam[0] - lam[1]) + abs(lam[0] - lam[2]), abs(lam[1] - lam[0]) + abs(lam[1] - lam[2]),
+            abs(lam[2] - lam[0]) + abs(lam[2] - lam[1])]
+    # the axis eigenvalue is the odd one out: the other two are (nearly) equal
+    k = int(np.argmax([gaps[0] - abs(lam[1] - lam[2]), gaps[1] - abs(lam[0] - lam[2]),
+                       gaps[2] - abs(lam[0] - lam[1])]))
+    return U[:, k] / np.linalg.norm(U[:, k])
+
+
+def add_s(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray) -> np.ndarray:
+    """ADD-S (m) per frame for (N, 4, 4) pose arrays."""
+    from scipy.spatial import cKDTree
+
+    T_est, T_gt = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
+    P = np.asarray(model_points, dtype=np.float64)
+    tree = cKDTree(P)
+    out = np.empty(len(T_est))
+    for i, (A, B) in enumerate(zip(T_est, T_gt, strict=True)):
+        # closest estimated point to each true point == closest model point to A^-1 B p
+        Q = se3.transform_points(se3.invert(A) @ B, P)
+        d, _ = tree.query(Q)
+        out[i] = d.mean()
+    return out
+
+
+def add(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray) -> np.ndarray:
+    """ADD (m) per frame."""
+    T_est, T_gt = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
+    P = np.asarray(model_points, dtype=np.float64)
+    return np.linalg.norm(se3.transform_points(T_est, P) - se3.transform_points(T_gt, P), axis=-1).mean(-1)
+
+
+def _poses(T: np.ndarray, name: str) -> np.ndarray:
+    T = np.asarray(T, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise InputError("poses must be (N, 4, 4)", field=name, expected="(N, 4, 4)", got=T.shape)
+    return T
+
+
+def trajectory_errors(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray,
+                      symmetric: bool = False, centre: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Per-frame errors: ``pos`` (centre, m), ``origin`` (m), ``rot`` (rad, symmetry-aware if
+    ``symmetric``), ``rot_full`` (rad), ``add_s`` and ``add`` (m)."""
+    T_est, T_gt = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
+    if len(T_est) != len(T_gt):
+        raise InputError("estimate and ground truth lengths differ", field="T_est", expected=len(T_gt),
+                         got=len(T_est))
+    P = np.asarray(model_points, dtype=np.float64)
+    c = 0.5 * (P.min(0) + P.max(0)) if centre is None else np.asarray(centre, dtype=np.float64)
+    ce = se3.transform_points(T_est, c[None])[:, 0]
+    cg = se3.transform_points(T_gt, c[None])[:, 0]
+    origin, rot_full = se3.pose_error(T_est, T_gt)
+    rot = rot_full
+    if symmetric:
+        ax = symmetry_axis(P)
+        a_e = T_est[:, :3, :3] @ ax
+        a_g = T_gt[:, :3, :3] @ ax
+        rot = np.arccos(np.clip(np.sum(a_e * a_g, axis=1), -1.0, 1.0))
+    return {"pos": np.linalg.norm(ce - cg, axis=1), "origin": origin, "rot": rot, "rot_full": rot_full,
+            "add_s": add_s(T_est, T_gt, P), "add": add(T_est, T_gt, P)}
+
+
+def summarize(errors: dict[str, np.ndarray]) -> dict[str, float]:
+    """Mean/final/max summary in mm and degrees (the keys written to metrics.json)."""
+    e = errors
+    if len(e["pos"]) == 0:
+        raise InputError("no frames to summarise", field="errors")
+    mm, deg = 1e3, np.degrees(1.0)
+    return {
+        "add_s_mm": float(e["add_s"].mean() * mm),
+        "add_mm": float(e["add"].mean() * mm),
+        "drift_mm": float(e["pos"].mean() * mm),
+        "drift_final_mm": float(e["pos"][-1] * mm),
+        "drift_max_mm": float(e["pos"].max() * mm),
+        "origin_drift_mm": float(e["origin"].mean() * mm),
+        "rot_drift_deg": float(e["rot"].mean() * deg),
+        "rot_drift_final_deg": float(e["rot"][-1] * deg),
+        "rot_drift_full_deg": float(e["rot_full"].mean() * deg),
+    }
+
+
+def plot_errors(times: np.ndarray, errors: dict[str, np.ndarray], path: str | Path, title: str = "",
+                lost: np.ndarray | None = None) -> Path:
+    """PNG of position error (mm), ADD-S (mm) and rotation error (deg) over time (s)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(times, dtype=np.float64)
+    fig, ax = plt.subplots(2, 1, figsize=(7, 4.8), dpi=110, sharex=True)
+    ax[0].plot(t, errors["pos"] * 1e3, label="position (centre)")
+    ax[0].plot(t, errors["add_s"] * 1e3, label="ADD-S")
+    if lost is not None and np.any(lost):
+        ax[0].scatter(t[lost], errors["pos"][lost] * 1e3, c="r", s=8, label="lost/recovering", zorder=3)
+    ax[0].set_ylabel("mm")
+    ax[0].legend(fontsize=7)
+    ax[0].grid(alpha=0.3)
+    ax[1].plot(t, np.degrees(errors["rot"]), label="rotation", color="C2")
+    ax[1].set_ylabel("deg")
+    ax[1].set_xlabel("time (s)")
+    ax[1].grid(alpha=0.3)
+    ax[1].legend(fontsize=7)
+    if title:
+        ax[0].set_title(title, fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
