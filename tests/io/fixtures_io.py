@@ -198,3 +198,41 @@ def write_mcap(path: Path, n: int = 10, **kw) -> Path:
         w.add_message(channel_id=cid, log_time=t + 1, publish_time=t + 1, data=b'{"a": 1}')
         w.finish()
     return path
+
+
+# --- vtrack session -----------------------------------------------------------------------
+def write_live_session(path: Path, seconds: float = 1.0, cam_hw=(480, 640), tac_hw=(320, 240), n_tactile: int = 4,
+                       cam_hz: float = 30.0, tac_hz: float = 60.0) -> Path:
+    """A session with one RGB-D camera (cam_hz), ``n_tactile`` DIGIT streams and joints (tac_hz);
+    frame content is cheap, slowly varying synthetic data (so compression behaves like real data)."""
+    from vtrack.io.importers.scene_build import camera_entry, finalize_scene, tactile_entry
+    from vtrack.io.session import SessionWriter
+    from vtrack.io.streams import camera_stream, joints_stream, tactile_stream
+    from vtrack.scene.load import scene_from_dict
+
+    H, W = cam_hw
+    th, tw = tac_hw
+    names = ["digit_index", "digit_middle", "digit_ring", "digit_thumb"][:n_tactile]
+    K = np.array([[500.0, 0, W / 2], [0, 500.0, H / 2], [0, 0, 1]])
+    scene = {"name": "live_test", "object": {"name": "object"},
+             "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, cam_hz)],
+             "tactile": [tactile_entry(n, "digit", tw, th, tac_hz) for n in names]}
+    sd = finalize_scene(scene)
+    sc = scene_from_dict(sd, check_files=False)
+    yy, xx = np.mgrid[0:H, 0:W]
+    base_rgb = np.stack([xx % 256, yy % 256, (xx + yy) % 256], -1).astype(np.uint8)
+    with SessionWriter(path, sd, overwrite=True, flush_every=32) as w:
+        w.add_stream("camera/cam0", camera_stream(sc.camera_by_name("cam0"), with_mask=False))
+        for n in names:
+            w.add_stream(f"tactile/{n}", tactile_stream(sc.tactile_by_name(n)))
+        w.add_stream("joints", joints_stream([f"joint_{j}.0" for j in range(16)], tac_hz))
+        n_cam = int(round(seconds * cam_hz))
+        n_tac = int(round(seconds * tac_hz))
+        for i in range(n_cam):
+            depth = (400 + (xx // 8 + i) % 200).astype(np.uint16)
+            w.append("camera/cam0", i / cam_hz, rgb=np.roll(base_rgb, i, axis=1), depth=depth)
+        for i in range(n_tac):
+            for n in names:
+                w.append(f"tactile/{n}", i / tac_hz, image=tactile_image(i, th, tw))
+            w.append("joints", i / tac_hz, q=np.full(16, 0.01 * i))
+    return path

@@ -1,0 +1,89 @@
+"""``vtrack import feelsight|rosbag|mcap SRC --out SESSION``: convert other tools' recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def _topic_map(items: list[str] | None) -> dict[str, str]:
+    from vtrack.errors import InputError
+
+    out = {}
+    for it in items or []:
+        topic, sep, role = it.partition("=")
+        if not sep:
+            raise InputError("--map must be TOPIC=ROLE", field="--map", got=it,
+                             expected="e.g. /cam/rgb=camera/cam0:rgb, /cam/depth=camera/cam0:depth, "
+                                      "/digit/image=tactile/digit_index, /x=ignore")
+        out[topic] = role
+    return out
+
+
+def _finish(report, json_out: Path | None) -> None:
+    from vtrack_apps.output import write_json
+
+    for line in report.lines():
+        typer.echo(line)
+    if json_out:
+        write_json(json_out, report.to_dict())
+
+
+def register(app: typer.Typer) -> None:
+    imp = typer.Typer(help="Import recordings from other tools into a vtrack session.", no_args_is_help=True)
+    app.add_typer(imp, name="import")
+
+    @imp.command("feelsight")
+    def feelsight(
+        src: Path = typer.Argument(..., help="FeelSight log folder (holding data.pkl, allegro/, realsense/)"),
+        out: Path = typer.Option(..., "--out", help="session directory to write"),
+        mesh: Path = typer.Option(None, "--mesh", help="object mesh to reference in the scene"),
+        max_frames: int = typer.Option(None, "--max-frames", help="import only the first N frames"),
+        no_hand: bool = typer.Option(False, "--no-hand", help="do not add the DIGIT-Allegro hand to the scene"),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
+        json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
+    ) -> None:
+        """Import a FeelSight (NeuralFeels) log: DIGIT images, RealSense RGB-D, joints, object pose."""
+        from vtrack.io.importers.feelsight import import_feelsight
+
+        kw = {"hand_urdf": None} if no_hand else {}
+        _finish(import_feelsight(src, out, overwrite=force, max_frames=max_frames, object_mesh=mesh, **kw), json_out)
+
+    @imp.command("rosbag")
+    def rosbag(
+        src: Path = typer.Argument(..., help="ROS 1 .bag file or ROS 2 bag folder"),
+        out: Path = typer.Option(..., "--out", help="session directory to write"),
+        map_: list[str] = typer.Option(None, "--map", help="TOPIC=ROLE override (repeatable)"),
+        world_frame: str = typer.Option("world", "--world-frame", help="tf frame of the world"),
+        object_frame: str = typer.Option("object", "--object-frame", help="tf child frame of the object"),
+        tolerance_ms: float = typer.Option(20.0, "--pair-tolerance-ms", help="colour/depth pairing tolerance"),
+        tactile_type: str = typer.Option(None, "--tactile-type", help="digit|gelsight_mini|gelsight"),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
+        json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
+    ) -> None:
+        """Import a ROS 1/2 bag (Image, CompressedImage, CameraInfo, JointState, tf)."""
+        from vtrack.io.importers.rosbag import import_rosbag
+
+        _finish(import_rosbag(src, out, topic_map=_topic_map(map_), overwrite=force, world_frame=world_frame,
+                              object_frame=object_frame, pair_tolerance_s=tolerance_ms / 1000.0,
+                              tactile_type=tactile_type), json_out)
+
+    @imp.command("mcap")
+    def mcap(
+        src: Path = typer.Argument(..., help="MCAP file"),
+        out: Path = typer.Option(..., "--out", help="session directory to write"),
+        map_: list[str] = typer.Option(None, "--map", help="TOPIC=ROLE override (repeatable)"),
+        world_frame: str = typer.Option("world", "--world-frame", help="tf frame of the world"),
+        object_frame: str = typer.Option("object", "--object-frame", help="tf child frame of the object"),
+        tolerance_ms: float = typer.Option(20.0, "--pair-tolerance-ms", help="colour/depth pairing tolerance"),
+        tactile_type: str = typer.Option(None, "--tactile-type", help="digit|gelsight_mini|gelsight"),
+        force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
+        json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
+    ) -> None:
+        """Import an MCAP file (ROS 2 CDR or ROS 1 messages)."""
+        from vtrack.io.importers.mcap_import import import_mcap
+
+        _finish(import_mcap(src, out, topic_map=_topic_map(map_), overwrite=force, world_frame=world_frame,
+                            object_frame=object_frame, pair_tolerance_s=tolerance_ms / 1000.0,
+                            tactile_type=tactile_type), json_out)

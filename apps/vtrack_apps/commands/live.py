@@ -1,0 +1,47 @@
+"""``vtrack live SESSION --consumer track|reconstruct|null``: replay a session at real-time rate
+through the live pipeline (frames are dropped, not queued, when a consumer falls behind)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("live")
+    def live(
+        session: Path = typer.Argument(..., help="session directory to replay"),
+        consumer: list[str] = typer.Option(["null"], "--consumer", help="track | reconstruct | null (repeatable)"),
+        speed: float = typer.Option(1.0, "--speed", help="playback speed (1 = real time)"),
+        seconds: float = typer.Option(None, "--seconds", help="replay only the first seconds"),
+        loop: int = typer.Option(1, "--loop", help="replay the session this many times"),
+        max_lag_ms: float = typer.Option(50.0, "--max-lag-ms", help="source skips frames later than this"),
+        json_out: Path = typer.Option(None, "--json", help="write the statistics as JSON"),
+    ) -> None:
+        """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
+        from vtrack.live.consumers import make_consumer
+        from vtrack.live.pipeline import LivePipeline
+        from vtrack.live.sources import SessionReplaySource
+        from vtrack_apps.output import print_table, write_json
+
+        cons = [make_consumer(c, session) for c in consumer]
+        streams: set[str] = set()
+        for c in cons:
+            if hasattr(c, "streams"):
+                streams |= set(c.streams())
+        src = SessionReplaySource(session, streams=None if not streams or "null" in consumer else sorted(streams),
+                                  speed=speed, max_lag_s=max_lag_ms / 1000.0, seconds=seconds, loop=loop)
+        res = LivePipeline(src, cons).run()
+        so = res["source"]
+        src_rows = [{"stream": k, "emitted": v, "rate_hz": so["emitted_rate_hz"].get(k),
+                     "skipped_late": so["skipped_late"].get(k, 0)} for k, v in so["emitted"].items()]
+        print_table(f"live source ({res['source_s']} s, max lag {res['source']['max_lag_ms']} ms)", src_rows)
+        for name, r in res["consumers"].items():
+            rows = [{"stream": s, **v} for s, v in r["streams"].items()]
+            print_table(f"consumer {name}: latency mean {r['latency_ms_mean']} ms, p95 {r['latency_ms_p95']} ms, "
+                        f"busy {r['busy_fraction']}, result {r['result']}", rows)
+            if "first_error" in r:
+                typer.secho(f"consumer {name}: {r['errors']} error(s), first: {r['first_error']}", fg="yellow")
+        if json_out:
+            write_json(json_out, res)
