@@ -1,0 +1,206 @@
+"""Dense signed-distance grid of a shape in the object frame, with trilinear value + gradient lookup.
+
+The known-shape tracker needs the object's SDF and its gradient at a few thousand points per
+frame in well under a millisecond; a precomputed grid with trilinear interpolation does that in
+numpy. Grids are built once from the mesh (Open3D ``RaycastingScene.compute_signed_distance``,
+negative inside) and cached in ``vtrack.paths.cache_dir()/sdf_grids`` keyed by the mesh bytes and
+the grid parameters.
+
+Frames and units: points are in the object frame, metres; SDF values in metres (negative inside).
+Queries outside the grid are answered with the border value plus the distance to the grid box
+(an upper bound of the true distance that keeps its gradient pointing back to the object), so a
+badly placed point never yields NaN.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+
+@dataclass
+class SDFGrid:
+    """Regular grid of SDF samples.
+
+    Attributes:
+        values: (nx, ny, nz) float32 SDF at voxel corners, metres (negative inside).
+        origin: (3,) object-frame position of sample (0, 0, 0), metres.
+        voxel: grid spacing, metres.
+        weights: optional (nx, ny, nz) float32 confidence (used by the SLAM map; 0 = unobserved).
+    """
+
+    values: np.ndarray
+    origin: np.ndarray
+    voxel: float
+    weights: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.values = np.ascontiguousarray(self.values, dtype=np.float32)
+        if self.values.ndim != 3 or min(self.values.shape) < 2:
+            raise InputError("SDF grid must be 3-D with at least 2 samples per axis", field="values",
+                             expected="(nx, ny, nz), n >= 2", got=self.values.shape)
+        self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
+        self.voxel = float(self.voxel)
+        if not (np.isfinite(self.voxel) and self.voxel > 0):
+            raise InputError("voxel size must be positive", field="voxel", expected="> 0", got=self.voxel)
+        self._flat = self.values.ravel()
+        self._shape = np.array(self.values.shape, dtype=np.int64)
+        self._strides = np.array([self.values.shape[1] * self.values.shape[2], self.values.shape[2], 1],
+                                 dtype=np.int64)
+        sx, sy, sz = self._strides
+        # flat offsets of the 8 cell corners, ordered (x, y, z) with x slowest
+        self._corner_off = np.array([a * sx + b * sy + c * sz for a in (0, 1) for b in (0, 1) for c in (0, 1)],
+                                    dtype=np.int64)[None, :]
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(int(s) for s in self.values.shape)  # type: ignore[return-value]
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Object-frame (min, max) corners of the grid box, metres."""
+        return self.origin, self.origin + (self._shape - 1) * self.voxel
+
+    def query(self, points: np.ndarray, with_grad: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """SDF (N,) and its gradient (N, 3) at object-frame points (N, 3), metres.
+
+        The gradient is the exact gradient of the trilinear interpolant (continuous values,
+        piecewise-linear gradient), not normalised. Callers filter non-finite points first
+        (the trackers do); NaN in gives NaN out for that row only.
+        """
+        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        g = (P - self.origin) / self.voxel
+        hi = (self._shape - 1).astype(np.float64)
+        gc = np.clip(g, 0.0, hi - 1e-9)
+        # Distance outside the box (metres) and its direction: keeps far points finite and attracted.
+        outside = (g - gc) * self.voxel
+        i0 = np.minimum(gc.astype(np.int64), self._shape - 2)  # gc >= 0, so truncation == floor
+        f = gc - i0
+        c = self._flat[(i0 @ self._strides)[:, None] + self._corner_off]  # (N, 8), corner order x-major
+        fx, fy, fz = f[:, 0:1], f[:, 1:2], f[:, 2:3]
+        wy = np.concatenate([1.0 - fy, fy], 1)
+        wz = np.concatenate([1.0 - fz, fz], 1)
+        wyz = (wy[:, :, None] * wz[:, None, :]).reshape(-1, 4)
+        c4 = c.reshape(-1, 2, 4)
+        cx = c4[:, 1] - c4[:, 0]  # (N, 4) differences along x
+        lerp_x = c4[:, 0] + cx * fx  # (N, 4) values at (y, z) corners after x-interpolation
+        sdf = np.einsum("ij,ij->i", lerp_x, wyz)
+        out_d = np.sqrt(np.einsum("ij,ij->i", outside, outside))
+        far = out_d > 0
+        sdf = sdf + out_d
+        if not with_grad:
+            return sdf, None
+        dx = np.einsum("ij,ij->i", cx, wyz)
+        lx = lerp_x.reshape(-1, 2, 2)  # (N, y, z)
+        dy = np.einsum("ij,ij->i", lx[:, 1] - lx[:, 0], wz)
+        dz = np.einsum("ij,ij->i", lx[:, :, 1] - lx[:, :, 0], wy)
+        grad = np.stack([dx, dy, dz], axis=1) * (1.0 / self.voxel)
+        if np.any(far):
+            # Outside the box the distance term dominates; point its gradient back at the box.
+            grad[far] = outside[far] / out_d[far, None]
+        return sdf, grad
+
+    # -- persistence --------------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, values=self.values, origin=self.origin, voxel=self.voxel)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> SDFGrid:
+        path = Path(path)
+        try:
+            d = np.load(path)
+            return cls(d["values"], d["origin"], float(d["voxel"]))
+        except (OSError, KeyError, ValueError) as e:
+            raise InputError(f"cannot read SDF grid ({type(e).__name__}: {e})", path=path) from None
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def from_mesh(cls, mesh_path: str | Path, voxel: float = 0.002, padding: float = 0.03,
+                  cache: bool = True, scale: float = 1.0) -> SDFGrid:
+        """Build (or load from cache) the SDF grid of a closed mesh file (object frame, metres).
+
+        Args:
+            mesh_path: PLY/OBJ/STL readable by Open3D; must be closed for a meaningful sign.
+            voxel: grid spacing, m (2 mm gives < 0.1 mm interpolation error on YCB-size objects
+                away from sharp edges).
+            padding: margin around the mesh bounds, m (points farther out use the box distance).
+            cache: reuse/store the grid in ``cache_dir()/sdf_grids``.
+            scale: mesh units -> metres.
+        """
+        mesh_path = Path(mesh_path)
+        if not mesh_path.exists():
+            raise InputError("object mesh not found", path=mesh_path)
+        key = hashlib.sha1(mesh_path.read_bytes() + f"{voxel:.6g}|{padding:.6g}|{scale:.6g}".encode()).hexdigest()
+        cache_path = None
+        if cache:
+            from vtrack.paths import cache_dir
+
+            cache_path = cache_dir() / "sdf_grids" / f"{mesh_path.stem}_{key[:16]}.npz"
+            if cache_path.exists():
+                try:
+                    return cls.load(cache_path)
+                except InputError:
+                    pass  # corrupt cache: rebuild
+        verts, faces = load_mesh_arrays(mesh_path, scale)
+        grid = cls.from_arrays(verts, faces, voxel=voxel, padding=padding)
+        if cache_path is not None:
+            grid.save(cache_path)
+        return grid
+
+    @classmethod
+    def from_arrays(cls, vertices: np.ndarray, faces: np.ndarray, voxel: float = 0.002,
+                    padding: float = 0.03) -> SDFGrid:
+        """SDF grid of a closed triangle mesh given as arrays (object frame, metres)."""
+        import open3d as o3d
+
+        V = np.asarray(vertices, dtype=np.float32)
+        F = np.asarray(faces, dtype=np.uint32)
+        if V.ndim != 2 or V.shape[1] != 3 or len(V) < 4 or F.ndim != 2 or F.shape[1] != 3 or len(F) < 4:
+            raise InputError("mesh needs >= 4 vertices and >= 4 triangles", field="mesh",
+                             expected="(V, 3) vertices, (F, 3) faces", got=(V.shape, F.shape))
+        if not np.all(np.isfinite(V)):
+            raise InputError("mesh vertices contain NaN/Inf", field="mesh.vertices")
+        lo = V.min(0) - padding
+        hi = V.max(0) + padding
+        n = np.ceil((hi - lo) / voxel).astype(int) + 1
+        if np.prod(n) > 40_000_000:
+            raise InputError("SDF grid too large (increase voxel)", field="voxel", expected="< 4e7 samples",
+                             got=int(np.prod(n)))
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
+        axes = [lo[i] + voxel * np.arange(n[i]) for i in range(3)]
+        X, Y, Z = np.meshgrid(*axes, indexing="ij")
+        q = np.stack([X, Y, Z], -1).reshape(-1, 3).astype(np.float32)
+        sdf = scene.compute_signed_distance(o3d.core.Tensor(q)).numpy().reshape(n)
+        return cls(sdf, lo.astype(np.float64), voxel)
+
+
+def load_mesh_arrays(mesh_path: str | Path, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) metres and faces (F, 3) of a mesh file (Open3D reader, trimesh fallback)."""
+    mesh_path = Path(mesh_path)
+    V = F = None
+    try:
+        import open3d as o3d
+
+        m = o3d.io.read_triangle_mesh(str(mesh_path))
+        V, F = np.asarray(m.vertices, np.float64), np.asarray(m.triangles, np.int64)
+    except Exception:
+        V = F = None
+    if V is None or len(V) == 0 or len(F) == 0:
+        import trimesh
+
+        m = trimesh.load(str(mesh_path), force="mesh")
+        V, F = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+    if len(V) == 0 or len(F) == 0:
+        raise InputError("mesh has no triangles", path=mesh_path)
+    return V * scale, F

@@ -1,0 +1,274 @@
+"""SLAM mode: track the object while reconstructing its shape (object frame = the initial pose).
+
+Alternates, per frame:
+
+1. **track**: the window tracker (:mod:`vtrack.tracking.window`) against the current map SDF,
+   cached as an :class:`~vtrack.tracking.sdf_grid.SDFGrid` so a query costs the same as in
+   known-shape mode; points where the map has no surface yet (value at the truncation) are gated
+   out;
+2. **map**: the frame's points are moved into the object frame with the new pose and fused:
+   - always into a surfel voxel map (running mean position + normal per voxel, numpy), from
+     which the grid is rebuilt every ``refresh_every`` frames as the signed point-to-plane
+     distance to the nearest surfels within a band (``trunc``) - a TSDF-like SDF;
+   - with ``mapper="neural"`` also into the fusion issue's
+     :class:`vtrack.fusion.neural_sdf.NeuralSDFReconstructor` (trained ``train_ms`` per frame),
+     whose predictions then replace the band values of the grid at each refresh.
+
+Vision normals come from Open3D PCA normals oriented towards the camera
+(``frame.info["camera_origin"]``, world) or away from the object centre; touch normals are the
+sensors' (outward object normals).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.geometry import se3
+from vtrack.tracking.frame import TrackingFrame
+from vtrack.tracking.sdf_grid import SDFGrid
+from vtrack.tracking.window import TrackerOptions, WindowTracker
+
+
+class SurfelMap:
+    """Voxel-hashed surfels in the object frame (m): mean position, mean normal, weight per voxel."""
+
+    def __init__(self, voxel: float = 0.002) -> None:
+        self.voxel = float(voxel)
+        self.keys = np.zeros(0, np.int64)
+        self.psum = np.zeros((0, 3))
+        self.nsum = np.zeros((0, 3))
+        self.w = np.zeros(0)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def _key(self, P: np.ndarray) -> np.ndarray:
+        ijk = np.floor(P / self.voxel).astype(np.int64) + (1 << 20)
+        return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+    def integrate(self, points: np.ndarray, normals: np.ndarray, weight: float = 1.0) -> None:
+        """Fuse object-frame points with unit normals (NaN/zero normal = unknown direction)."""
+        P = np.asarray(points, np.float64).reshape(-1, 3)
+        N = np.nan_to_num(np.asarray(normals, np.float64).reshape(-1, 3))
+        ok = np.isfinite(P).all(1)
+        P, N = P[ok], N[ok]
+        if len(P) == 0:
+            return
+        k = np.concatenate([self.keys, self._key(P)])
+        ps = np.concatenate([self.psum, P * weight])
+        ns = np.concatenate([self.nsum, N * weight])
+        ws = np.concatenate([self.w, np.full(len(P), weight)])
+        uk, inv = np.unique(k, return_inverse=True)
+        self.keys = uk
+        self.psum = np.zeros((len(uk), 3))
+        self.nsum = np.zeros((len(uk), 3))
+        self.w = np.zeros(len(uk))
+        np.add.at(self.psum, inv, ps)
+        np.add.at(self.nsum, inv, ns)
+        np.add.at(self.w, inv, ws)
+
+    def surfels(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions (K, 3), unit normals (K, 3; zero when unknown) and weights (K,)."""
+        P = self.psum / np.maximum(self.w, 1e-12)[:, None]
+        n = np.linalg.norm(self.nsum, axis=1, keepdims=True)
+        N = np.where(n > 1e-6, self.nsum / np.maximum(n, 1e-12), 0.0)
+        return P, N, self.w
+
+
+def estimate_normals(points_w: np.ndarray, viewpoint: np.ndarray | None, centre: np.ndarray,
+                     knn: int = 12) -> np.ndarray:
+    """PCA normals (Open3D) of world points, oriented to face ``viewpoint`` (or away from ``centre``)."""
+    import open3d as o3d
+
+    if len(points_w) < 4:
+        return np.zeros_like(points_w)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_w))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn))
+    N = np.asarray(pc.normals).copy()
+    ref = (viewpoint[None] - points_w) if viewpoint is not None else (points_w - centre[None])
+    flip = np.sum(N * ref, axis=1) < 0
+    N[flip] *= -1
+    return N
+
+
+class SLAMTracker(WindowTracker):
+    """Track + map with an unknown shape; ``step(frame) -> T_world_object``.
+
+    Args:
+        T_init: initial ``T_world_object``; it defines the object frame of the map.
+        mapper: ``surfel`` (numpy TSDF-like, default) or ``neural`` (fusion NeuralSDFReconstructor).
+        extent: half-size of the map cube, m (centred on the first frame's points).
+        map_voxel: surfel voxel, m; grid_voxel: SDF grid spacing, m; trunc: band, m.
+        refresh_every: rebuild the grid every this many frames (more often during the first 5).
+        map_points: vision points fused per frame.
+        train_ms: neural mapper training budget per frame, ms.
+        **opts: :class:`~vtrack.tracking.window.TrackerOptions` overrides.
+    """
+
+    mode = "slam"
+
+    def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.1, map_voxel: float = 0.002,
+                 grid_voxel: float = 0.003, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
+                 train_ms: float = 40.0, **opts: Any) -> None:
+        if mapper not in ("surfel", "neural"):
+            raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=mapper)
+        opts.setdefault("gate", 0.8 * trunc)
+        opts.setdefault("sigma_vision", 0.0025)
+        self.trunc, self.extent, self.grid_voxel = float(trunc), float(extent), float(grid_voxel)
+        self.refresh_every, self.map_points, self.train_ms = int(refresh_every), int(map_points), float(train_ms)
+        self.mapper = mapper
+        self.map = SurfelMap(map_voxel)
+        self.neural = None
+        grid = SDFGrid(np.full((2, 2, 2), trunc, np.float32), np.zeros(3), 1.0)
+        super().__init__(grid, T_init, TrackerOptions.from_dict(opts))
+        self._box: tuple[np.ndarray, np.ndarray] | None = None
+        self._n_map_frames = 0
+        self.ms_map: list[float] = []
+
+    @classmethod
+    def from_scene(cls, scene: Any, T_init: np.ndarray | None = None, **opts: Any) -> SLAMTracker:
+        T0 = scene.object.T_world_object.as_matrix() if T_init is None else T_init
+        return cls(T0, **opts)
+
+    # -- tracking with map-aware gating ---------------------------------------------------
+    def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
+        """Drop points in unmapped space (SDF at the truncation value) besides the usual gate."""
+        fr = super()._gate(fr, T_pred)
+        if len(self.map) == 0:
+            return fr
+        for name in ("vision_points", "touch_points"):
+            P = getattr(fr, name)
+            if P is None or len(P) == 0:
+                continue
+            d, _ = self.sdf.query(se3.transform_points(se3.invert(T_pred), P), with_grad=False)
+            keep = d < 0.95 * self.trunc
+            setattr(fr, name, P[keep])
+            if name == "touch_points" and fr.touch_normals is not None and len(fr.touch_normals) == len(keep):
+                fr.touch_normals = fr.touch_normals[keep]
+        return fr
+
+    def step(self, frame: TrackingFrame) -> np.ndarray:
+        first = len(self.map) == 0
+        if first:
+            T = self.T.copy()
+            from vtrack.tracking.window import StepInfo
+
+            t0 = time.perf_counter()
+            self.t_last = float(frame.t)
+            self.history.append(StepInfo(t=float(frame.t), status="mapping"))
+        else:
+            T = super().step(frame)
+        t1 = time.perf_counter()
+        info = self.history[-1]
+        if first or info.status in ("ok", "degenerate", "recovered"):
+            self._integrate(frame, T)
+        self._n_map_frames += 1
+        if first or self._n_map_frames <= 5 or self._n_map_frames % self.refresh_every == 0:
+            self._refresh()
+        dm = (time.perf_counter() - t1) * 1e3
+        self.ms_map.append(dm)
+        info.ms = (info.ms if not first else (time.perf_counter() - t0) * 1e3 - dm) + dm
+        return T
+
+    # -- mapping -------------------------------------------------------------------------
+    def _integrate(self, frame: TrackingFrame, T: np.ndarray) -> None:
+        Tinv = se3.invert(T)
+        rng = np.random.default_rng(self._n_map_frames)
+        V = frame.vision_points
+        if V is not None and len(V):
+            V = np.asarray(V, np.float64)
+            V = V[np.isfinite(V).all(1)]
+            if len(V) > self.map_points:
+                V = V[rng.choice(len(V), self.map_points, replace=False)]
+            cam = frame.info.get("camera_origin")
+            cam = None if cam is None else np.asarray(cam, np.float64)
+            Nw = estimate_normals(V, cam, T[:3, 3] if self._box is None else
+                                  se3.transform_points(T, (0.5 * (self._box[0] + self._box[1]))[None])[0])
+            Vo = se3.transform_points(Tinv, V)
+            No = se3.rotate_vectors(Tinv, Nw)
+            self._ensure_box(Vo)
+            self.map.integrate(Vo, No, 1.0)
+            if self.neural is not None or self.mapper == "neural":
+                self._neural_integrate(Vo, No, 0, None if cam is None else se3.transform_points(Tinv, cam[None])[0])
+        P = frame.touch_points
+        if P is not None and len(P):
+            P = np.asarray(P, np.float64)
+            N = frame.touch_normals if frame.touch_normals is not None else np.full(P.shape, np.nan)
+            ok = np.isfinite(P).all(1)
+            Po = se3.transform_points(Tinv, P[ok])
+            No = se3.rotate_vectors(Tinv, np.nan_to_num(np.asarray(N, np.float64)[ok]))
+            self._ensure_box(Po)
+            self.map.integrate(Po, No, 3.0)  # touch is more precise than depth
+            if self.mapper == "neural":
+                self._neural_integrate(Po, No, 1, None)
+
+    def _ensure_box(self, P: np.ndarray) -> None:
+        if self._box is None and len(P):
+            c = np.median(P, axis=0)
+            self._box = (c - self.extent, c + self.extent)
+
+    def _neural_integrate(self, P: np.ndarray, N: np.ndarray, modality: int, origin) -> None:
+        if self.neural is None:
+            from vtrack.fusion.neural_sdf import NeuralSDFReconstructor
+
+            self.neural = NeuralSDFReconstructor(bounds=np.stack(self._box), trunc=self.trunc)
+        self.neural.integrate(P, N, modality, origin=origin)
+
+    def _refresh(self) -> None:
+        """Rebuild the tracking grid from the map (band of ``trunc`` around the surfels)."""
+        from scipy.spatial import cKDTree
+
+        if len(self.map) < 10 or self._box is None:
+            return
+        if self.neural is not None:
+            self.neural.step(time_budget_ms=self.train_ms * max(1, self.refresh_every))
+        S, N, W = self.map.surfels()
+        lo, hi = self._box
+        n = np.ceil((hi - lo) / self.grid_voxel).astype(int) + 1
+        axes = [lo[i] + self.grid_voxel * np.arange(n[i]) for i in range(3)]
+        # only voxels near surfels need a real value; the rest stay at +trunc ("unknown / free")
+        from scipy.ndimage import binary_dilation
+
+        occ = np.zeros(tuple(n), bool)
+        ijk = np.clip(np.round((S - lo) / self.grid_voxel).astype(np.int64), 0, n - 1)
+        occ[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+        r = int(np.ceil(self.trunc / self.grid_voxel))
+        occ = binary_dilation(occ, structure=np.ones((3, 3, 3), bool), iterations=r)
+        flat = np.flatnonzero(occ)
+        bi = np.stack(np.unravel_index(flat, tuple(n)), -1)
+        X = np.stack([axes[0][bi[:, 0]], axes[1][bi[:, 1]], axes[2][bi[:, 2]]], -1)
+        k = min(4, len(S))
+        dist, idx = cKDTree(S).query(X, k=k, distance_upper_bound=self.trunc)
+        dist = dist.reshape(len(X), k)
+        idx = idx.reshape(len(X), k)
+        valid = np.isfinite(dist)
+        idx_c = np.where(valid, idx, 0)
+        wgt = np.where(valid, W[idx_c] / np.maximum(dist, 0.5 * self.map.voxel), 0.0)
+        diff = X[:, None, :] - S[idx_c]
+        nrm = N[idx_c]
+        has_n = np.linalg.norm(nrm, axis=-1) > 0.5
+        sd = np.where(has_n, np.sum(diff * nrm, -1), np.linalg.norm(diff, axis=-1))
+        wsum = wgt.sum(1)
+        val = np.where(wsum > 0, (wgt * sd).sum(1) / np.maximum(wsum, 1e-12), self.trunc)
+        val = np.clip(val, -self.trunc, self.trunc)
+        if self.neural is not None and self.neural.net is not None and self.neural.iterations > 50:
+            near = wsum > 0
+            nv, _ = self.neural.query(X[near], with_grad=False)
+            val[near] = np.clip(nv, -self.trunc, self.trunc)
+        grid = np.full(tuple(n), self.trunc, np.float32)
+        grid.reshape(-1)[flat] = val
+        self.sdf = SDFGrid(grid, lo, self.grid_voxel)
+
+    # -- outputs -------------------------------------------------------------------------
+    def map_metrics(self) -> dict[str, float]:
+        return {"map_surfels": float(len(self.map)), "ms_map_mean": float(np.mean(self.ms_map)) if self.ms_map
+                else 0.0, "mapper": self.mapper}
+
+    def surfel_cloud(self) -> tuple[np.ndarray, np.ndarray]:
+        """Object-frame map points and normals (m)."""
+        S, N, _ = self.map.surfels()
+        return S, N

@@ -1,0 +1,579 @@
+"""Robust sliding-window Levenberg-Marquardt pose tracker on SE(3) against a signed-distance field.
+
+State: the poses ``T_world_object`` of a short window of keyframes plus the current frame,
+optimised jointly (fixed-lag smoothing). Perturbations are right-multiplied,
+``T <- T @ exp(delta)``, with ``delta = [rho, phi]`` in the **object** frame (m, rad), so an
+object-frame point ``q = T^-1 p`` moves as ``dq/d delta = [-I, hat(q)]``.
+
+Residuals of each frame in the window (all from the SDF ``phi(q)`` and its gradient ``g``):
+
+- vision: ``phi(q)`` of segmented depth points (robust Huber/Cauchy, sigma ``sigma_vision``);
+- touch: ``phi(q)`` of contact points (sigma ``sigma_touch``) and normal agreement
+  ``R^T n - g/|g|`` (sigma ``sigma_normal``);
+- non-penetration: ``min(0, phi(q) - margin)`` of gel points of sensors not in contact;
+- constant velocity: ``log(T_{i-1}^-1 T_i) - (dt_i/dt_{i-1}) log(T_{i-2}^-1 T_{i-1})``
+  (the first slot uses the velocity estimated before it), sigmas per nominal frame;
+- anchor: the oldest keyframe stays near its previous estimate (marginalisation stand-in).
+
+Degeneracy: per slot, the eigen-spectrum of the data normal equations (rotation scaled by the
+object radius so both blocks are in metres) is inspected; eigen-directions weaker than
+``degeneracy_ratio * max`` (rotation about a symmetry axis, sliding on a plane, no data at all)
+are lifted to that floor, i.e. held at the prediction instead of wandering. The number of such
+directions is reported per frame.
+
+Safety: each LM step is clamped (``max_step_trans``, ``max_step_rot``); the per-frame correction
+away from the prediction is bounded (``max_correction_*``); when the fit is poor (inlier fraction
+of vision/touch points below ``lost_inlier_frac``) a recovery from a few hypotheses is tried and
+the frame is flagged ``lost`` if it fails, never producing NaN.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, fields
+from typing import Protocol
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.geometry import se3
+from vtrack.tracking.frame import TrackingFrame, sanitize
+
+
+class SDF(Protocol):
+    def query(self, points: np.ndarray, with_grad: bool = True) -> tuple[np.ndarray, np.ndarray | None]: ...
+
+
+@dataclass
+class TrackerOptions:
+    """Tuning of the window tracker (metres, radians, seconds)."""
+
+    window: int = 3                 #: frames optimised jointly (keyframes + current), >= 1
+    iterations: int = 5             #: max LM iterations per frame
+    converge_trans: float = 2e-5    #: stop when every slot's step is below this (m) ...
+    converge_rot: float = 2e-4      #: ... and this (rad)
+    robust: str = "huber"           #: huber | cauchy
+    sigma_vision: float = 0.002     #: depth point-to-surface noise, m
+    sigma_touch: float = 0.0005     #: contact point-to-surface noise, m
+    sigma_normal: float = 0.25      #: contact normal disagreement (unit vectors)
+    sigma_free: float = 0.001       #: non-penetration, m
+    free_margin: float = 0.0005     #: free gel points must stay this far outside, m
+    kernel_vision: float = 1.5      #: robust kernel width in sigmas
+    kernel_touch: float = 2.0
+    sigma_motion_trans: float = 0.0015   #: constant-velocity deviation per nominal frame, m
+    sigma_motion_rot: float = 0.015      #: rad per nominal frame
+    sigma_anchor_trans: float = 0.0005   #: oldest keyframe prior, m
+    sigma_anchor_rot: float = 0.005      #: rad
+    nominal_dt: float = 1.0 / 30.0  #: s, frame period the motion sigmas refer to
+    gate: float = 0.02              #: drop vision points farther than this from the predicted surface, m
+    max_vision_points: int = 300
+    max_touch_points: int = 120
+    max_free_points: int = 48
+    degeneracy_ratio: float = 2e-3
+    object_radius: float = 0.05     #: m, scales rotation for the spectrum test
+    lm_lambda: float = 1e-4
+    max_step_trans: float = 0.01
+    max_step_rot: float = 0.15
+    max_correction_trans: float = 0.05   #: per-frame bound on |estimate - prediction|, m
+    max_correction_rot: float = 0.6      #: rad
+    inlier_dist: float = 0.005           #: |sdf| below this counts as inlier, m
+    lost_inlier_frac: float = 0.5
+    recover: bool = True
+    kf_trans: float = 0.001          #: promote a frame to keyframe after this motion, m
+    kf_rot: float = 0.01             #: rad
+    kf_dt: float = 0.1               #: or after this much time, s
+    kf_vision_points: int = 100      #: points a keyframe keeps (older frames matter less; saves time)
+    kf_touch_points: int = 60
+    velocity_decay_dt: float = 0.5   #: a gap longer than this resets the velocity, s
+    seed: int = 0
+
+    @classmethod
+    def from_dict(cls, opts: dict) -> TrackerOptions:
+        names = {f.name for f in fields(cls)}
+        unknown = set(opts) - names
+        if unknown:
+            raise InputError("unknown tracker option(s)", field=", ".join(sorted(unknown)),
+                             expected=f"some of {sorted(names)}")
+        o = cls(**opts)
+        if o.window < 1 or o.iterations < 1:
+            raise InputError("window and iterations must be >= 1", field="window/iterations",
+                             got=(o.window, o.iterations))
+        if o.robust not in ("huber", "cauchy", "none"):
+            raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
+        return o
+
+
+@dataclass
+class StepInfo:
+    """Diagnostics of one ``step``."""
+
+    t: float
+    status: str = "ok"              #: ok | no_data | degenerate | lost | recovered
+    iterations: int = 0
+    cost: float = 0.0
+    inlier_frac: float = float("nan")
+    degenerate_dims: int = 0
+    n_vision: int = 0
+    n_touch: int = 0
+    n_free: int = 0
+    ms: float = 0.0
+
+
+@dataclass
+class _Slot:
+    T: np.ndarray
+    t: float
+    frame: TrackingFrame
+    T_prior: np.ndarray
+    v: np.ndarray = field(default_factory=lambda: np.zeros(6))  #: body velocity (1/s) when committed
+    reg: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+
+
+def _hat3(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _inv(T: np.ndarray) -> np.ndarray:
+    """Inverse of one rigid 4x4 (cheap scalar path; se3.invert is batched and slower for one)."""
+    out = np.eye(4)
+    Rt = T[:3, :3].T
+    out[:3, :3] = Rt
+    out[:3, 3] = -Rt @ T[:3, 3]
+    return out
+
+
+def _exp(xi: np.ndarray) -> np.ndarray:
+    """se3 exp of one twist [rho, phi]."""
+    rho, phi = xi[:3], xi[3:]
+    th2 = float(phi @ phi)
+    K = _hat3(phi)
+    if th2 < 1e-10:
+        A, B, C = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        th = np.sqrt(th2)
+        A, B, C = np.sin(th) / th, (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
+    K2 = K @ K
+    T = np.eye(4)
+    T[:3, :3] = np.eye(3) + A * K + B * K2
+    T[:3, 3] = (np.eye(3) + B * K + C * K2) @ rho
+    return T
+
+
+def _log(T: np.ndarray) -> np.ndarray:
+    """se3 log of one rigid transform (falls back to the batched routine near pi)."""
+    R = T[:3, :3]
+    c = (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0
+    if c < -0.99:
+        return se3.se3_log(T)
+    c = min(1.0, c)
+    th = np.arccos(c)
+    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if th < 1e-5:
+        phi = w * (1.0 + th * th / 6.0)
+        D = 1.0 / 12.0
+    else:
+        phi = w * (th / np.sin(th))
+        D = 1.0 / (th * th) - np.cos(th / 2.0) / (2.0 * th * np.sin(th / 2.0))
+    K = _hat3(phi)
+    rho = (np.eye(3) - 0.5 * K + D * (K @ K)) @ T[:3, 3]
+    return np.concatenate([rho, phi])
+
+
+def _adjoint(T: np.ndarray) -> np.ndarray:
+    """Adjoint of T for twists ordered [rho, phi]."""
+    R, t = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[:3, 3:] = _hat3(t) @ R
+    A[3:, 3:] = R
+    return A
+
+
+def _robust_weights(r_scaled: np.ndarray, kind: str, k: float) -> tuple[np.ndarray, np.ndarray]:
+    """IRLS weights and robust cost for residuals already divided by their sigma."""
+    a = np.abs(r_scaled)
+    if kind == "huber":
+        w = np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+        rho = np.where(a <= k, 0.5 * a * a, k * (a - 0.5 * k))
+    elif kind == "cauchy":
+        u = (a / k) ** 2
+        w = 1.0 / (1.0 + u)
+        rho = 0.5 * k * k * np.log1p(u)
+    else:
+        w = np.ones_like(a)
+        rho = 0.5 * a * a
+    return w, rho
+
+
+class WindowTracker:
+    """Sliding-window robust LM tracker of ``T_world_object`` against an object-frame SDF.
+
+    Args:
+        sdf: object with ``query(points_obj) -> (sdf (N,), grad (N, 3))`` in metres.
+        T_init: initial ``T_world_object`` (4x4).
+        options: :class:`TrackerOptions` or a dict of overrides.
+    """
+
+    def __init__(self, sdf: SDF, T_init: np.ndarray, options: TrackerOptions | dict | None = None) -> None:
+        if isinstance(options, dict) or options is None:
+            options = TrackerOptions.from_dict(options or {})
+        self.opts = options
+        self.sdf = sdf
+        T0 = np.asarray(T_init, dtype=np.float64)
+        if T0.shape != (4, 4) or not se3.is_rigid(T0, tol=1e-4):
+            raise InputError("initial pose must be a finite 4x4 rigid transform", field="T_init",
+                             expected="T_world_object (4, 4)", got=T0.shape)
+        T0 = T0.copy()
+        T0[:3, :3] = se3.orthonormalize(T0[:3, :3])
+        self.T = T0
+        self.velocity = np.zeros(6)  # body twist per second, [rho, phi]
+        self.t_last: float | None = None
+        self.keyframes: list[_Slot] = []
+        self.history: list[StepInfo] = []
+        self._frame_count = 0
+
+    # -- public API ---------------------------------------------------------------------------
+    def reset(self, T_world_object: np.ndarray) -> None:
+        """Re-initialise (e.g. after a detected loss, from an external detector)."""
+        self.T = np.asarray(T_world_object, dtype=np.float64).copy()
+        self.velocity[:] = 0.0
+        self.keyframes.clear()
+        self.t_last = None
+
+    @property
+    def last_info(self) -> StepInfo | None:
+        return self.history[-1] if self.history else None
+
+    def step(self, frame: TrackingFrame) -> np.ndarray:
+        """Consume one frame and return the estimated ``T_world_object`` (4x4) at ``frame.t``."""
+        t_start = time.perf_counter()
+        o = self.opts
+        self._frame_count += 1
+        fr = sanitize(frame, o.max_vision_points, o.max_touch_points, o.max_free_points,
+                      seed=o.seed + self._frame_count)
+        dt = o.nominal_dt if self.t_last is None else fr.t - self.t_last
+        if self.t_last is not None and dt <= 0:
+            raise InputError("frame timestamps must increase", field="frame.t", expected=f"> {self.t_last}",
+                             got=fr.t)
+        if dt > o.velocity_decay_dt:
+            self.velocity[:] = 0.0
+        T_pred = self.T @ _exp(self.velocity * dt) if self.t_last is not None else self.T.copy()
+        fr = self._gate(fr, T_pred)
+        info = StepInfo(t=fr.t, n_vision=fr.n_vision, n_touch=fr.n_touch,
+                        n_free=0 if fr.free_points is None else len(fr.free_points))
+        cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy())
+        slots = [*self.keyframes[-(o.window - 1):], cur] if o.window > 1 else [cur]
+        v_before = self.velocity.copy()
+        if info.n_vision + info.n_touch + info.n_free == 0:
+            info.status = "no_data"
+        else:
+            cost, iters, dims = self._optimise(slots, v_before)
+            info.cost, info.iterations, info.degenerate_dims = cost, iters, dims
+            info.inlier_frac = self._inlier_frac(cur.T, fr)
+            if dims:
+                info.status = "degenerate"
+            if np.isfinite(info.inlier_frac) and info.inlier_frac < o.lost_inlier_frac:
+                info.status = "lost"
+                if o.recover:
+                    if self._recover(cur, slots, v_before, T_pred, info):
+                        info.status = "recovered"
+        self._bound(cur, T_pred)
+        self._commit(slots, cur, dt)
+        info.ms = (time.perf_counter() - t_start) * 1e3
+        self.history.append(info)
+        return self.T.copy()
+
+    # -- internals ----------------------------------------------------------------------------
+    def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
+        """Drop vision points far from the predicted surface (hand, background, flying pixels)."""
+        V = fr.vision_points
+        if V is None or len(V) == 0 or self.opts.gate <= 0:
+            return fr
+        q = se3.transform_points(_inv(T_pred), V)
+        d, _ = self.sdf.query(q, with_grad=False)
+        keep = np.abs(d) < self.opts.gate
+        # If the gate removes almost everything the prediction is probably off: keep all (recovery decides).
+        if keep.sum() < max(10, 0.2 * len(V)):
+            return fr
+        fr.vision_points = V[keep]
+        return fr
+
+    def _inlier_frac(self, T: np.ndarray, fr: TrackingFrame) -> float:
+        pts = [p for p in (fr.vision_points, fr.touch_points) if p is not None and len(p)]
+        if not pts:
+            return float("nan")
+        P = np.concatenate(pts)
+        d, _ = self.sdf.query(se3.transform_points(_inv(T), P), with_grad=False)
+        return float(np.mean(np.abs(d) < self.opts.inlier_dist))
+
+    def _frame_terms(self, T: np.ndarray, fr: TrackingFrame) -> tuple[np.ndarray, np.ndarray, float]:
+        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T."""
+        o = self.opts
+        Tinv = _inv(T)
+        R = T[:3, :3]
+        H = np.zeros((6, 6))
+        b = np.zeros(6)
+        cost = 0.0
+        groups = []
+        if fr.vision_points is not None and len(fr.vision_points):
+            groups.append(("v", fr.vision_points))
+        if fr.touch_points is not None and len(fr.touch_points):
+            groups.append(("t", fr.touch_points))
+        if fr.free_points is not None and len(fr.free_points):
+            groups.append(("f", fr.free_points))
+        if not groups:
+            return H, b, 0.0
+        allp = np.concatenate([g[1] for g in groups])
+        q = allp @ Tinv[:3, :3].T + Tinv[:3, 3]
+        d, g = self.sdf.query(q)
+        J = np.empty((len(q), 6))
+        J[:, :3] = -g
+        J[:, 3:] = np.cross(g, q)
+        s = 0
+        for kind, P in groups:
+            n = len(P)
+            sl = slice(s, s + n)
+            s += n
+            r = d[sl].copy()
+            Jk = J[sl]
+            if kind == "v":
+                sig, kern = o.sigma_vision, o.kernel_vision
+            elif kind == "t":
+                sig, kern = o.sigma_touch, o.kernel_touch
+            else:
+                sig, kern = o.sigma_free, 1e9
+                r = np.minimum(r - o.free_margin, 0.0)
+                Jk = Jk * (r < 0)[:, None]
+            rs = r / sig
+            w, rho = _robust_weights(rs, o.robust if kind != "f" else "none", kern)
+            w = w / (sig * sig)
+            cost += float(rho.sum())
+            H += (Jk * w[:, None]).T @ Jk
+            b += Jk.T @ (w * r)
+            if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
+                Nw = fr.touch_normals
+                ok = np.isfinite(Nw).all(1)
+                gn = g[sl]
+                gnorm = np.linalg.norm(gn, axis=1)
+                ok &= gnorm > 0.5
+                if ok.any():
+                    n_obj = Nw[ok] @ R  # R^T n for each row
+                    ghat = gn[ok] / gnorm[ok, None]
+                    rn = n_obj - ghat  # (m, 3)
+                    # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected.
+                    Jn = se3.hat(n_obj)  # (m, 3, 3)
+                    wn, rhon = _robust_weights(np.linalg.norm(rn, axis=1) / o.sigma_normal, o.robust, 2.0)
+                    wn = wn / o.sigma_normal**2
+                    cost += float(rhon.sum())
+                    H[3:, 3:] += np.einsum("m,mki,mkj->ij", wn, Jn, Jn)
+                    b[3:] += np.einsum("m,mki,mk->i", wn, Jn, rn)
+        return H, b, cost
+
+    def _motion_terms(self, slots: list[_Slot], v_before: np.ndarray, dt_first: float
+                      ) -> tuple[list[tuple[list[int], list[np.ndarray], np.ndarray, np.ndarray]], float]:
+        """Linearised constant-velocity and anchor residuals: (slot ids, Jacobian blocks, r, sqrt-info)."""
+        o = self.opts
+        terms = []
+        cost = 0.0
+        sig = np.array([o.sigma_motion_trans] * 3 + [o.sigma_motion_rot] * 3)
+        # anchor on the oldest slot if it is a keyframe
+        if len(slots) > 1:
+            s0 = slots[0]
+            r = _log(_inv(s0.T_prior) @ s0.T)
+            sa = 1.0 / np.array([o.sigma_anchor_trans] * 3 + [o.sigma_anchor_rot] * 3)
+            terms.append(([0], [np.eye(6)], r, sa))
+            cost += 0.5 * float(np.sum((r * sa) ** 2))
+        prev_log = None
+        prev_dt = None
+        for i in range(1, len(slots)):
+            D = _inv(slots[i - 1].T) @ slots[i].T
+            lg = _log(D)
+            dt_i = max(slots[i].t - slots[i - 1].t, 1e-6)
+            scale = max(dt_i / o.nominal_dt, 1e-3)
+            sq = 1.0 / (sig * scale)
+            Jb = np.eye(6)
+            Ja = -_adjoint(_inv(D))
+            if prev_log is None:
+                v0 = slots[0].v  # velocity estimated when the oldest slot was current
+                r = lg - v0 * dt_i
+                terms.append(([i - 1, i], [Ja, Jb], r, sq))
+            else:
+                ratio = dt_i / prev_dt
+                r = lg - ratio * prev_log
+                Dp = _inv(slots[i - 2].T) @ slots[i - 1].T
+                # -ratio * log(Dp): derivative wrt slot i-1 is -ratio*I, wrt slot i-2 is +ratio*Ad(Dp^-1)
+                Jc = ratio * _adjoint(_inv(Dp))
+                terms.append(([i - 2, i - 1, i], [Jc, Ja - ratio * np.eye(6), Jb], r, sq))
+            cost += 0.5 * float(np.sum((r * sq) ** 2))
+            prev_log, prev_dt = lg, dt_i
+        if len(slots) == 1 and self.t_last is not None:
+            # single-slot window: prior towards the constant-velocity prediction
+            s0 = slots[0]
+            r = _log(_inv(s0.T_prior) @ s0.T)
+            sq = 1.0 / (sig * max(dt_first / o.nominal_dt, 1e-3))
+            terms.append(([0], [np.eye(6)], r, sq))
+            cost += 0.5 * float(np.sum((r * sq) ** 2))
+        return terms, cost
+
+    def _degeneracy(self, H: np.ndarray) -> tuple[np.ndarray, int]:
+        """Regulariser lifting weak eigen-directions of a 6x6 data block; and their count."""
+        o = self.opts
+        L = o.object_radius
+        S = np.diag([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
+        Hs = S @ H @ S
+        lam, U = np.linalg.eigh(0.5 * (Hs + Hs.T))
+        lam_max = max(float(lam[-1]), 0.0)
+        floor = max(o.degeneracy_ratio * lam_max, 1.0 / o.sigma_vision**2)  # at least one point's worth
+        weak = lam < floor
+        if not weak.any():
+            return np.zeros((6, 6)), 0
+        lift = np.where(weak, floor - np.maximum(lam, 0.0), 0.0)
+        Rs = (U * lift) @ U.T
+        Sinv = np.linalg.inv(S)
+        n_weak = int(weak.sum()) if lam_max > 0 else 6
+        return Sinv @ Rs @ Sinv, n_weak
+
+    def _total(self, slots, v_before, dt_first):
+        n = len(slots)
+        H = np.zeros((6 * n, 6 * n))
+        b = np.zeros(6 * n)
+        cost = 0.0
+        datas = []
+        for i, s in enumerate(slots):
+            Hi, bi, ci = self._frame_terms(s.T, s.frame)
+            datas.append(Hi)
+            H[6 * i:6 * i + 6, 6 * i:6 * i + 6] += Hi
+            b[6 * i:6 * i + 6] += bi
+            cost += ci
+        terms, cm = self._motion_terms(slots, v_before, dt_first)
+        cost += cm
+        for ids, Js, r, sq in terms:
+            W = sq * sq
+            for a, Ja in zip(ids, Js, strict=True):
+                b[6 * a:6 * a + 6] += Ja.T @ (W * r)
+                for c, Jc in zip(ids, Js, strict=True):
+                    H[6 * a:6 * a + 6, 6 * c:6 * c + 6] += (Ja.T * W) @ Jc
+        return H, b, cost, datas
+
+    def _optimise(self, slots: list[_Slot], v_before: np.ndarray) -> tuple[float, int, int]:
+        o = self.opts
+        n = len(slots)
+        dt_first = slots[-1].t - (self.t_last if self.t_last is not None else slots[-1].t - o.nominal_dt)
+        H, b, cost, datas = self._total(slots, v_before, dt_first)
+        dims = 0
+        for i, s in enumerate(slots):
+            s.reg, d = self._degeneracy(datas[i])
+            if i == n - 1:
+                dims = d
+        lam = o.lm_lambda
+        it = 0
+        while it < o.iterations:
+            it += 1
+            A = H.copy()
+            for i, s in enumerate(slots):
+                A[6 * i:6 * i + 6, 6 * i:6 * i + 6] += s.reg
+            A += lam * np.diag(np.diag(A) + 1e-9)
+            try:
+                delta = -np.linalg.solve(A, b)
+            except np.linalg.LinAlgError:
+                delta = -np.linalg.lstsq(A, b, rcond=None)[0]
+            if not np.all(np.isfinite(delta)):
+                break
+            old = [s.T.copy() for s in slots]
+            for i, s in enumerate(slots):
+                d = delta[6 * i:6 * i + 6].copy()
+                nt, nr = np.linalg.norm(d[:3]), np.linalg.norm(d[3:])
+                if nt > o.max_step_trans:
+                    d[:3] *= o.max_step_trans / nt
+                if nr > o.max_step_rot:
+                    d[3:] *= o.max_step_rot / nr
+                s.T = s.T @ _exp(d)
+            H2, b2, cost2, _ = self._total(slots, v_before, dt_first)
+            if cost2 <= cost:
+                step = delta.reshape(-1, 6)
+                converged = (cost - cost2 < 1e-4 * max(cost, 1e-12)
+                             or (np.abs(step[:, :3]).max() < o.converge_trans and np.abs(step[:, 3:]).max()
+                                 < o.converge_rot))
+                H, b, cost = H2, b2, cost2
+                lam = max(lam / 3.0, 1e-7)
+                if converged:
+                    break
+            else:
+                for s, T in zip(slots, old, strict=True):
+                    s.T = T
+                lam = min(lam * 10.0, 1e4)
+        for s in slots:
+            s.T[:3, :3] = se3.orthonormalize(s.T[:3, :3])
+        return float(cost), it, dims
+
+    def _recover(self, cur: _Slot, slots: list[_Slot], v_before: np.ndarray, T_pred: np.ndarray,
+                 info: StepInfo) -> bool:
+        """Try a few restarts (zero velocity, centroid shift) on the current frame alone; keep the best."""
+        fr = cur.frame
+        best_T, best_f = cur.T.copy(), info.inlier_frac
+        starts = [self.T.copy()]  # previous estimate without velocity
+        pts = [p for p in (fr.vision_points, fr.touch_points) if p is not None and len(p)]
+        if pts:
+            P = np.concatenate(pts)
+            # Move the object so the points' centroid projects onto the surface (translation-only seed).
+            for T0 in (T_pred, self.T):
+                Tt = T0.copy()
+                for _ in range(10):
+                    q = se3.transform_points(_inv(Tt), P)
+                    d, g = self.sdf.query(q)
+                    shift = -np.median(d[:, None] * g, axis=0)  # object-frame shift of points to surface
+                    Tt[:3, 3] -= Tt[:3, :3] @ shift
+                starts.append(Tt)
+        for T0 in starts:
+            s = _Slot(T=T0.copy(), t=cur.t, frame=fr, T_prior=T0.copy())
+            saved = self.t_last
+            self.t_last = None  # no motion prior during recovery
+            try:
+                self._optimise([s], np.zeros(6))
+            finally:
+                self.t_last = saved
+            f = self._inlier_frac(s.T, fr)
+            if np.isfinite(f) and f > best_f:
+                best_T, best_f = s.T.copy(), f
+        cur.T = best_T
+        info.inlier_frac = best_f
+        return bool(best_f >= self.opts.lost_inlier_frac)
+
+    def _bound(self, cur: _Slot, T_pred: np.ndarray) -> None:
+        """Keep the estimate finite and within the per-frame correction bound of the prediction."""
+        o = self.opts
+        if not np.all(np.isfinite(cur.T)):
+            cur.T = T_pred.copy()
+            return
+        dx = _log(_inv(T_pred) @ cur.T)
+        nt, nr = np.linalg.norm(dx[:3]), np.linalg.norm(dx[3:])
+        f = min(1.0, o.max_correction_trans / max(nt, 1e-12), o.max_correction_rot / max(nr, 1e-12))
+        if f < 1.0:
+            cur.T = T_pred @ _exp(dx * f)
+
+    def _commit(self, slots: list[_Slot], cur: _Slot, dt: float) -> None:
+        o = self.opts
+        if self.t_last is not None and dt > 0:
+            prev_T = slots[-2].T if len(slots) > 1 else self.T
+            prev_t = slots[-2].t if len(slots) > 1 else self.t_last
+            v = _log(_inv(prev_T) @ cur.T) / max(cur.t - prev_t, 1e-6)
+            if np.all(np.isfinite(v)):
+                self.velocity = v
+        cur.v = self.velocity.copy()
+        self.T = cur.T.copy()
+        self.t_last = cur.t
+        last_kf = self.keyframes[-1] if self.keyframes else None
+        promote = last_kf is None
+        if last_kf is not None:
+            dx = _log(_inv(last_kf.T) @ cur.T)
+            promote = (np.linalg.norm(dx[:3]) > o.kf_trans or np.linalg.norm(dx[3:]) > o.kf_rot
+                       or cur.t - last_kf.t > o.kf_dt)
+        if promote and o.window > 1:
+            cur.T_prior = cur.T.copy()
+            cur.frame = sanitize(cur.frame, o.kf_vision_points, o.kf_touch_points, o.max_free_points,
+                                 seed=o.seed + self._frame_count)
+            self.keyframes.append(cur)
+            self.keyframes = self.keyframes[-(o.window - 1):]
+        # keyframes refined in this window keep their new estimates as priors for the anchor
+        for s in self.keyframes:
+            s.T_prior = s.T.copy() if s is not self.keyframes[0] else s.T_prior
