@@ -1,0 +1,153 @@
+"""``vtrack calibrate`` and ``vtrack tactile ...``: tactile calibration, press evaluation, single images.
+
+Heavy imports (torch via the MLP calibration, OpenCV, scipy) happen inside the command functions.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+_PRESS_HELP = "press-set folder (labels.csv, background.png, press images; meta.json or a preset)"
+
+
+def _load_set(pressset: Path, meta: Path | None, sensor: str | None, mm_per_px: float | None,
+              ball_radius_mm: float | None):
+    from vtrack.tactile.pressset import load_press_set
+
+    return load_press_set(pressset, meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
+
+
+def _eval(ps, calib, presses, solver: str, downsample: int) -> dict:
+    from vtrack.tactile.evaluation import evaluate_presses
+    from vtrack.tactile.pipeline import TactilePipeline
+
+    pipe = TactilePipeline(calib, solver=solver, downsample=downsample)
+    label = {"press_set": str(ps.root), "method": calib.method, "solver": solver, "downsample": downsample}
+    return evaluate_presses(ps, presses, pipe.height, label=label)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("calibrate")
+    def calibrate_cmd(
+        pressset: Path = typer.Argument(..., help=_PRESS_HELP),
+        out: Path = typer.Option(..., "--out", help="calibration file to write (.npz)"),
+        json_out: Path = typer.Option(None, "--json", help="write the calibration report (JSON)"),
+        method: str = typer.Option("mlp", "--method", help="lut | lut_raw | mlp | ps"),
+        holdout: str = typer.Option("every:4:3", "--holdout",
+                                    help="every:K[:OFF] | idx:1,5 | files:a.png,b.png | last:N | none"),
+        compare: bool = typer.Option(False, "--compare", help="also train and evaluate every other method"),
+        meta: Path = typer.Option(None, "--meta", help="press-set meta JSON (sensor, mm_per_px, ball_radius_mm)"),
+        sensor: str = typer.Option(None, "--sensor", help="override meta: sensor name"),
+        mm_per_px: float = typer.Option(None, "--mm-per-px", help="override meta: pixel pitch, mm"),
+        ball_radius_mm: float = typer.Option(None, "--ball-radius-mm", help="override meta: ball radius, mm"),
+        lut_bins: int = typer.Option(32, "--lut-bins", help="LUT bins per colour channel"),
+        mlp_hidden: int = typer.Option(32, "--mlp-hidden", help="MLP hidden width"),
+        mlp_epochs: int = typer.Option(12, "--mlp-epochs", help="MLP training epochs"),
+        downsample: int = typer.Option(1, "--downsample", help="working-resolution factor for the evaluation"),
+    ) -> None:
+        """Learn colour(+position) -> surface normal from ball presses; report held-out errors."""
+        from vtrack.errors import InputError
+        from vtrack.tactile.calibration import METHODS, TrainOptions, calibrate
+        from vtrack_apps.output import print_table, write_json
+
+        if method not in METHODS:
+            raise InputError("unknown calibration method", field="--method", expected=" | ".join(METHODS),
+                             got=method)
+        ps = _load_set(pressset, meta, sensor, mm_per_px, ball_radius_mm)
+        train, test = ps.split(holdout)
+        opts = TrainOptions(lut_bins=lut_bins, mlp_hidden=mlp_hidden, mlp_epochs=mlp_epochs)
+        methods = [method] + ([m for m in METHODS if m != method] if compare else [])
+        results = []
+        for m in methods:
+            calib = calibrate(ps, m, train, opts)
+            calib.info["holdout"] = holdout
+            if m == method:
+                calib.save(out)
+            row = {"method": m, "train_seconds": calib.info["train_seconds"],
+                   "height_noise_mm": calib.info["height_noise_mm"]}
+            if test:
+                row.update(_eval(ps, calib, test, "dct", downsample)["summary"])
+            results.append(row)
+        report = {"press_set": str(ps.root), **ps.meta(), "out": str(out), "method": method, "holdout": holdout,
+                  "train_files": [p.file for p in train], "test_files": [p.file for p in test],
+                  "results": results}
+        print_table(f"calibrate {ps.root.name} ({len(train)} train / {len(test)} held out)", results)
+        typer.echo(f"wrote {out}")
+        if json_out:
+            write_json(json_out, report)
+
+    tac = typer.Typer(help="Tactile pipeline: press evaluation, single images.", no_args_is_help=True)
+    app.add_typer(tac, name="tactile")
+
+    @tac.command("eval-presses")
+    def eval_presses(
+        pressset: Path = typer.Argument(..., help=_PRESS_HELP),
+        calib: Path = typer.Option(..., "--calib", help="calibration .npz from `vtrack calibrate`"),
+        json_out: Path = typer.Option(None, "--json", help="write per-press results + summary (JSON)"),
+        holdout: str = typer.Option(None, "--holdout",
+                                    help="presses to evaluate (default: those the calibration did not train on)"),
+        solver: str = typer.Option("dct", "--solver", help="Poisson solver: dct | fft | lsq"),
+        downsample: int = typer.Option(1, "--downsample", help="working-resolution factor"),
+        meta: Path = typer.Option(None, "--meta", help="press-set meta JSON"),
+        sensor: str = typer.Option(None, "--sensor"),
+        mm_per_px: float = typer.Option(None, "--mm-per-px"),
+        ball_radius_mm: float = typer.Option(None, "--ball-radius-mm"),
+    ) -> None:
+        """Reconstruct held-out ball presses; fitted radius, normal error, shape RMSE, ms per frame."""
+        from vtrack.tactile.calibration import Calibration, held_out_presses
+        from vtrack_apps.output import print_table, write_json
+
+        ps = _load_set(pressset, meta, sensor, mm_per_px, ball_radius_mm)
+        cal = Calibration.load(calib)
+        presses = held_out_presses(cal, ps) if holdout is None else ps.split(holdout)[1]
+        res = _eval(ps, cal, presses, solver, downsample)
+        res["calib"] = str(calib)
+        print_table(f"eval-presses {ps.root.name} ({cal.method}, {solver}, downsample {downsample})",
+                    [{k: v for k, v in r.items() if k != "index"} for r in res["presses"]])
+        print_table("summary", res["summary"])
+        if json_out:
+            write_json(json_out, res)
+
+    @tac.command("height")
+    def height_cmd(
+        image: Path = typer.Argument(..., help="tactile image (BGR PNG/JPEG)"),
+        calib: Path = typer.Option(..., "--calib", help="calibration .npz"),
+        out: Path = typer.Option(..., "--out", help="output folder: height_mm.npy, contact.png, points.ply"),
+        background: Path = typer.Option(None, "--background", help="no-contact frame (default: the calibration's)"),
+        solver: str = typer.Option("dct", "--solver", help="dct | fft | lsq"),
+        downsample: int = typer.Option(1, "--downsample"),
+    ) -> None:
+        """Run the pipeline on one image; write the height map, contact mask and contact points."""
+        import cv2
+        import numpy as np
+
+        from vtrack.tactile.pipeline import TactilePipeline
+        from vtrack.tactile.pressset import read_bgr
+        from vtrack_apps.output import report
+
+        bg = read_bgr(background) if background else None
+        pipe = TactilePipeline(calib, background=bg, solver=solver, downsample=downsample)
+        f = pipe.process(read_bgr(image))
+        out.mkdir(parents=True, exist_ok=True)
+        np.save(out / "height_mm.npy", f.height_mm)
+        cv2.imwrite(str(out / "contact.png"), f.contact.astype(np.uint8) * 255)
+        hv = f.height_mm / max(float(f.height_mm.max()), 1e-6)
+        cv2.imwrite(str(out / "height.png"), cv2.applyColorMap(np.clip(hv * 255, 0, 255).astype(np.uint8),
+                                                               cv2.COLORMAP_VIRIDIS))
+        _write_ply(out / "points.ply", f.points, f.normals)
+        s = f.stats
+        report("tactile height", {"in_contact": f.in_contact, "area_mm2": s.area_mm2, "max_depth_mm": s.max_depth_mm,
+                                  "centroid_px": s.centroid_px, "n_points": len(f.points), **f.timings_ms},
+               out / "summary.json")
+
+
+def _write_ply(path: Path, pts, nrm) -> None:
+    """ASCII PLY with normals (sensor frame, m)."""
+    with open(path, "w") as fh:
+        fh.write("ply\nformat ascii 1.0\n"
+                 f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+                 "property float nx\nproperty float ny\nproperty float nz\nend_header\n")
+        for p, n in zip(pts, nrm, strict=True):
+            fh.write(f"{p[0]:.7g} {p[1]:.7g} {p[2]:.7g} {n[0]:.5g} {n[1]:.5g} {n[2]:.5g}\n")

@@ -1,0 +1,540 @@
+"""Calibration: tactile image colour (+ pixel position) -> surface normal / gradient.
+
+Methods (all learn from ball presses with known radius, see :mod:`vtrack.tactile.pressset`):
+- ``lut``: binned lookup table on the colour change against the background (GelSight classic; the
+  classic variant bins the raw colour, ``lut_raw``);
+- ``mlp``: a small per-pixel MLP (trained with torch on CPU, evaluated with numpy) on colour change,
+  raw colour and normalised pixel position;
+- ``ps``: least-squares photometric stereo: one light per colour channel (K >= 3 channels), light
+  matrix estimated from the presses by linear least squares, normal and albedo solved per pixel.
+
+All methods predict the in-plane components (nx, ny) of the outward unit normal (sensor frame:
+x = columns, y = rows); slopes are ``g = n_xy / n_z`` (mm/mm). Predicting bounded normals rather than
+unbounded slopes keeps averaging (LUT bins) and regression well-behaved near the steep contact edge.
+
+A :class:`Calibration` also stores the background frame and a gradient -> colour table (inverse model for
+:func:`vtrack.tactile.render.render_tactile_image`). Saved as one ``.npz`` (arrays + JSON header).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.tactile.pressset import Press, PressSet, sphere_truth
+
+METHODS = ("lut", "lut_raw", "mlp", "ps")
+#: Largest slope angle the calibration predicts (deg): bounds n_z away from 0 (slope <= tan(80 deg) = 5.7).
+MAX_TILT_DEG = 80.0
+FORMAT_VERSION = 1
+
+
+@dataclass
+class TrainOptions:
+    """Options of :func:`calibrate` (defaults are the ones reported in docs/tactile.md)."""
+
+    lut_bins: int = 32
+    lut_range: float = 96.0  # grey levels of colour change covered by the LUT (+-)
+    mlp_hidden: int = 32
+    mlp_layers: int = 2
+    mlp_epochs: int = 12
+    mlp_lr: float = 3e-3
+    inside_frac: float = 0.95  # use the labelled disc shrunk by this factor as gradient truth
+    outside_frac: float = 1.15  # and pixels beyond this factor x radius as flat gel
+    flat_per_press: int = 6000
+    gate: float = 6.0  # grey levels: |colour change| (sum of channels, smoothed) below this -> flat
+    seed: int = 0
+
+
+def normals_to_slopes(nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Slopes (dh/dx, dh/dy) of unit normals with in-plane part (nx, ny); tilt clipped at MAX_TILT_DEG."""
+    s2 = nx * nx + ny * ny
+    smax = np.sin(np.deg2rad(MAX_TILT_DEG))
+    scale = np.where(s2 > smax * smax, smax / np.sqrt(np.maximum(s2, 1e-12)), 1.0)
+    nx, ny = nx * scale, ny * scale
+    nz = np.sqrt(np.maximum(1.0 - (nx * nx + ny * ny), 1e-6))
+    return nx / nz, ny / nz
+
+
+def slopes_to_normals(gx: np.ndarray, gy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
+    return gx * inv, gy * inv
+
+
+def colour_change(image: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32 image minus background (grey levels); NaN/Inf -> 0 change."""
+    d = np.asarray(image, np.float32) - np.asarray(background, np.float32)
+    if d.dtype.kind == "f" and not np.isfinite(d).all():
+        d = np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0)
+    return d
+
+
+def gate_mask(dI: np.ndarray, gate: float) -> np.ndarray:
+    """Pixels whose (box-smoothed) total colour change exceeds ``gate`` grey levels: candidates for contact."""
+    import cv2
+
+    a = np.abs(np.asarray(dI, np.float32)).sum(axis=2)
+    a = cv2.blur(a, (5, 5))
+    return a > gate
+
+
+_ONES3 = np.ones((1, 3), np.float32)
+
+
+def gate_mask_images(image: np.ndarray, background: np.ndarray, gate: float) -> np.ndarray:
+    """:func:`gate_mask` from two uint8 images (OpenCV only: ~10x faster than through float dI)."""
+    import cv2
+
+    a = cv2.transform(cv2.absdiff(image, background).astype(np.float32), _ONES3)
+    a = cv2.blur(a, (5, 5))
+    return a > gate
+
+
+@dataclass
+class Calibration:
+    """A trained colour -> normal model of one sensor (image size fixed by the training background)."""
+
+    method: str
+    sensor: str
+    mm_per_px: float
+    background: np.ndarray  # (H, W, 3) uint8 BGR
+    params: dict[str, np.ndarray] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.background.shape[:2])  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ prediction
+    def check_image(self, image: np.ndarray, name: str = "image") -> np.ndarray:
+        img = np.asarray(image)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise InputError("tactile image must be (H, W, 3) BGR", field=name, expected="(H, W, 3)", got=img.shape)
+        if img.shape[:2] != self.shape:
+            raise InputError("image size differs from the calibration", field=name,
+                             expected=f"{self.shape[0]}x{self.shape[1]} (HxW) as calibrated", got=img.shape[:2])
+        return img
+
+    def normals(self, image: np.ndarray, background: np.ndarray | None = None,
+                mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """In-plane normal components (nx, ny), each (H, W) float32, for a BGR image.
+
+        ``background`` defaults to the calibration's; ``mask`` (optional) limits the evaluation (others 0);
+        by default pixels whose colour barely changed (``gate_mask``) are flat.
+        """
+        img = self.check_image(image)
+        bg = self.background if background is None else self.check_image(background, "background")
+        dI = colour_change(img, bg)
+        gate = float(self.info.get("gate", 6.0))
+        m = gate_mask_images(img, bg, gate) if mask is None else np.asarray(mask, bool)
+        return self.normals_from_change(dI, img, m)
+
+    def normals_from_change(self, dI: np.ndarray, img: np.ndarray, mask: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+        """(nx, ny) from a precomputed colour change ``dI`` (float32 (H, W, 3)); zero outside ``mask``."""
+        H, W = img.shape[:2]
+        nx = np.zeros((H, W), np.float32)
+        ny = np.zeros((H, W), np.float32)
+        if self.method in ("lut", "lut_raw"):
+            src = dI if self.method == "lut" else np.asarray(img, np.float32)
+            out = self._lut_lookup(src)
+            nx[:], ny[:] = out[..., 0], out[..., 1]
+            nx[~mask] = 0.0
+            ny[~mask] = 0.0
+            return nx, ny
+        rows, cols = np.nonzero(mask)
+        if len(rows) == 0:
+            return nx, ny
+        out = self._predict_pixels(dI[rows, cols], np.asarray(img)[rows, cols], rows, cols, (H, W))
+        nx[rows, cols] = out[:, 0]
+        ny[rows, cols] = out[:, 1]
+        return nx, ny
+
+    def slopes_from_images(self, image: np.ndarray, background: np.ndarray, mask: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """Slopes (dh/dx, dh/dy, mm/mm, float32) from a uint8 image and background of this model's size;
+        zero outside ``mask``. The fast path of the real-time pipeline (LUT: one gather from a slope table)."""
+        import cv2
+
+        if self.method == "lut":
+            table = self._slope_table()
+            B = table.shape[0]
+            lo, step = float(self.params["lut_lo"]), float(self.params["lut_step"])
+            # q = floor((img - bg - lo) / step) per channel, clamped to the table (OpenCV, float32)
+            qf = cv2.addWeighted(image, 1.0 / step, background, -1.0 / step, -lo / step, dtype=cv2.CV_32F)
+            np.clip(qf, 0.0, B - 0.5, out=qf)  # (cv2.min/max with a float scalar only clamp channel 0)
+            q = qf.astype(np.int32)
+            flat = cv2.transform(q, np.array([[B * B, B, 1]], np.float64))
+            flat[~mask] = (B * B * B) // 2 + (B * B) // 2 + B // 2  # zero-change bin
+            out = np.take(table.view(np.complex64).ravel(), flat)
+            gx, gy = out.real, out.imag
+            gx[~mask] = 0.0
+            gy[~mask] = 0.0
+            return gx, gy
+        H, W = image.shape[:2]
+        if self.method == "lut_raw":
+            nx, ny = self.normals_from_change(None, image, mask)
+        else:
+            rows, cols = np.nonzero(mask)
+            nx = np.zeros((H, W), np.float32)
+            ny = np.zeros((H, W), np.float32)
+            if len(rows):
+                im = image[rows, cols]
+                d = im.astype(np.float32) - background[rows, cols]
+                out = self._predict_pixels(d, im, rows, cols, (H, W))
+                nx[rows, cols] = out[:, 0]
+                ny[rows, cols] = out[:, 1]
+        gx, gy = normals_to_slopes(nx, ny)
+        return gx.astype(np.float32, copy=False), gy.astype(np.float32, copy=False)
+
+    def _slope_table(self) -> np.ndarray:
+        t = self.params.get("_slopes")
+        if t is None:
+            lut = self.params["lut"]
+            gx, gy = normals_to_slopes(lut[..., 0].astype(np.float64), lut[..., 1].astype(np.float64))
+            t = np.stack([gx, gy], -1).astype(np.float32)
+            self.params["_slopes"] = t
+        return t
+
+    def _predict_pixels(self, d: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                        shape: tuple[int, int]) -> np.ndarray:
+        if self.method == "mlp":
+            return _mlp_forward(self.params, _mlp_features(d, raw, rows, cols, shape))
+        if self.method == "ps":
+            return _ps_solve(self.params, d)
+        raise InputError("unknown calibration method", field="method", expected="|".join(METHODS), got=self.method)
+
+    def resized(self, background: np.ndarray) -> Calibration:
+        """The same model on a resized background (working resolution); colour/position features are
+        resolution-independent (positions are normalised to [-1, 1])."""
+        return Calibration(self.method, self.sensor, self.mm_per_px * self.shape[1] / background.shape[1],
+                           np.asarray(background), self.params, self.info)
+
+    def slopes(self, image: np.ndarray, background: np.ndarray | None = None,
+               mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Surface slopes (dh/dx, dh/dy) in mm/mm, each (H, W) float32."""
+        nx, ny = self.normals(image, background, mask)
+        return normals_to_slopes(nx, ny)
+
+    def _lut_lookup(self, src: np.ndarray) -> np.ndarray:
+        table = self.params["lut"]
+        B = table.shape[0]
+        lo, step = float(self.params["lut_lo"]), float(self.params["lut_step"])
+        q = ((src - lo) * (1.0 / step)).astype(np.int32)
+        np.clip(q, 0, B - 1, out=q)
+        flat = (q[..., 0] * B + q[..., 1]) * B + q[..., 2]
+        return table.reshape(-1, 2)[flat]
+
+    # ------------------------------------------------------------------ inverse model (rendering)
+    def colour_delta(self, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+        """(H, W, 3) colour change for slopes (gx, gy) (mm/mm), from the press-learned inverse table."""
+        from scipy.ndimage import map_coordinates
+
+        table = self.params["inverse"]  # (B, B, 3) mean colour change over (ny, nx) bins in [-1, 1]
+        B = table.shape[0]
+        nx, ny = slopes_to_normals(np.asarray(gx, np.float64), np.asarray(gy, np.float64))
+        u = (nx + 1.0) * 0.5 * (B - 1)
+        v = (ny + 1.0) * 0.5 * (B - 1)
+        out = np.stack([map_coordinates(table[..., c], [v, u], order=1, mode="nearest") for c in range(3)], -1)
+        return out
+
+    # ------------------------------------------------------------------ I/O
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        header = {"format": FORMAT_VERSION, "method": self.method, "sensor": self.sensor,
+                  "mm_per_px": self.mm_per_px, "info": self.info}
+        arrays = {f"p_{k}": v for k, v in self.params.items() if not k.startswith("_")}
+        with open(path, "wb") as f:
+            np.savez_compressed(f, header=np.array(json.dumps(header)), background=self.background, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        path = Path(path)
+        if not path.is_file():
+            raise InputError("calibration file not found", path=path, expected="an .npz from `vtrack calibrate`")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(str(z["header"]))
+                params = {k[2:]: z[k] for k in z.files if k.startswith("p_")}
+                bg = z["background"]
+        except (OSError, ValueError, KeyError) as e:
+            raise InputError(f"not a vtrack calibration ({e})", path=path) from None
+        if header.get("format") != FORMAT_VERSION or header.get("method") not in METHODS:
+            raise InputError("unsupported calibration file", path=path, field="header",
+                             expected=f"format {FORMAT_VERSION}, method in {METHODS}", got=header.get("method"))
+        return cls(header["method"], header["sensor"], float(header["mm_per_px"]), bg, params, header["info"])
+
+
+# ---------------------------------------------------------------------- training data
+def training_samples(ps: PressSet, presses: list[Press], opts: TrainOptions
+                     ) -> dict[str, np.ndarray]:
+    """Pixels with known normals: inside each (shrunk) contact disc from the analytic sphere, plus flat gel
+    sampled well outside the disc. Returns dI (N,3), raw colour (N,3), rows, cols, target (nx, ny)."""
+    rng = np.random.default_rng(opts.seed)
+    bg = ps.background()
+    H, W = ps.shape
+    out: dict[str, list] = {"dI": [], "raw": [], "rows": [], "cols": [], "n": [], "w": []}
+    for p in presses:
+        img = ps.image(p)
+        _, gx, gy, _ = sphere_truth(p, (H, W), ps.ball_radius_px)
+        yy, xx = np.mgrid[0:H, 0:W]
+        rho = np.hypot(xx - p.center_xy_px[0], yy - p.center_xy_px[1])
+        inside = rho < opts.inside_frac * p.contact_radius_px
+        flat = rho > opts.outside_frac * p.contact_radius_px
+        fr, fc = np.nonzero(flat)
+        pick = rng.choice(len(fr), size=min(opts.flat_per_press, len(fr)), replace=False)
+        ir, ic = np.nonzero(inside)
+        rows = np.concatenate([ir, fr[pick]])
+        cols = np.concatenate([ic, fc[pick]])
+        nx, ny = slopes_to_normals(gx[rows, cols], gy[rows, cols])
+        d = colour_change(img, bg)
+        out["dI"].append(d[rows, cols])
+        out["raw"].append(img[rows, cols].astype(np.float32))
+        out["rows"].append(rows)
+        out["cols"].append(cols)
+        out["n"].append(np.stack([nx, ny], 1).astype(np.float32))
+    return {k: np.concatenate(v) for k, v in out.items() if v}
+
+
+# ---------------------------------------------------------------------- LUT
+def _fill_empty(table: np.ndarray, filled: np.ndarray) -> np.ndarray:
+    """Fill empty bins with the value of the nearest filled bin (Euclidean in bin space)."""
+    from scipy.ndimage import distance_transform_edt
+
+    if filled.all() or not filled.any():
+        return table
+    _, idx = distance_transform_edt(~filled, return_indices=True)
+    return table[tuple(idx)]
+
+
+def fit_lut(src: np.ndarray, target: np.ndarray, bins: int, lo: float, hi: float) -> dict[str, np.ndarray]:
+    """Mean target per colour bin (B^3 bins over [lo, hi) per channel); empty bins take the nearest value."""
+    step = (hi - lo) / bins
+    q = np.clip(((src - lo) / step).astype(np.int64), 0, bins - 1)
+    flat = (q[:, 0] * bins + q[:, 1]) * bins + q[:, 2]
+    n = np.bincount(flat, minlength=bins**3).astype(np.float64)
+    table = np.zeros((bins**3, 2))
+    for c in range(2):
+        table[:, c] = np.bincount(flat, weights=target[:, c], minlength=bins**3)
+    filled = n > 0
+    table[filled] /= n[filled, None]
+    table = _fill_empty(table.reshape(bins, bins, bins, 2), filled.reshape(bins, bins, bins))
+    return {"lut": table.astype(np.float32), "lut_lo": np.float64(lo), "lut_step": np.float64(step)}
+
+
+# ---------------------------------------------------------------------- MLP
+def _mlp_features(dI: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                  shape: tuple[int, int]) -> np.ndarray:
+    H, W = shape
+    f = np.empty((len(rows), 8), np.float32)
+    f[:, 0:3] = dI * (1.0 / 64.0)
+    f[:, 3:6] = raw * (1.0 / 255.0) - 0.5
+    f[:, 6] = cols * (2.0 / W) - 1.0
+    f[:, 7] = rows * (2.0 / H) - 1.0
+    return f
+
+
+def _mlp_forward(params: dict[str, np.ndarray], x: np.ndarray) -> np.ndarray:
+    """numpy forward pass (no torch at inference): Linear-ReLU ... Linear, tanh -> (nx, ny) in (-1, 1)."""
+    n_layers = int(params["n_layers"])
+    h = x
+    for i in range(n_layers):
+        h = h @ params[f"W{i}"] + params[f"b{i}"]
+        if i < n_layers - 1:
+            np.maximum(h, 0.0, out=h)
+    return np.tanh(h)
+
+
+def fit_mlp(feats: np.ndarray, target: np.ndarray, opts: TrainOptions) -> dict[str, np.ndarray]:
+    """Train the per-pixel MLP with torch (CPU, current thread setting); returns numpy weights."""
+    import torch
+
+    torch.manual_seed(opts.seed)
+    dims = [feats.shape[1]] + [opts.mlp_hidden] * opts.mlp_layers + [2]
+    layers: list[torch.nn.Module] = []
+    for i in range(len(dims) - 1):
+        layers.append(torch.nn.Linear(dims[i], dims[i + 1]))
+        if i < len(dims) - 2:
+            layers.append(torch.nn.ReLU())
+    net = torch.nn.Sequential(*layers)
+    X = torch.from_numpy(np.ascontiguousarray(feats, np.float32))
+    Y = torch.from_numpy(np.ascontiguousarray(target, np.float32))
+    opt = torch.optim.Adam(net.parameters(), lr=opts.mlp_lr)
+    n = len(X)
+    batch = 1024
+    steps = opts.mlp_epochs * ((n + batch - 1) // batch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=opts.mlp_lr, total_steps=max(steps, 1))
+    g = torch.Generator().manual_seed(opts.seed)
+    for _ in range(opts.mlp_epochs):
+        perm = torch.randperm(n, generator=g)
+        for s in range(0, n, batch):
+            b = perm[s:s + batch]
+            loss = torch.nn.functional.smooth_l1_loss(torch.tanh(net(X[b])), Y[b], beta=0.05)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+    params: dict[str, np.ndarray] = {"n_layers": np.int64(len(dims) - 1)}
+    lin = [m for m in net if isinstance(m, torch.nn.Linear)]
+    for i, m in enumerate(lin):
+        params[f"W{i}"] = m.weight.detach().numpy().T.astype(np.float32).copy()
+        params[f"b{i}"] = m.bias.detach().numpy().astype(np.float32).copy()
+    return params
+
+
+# ---------------------------------------------------------------------- photometric stereo
+def fit_ps(dI: np.ndarray, n_xy: np.ndarray) -> dict[str, np.ndarray]:
+    """Estimate the light matrix of K colour channels from pixels of known normal.
+
+    Model: ``I_k - bg_k = l_k . (n - n0)`` with ``n0 = (0, 0, 1)`` (per-pixel background as ambient +
+    flat shading). ``L`` (K, 3) by linear least squares over all training pixels.
+    """
+    nz = np.sqrt(np.clip(1.0 - (n_xy**2).sum(1), 0.0, 1.0))
+    A = np.column_stack([n_xy, nz - 1.0])
+    L, *_ = np.linalg.lstsq(A, dI.astype(np.float64), rcond=None)  # (3, K): dI = A @ L
+    Lt = L.T  # (K, 3) light vectors (scaled by intensity x albedo)
+    cond = np.linalg.cond(Lt)
+    if not np.isfinite(cond) or cond > 1e6:
+        raise InputError("photometric stereo: light directions are degenerate", field="lights",
+                         expected="K >= 3 non-coplanar lights", got=f"condition number {cond:.3g}")
+    return {"lights": Lt.astype(np.float64), "lights_pinv": np.linalg.pinv(Lt).astype(np.float64)}
+
+
+def _ps_solve(params: dict[str, np.ndarray], dI: np.ndarray) -> np.ndarray:
+    """Per-pixel least squares: ``m = pinv(L) dI = n - n0``; n = (m + n0) / |m + n0| (albedo = |m + n0|)."""
+    m = dI.astype(np.float64) @ params["lights_pinv"].T
+    m[:, 2] += 1.0
+    m[:, 2] = np.maximum(m[:, 2], 1e-3)  # normals never point into the sensor
+    n = m / np.linalg.norm(m, axis=1, keepdims=True)
+    return n[:, :2].astype(np.float32)
+
+
+def ps_albedo(calib: Calibration, image: np.ndarray) -> np.ndarray:
+    """(H, W) relative albedo |n0 + pinv(L) dI| of a photometric-stereo calibration (1 = background)."""
+    dI = colour_change(calib.check_image(image), calib.background).reshape(-1, 3)
+    m = dI.astype(np.float64) @ calib.params["lights_pinv"].T
+    m[:, 2] += 1.0
+    return np.linalg.norm(m, axis=1).reshape(calib.shape)
+
+
+# ---------------------------------------------------------------------- inverse table
+def fit_inverse(dI: np.ndarray, n_xy: np.ndarray, bins: int = 33) -> np.ndarray:
+    """(B, B, 3) mean colour change over normal bins (rows = ny, cols = nx, both in [-1, 1])."""
+    q = np.clip(np.rint((n_xy + 1.0) * 0.5 * (bins - 1)).astype(np.int64), 0, bins - 1)
+    flat = q[:, 1] * bins + q[:, 0]
+    cnt = np.bincount(flat, minlength=bins * bins).astype(np.float64)
+    table = np.zeros((bins * bins, 3))
+    for c in range(3):
+        table[:, c] = np.bincount(flat, weights=dI[:, c], minlength=bins * bins)
+    filled = cnt > 0
+    table[filled] /= cnt[filled, None]
+    table = table.reshape(bins, bins, 3)
+    # the centre bin is the flat gel: exactly no colour change
+    table[bins // 2, bins // 2] = 0.0
+    filled = filled.reshape(bins, bins)
+    filled[bins // 2, bins // 2] = True
+    return _fill_empty(table, filled).astype(np.float32)
+
+
+def lambertian_calibration(background: np.ndarray, mm_per_px: float, gain: float = 110.0,
+                           elevation_deg: float = 35.0, sensor: str = "lambertian") -> Calibration:
+    """Uncalibrated fallback: photometric stereo with the known lights of the Lambertian render model
+    (:func:`vtrack.tactile.render.lambert_colour_delta`), so simulated images invert exactly."""
+    from vtrack.tactile.render import lambert_light_dirs
+
+    L = gain * lambert_light_dirs(elevation_deg)
+    grid = np.linspace(-0.95, 0.95, 33)
+    nxg, nyg = np.meshgrid(grid, grid)
+    inside = nxg**2 + nyg**2 < 0.95**2
+    nxy = np.column_stack([nxg[inside], nyg[inside]])
+    nz = np.sqrt(1 - (nxy**2).sum(1))
+    dI = np.column_stack([nxy, nz - 1.0]) @ L.T
+    params = {"lights": L, "lights_pinv": np.linalg.pinv(L), "inverse": fit_inverse(dI, nxy)}
+    return Calibration("ps", sensor, float(mm_per_px), np.asarray(background), params,
+                       {"gate": 6.0, "model": "lambertian", "gain": gain, "elevation_deg": elevation_deg})
+
+
+def height_noise(calib: Calibration, ps: PressSet, presses: list[Press], max_presses: int = 6) -> float:
+    """Robust std (1.4826 MAD, mm) of the reconstructed height on flat gel (beyond 1.3 x contact radius)."""
+    from vtrack.tactile.poisson import poisson_dct
+
+    vals = []
+    H, W = ps.shape
+    yy, xx = np.mgrid[0:H, 0:W]
+    for p in presses[:max_presses]:
+        gx, gy = calib.slopes(ps.image(p))
+        h = poisson_dct(gx * ps.mm_per_px, gy * ps.mm_per_px, dtype=np.float32)
+        far = np.hypot(xx - p.center_xy_px[0], yy - p.center_xy_px[1]) > 1.3 * p.contact_radius_px
+        v = h[far]
+        vals.append(1.4826 * np.median(np.abs(v - np.median(v))))
+    return float(np.median(vals)) if vals else 0.0
+
+
+def calibrate(ps: PressSet, method: str = "lut", train: list[Press] | None = None,
+              opts: TrainOptions | None = None) -> Calibration:
+    """Train a calibration of ``method`` on the ``train`` presses (default all) of a press set."""
+    opts = opts or TrainOptions()
+    if method not in METHODS:
+        raise InputError("unknown calibration method", field="method", expected=" | ".join(METHODS), got=method)
+    train = ps.presses if train is None else train
+    if not train:
+        raise InputError("no training presses left after the hold-out split", field="holdout")
+    t0 = time.perf_counter()
+    data = training_samples(ps, train, opts)
+    info: dict[str, Any] = {"gate": opts.gate, "train_files": [p.file for p in train],
+                            "n_train_pixels": int(len(data["n"])), "options": opts.__dict__.copy()}
+    if method == "lut":
+        # bin edges on half-integers: integer colour changes never sit on an edge (float-rounding safe)
+        params = fit_lut(data["dI"], data["n"], opts.lut_bins, -opts.lut_range - 0.5, opts.lut_range - 0.5)
+    elif method == "lut_raw":
+        params = fit_lut(data["raw"], data["n"], opts.lut_bins, -0.5, 255.5)
+    elif method == "mlp":
+        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], ps.shape)
+        params = fit_mlp(feats, data["n"], opts)
+    else:
+        params = fit_ps(data["dI"], data["n"])
+    params["inverse"] = fit_inverse(data["dI"], data["n"])
+    info["train_seconds"] = time.perf_counter() - t0
+    info.update({"ball_radius_mm": ps.ball_radius_mm, "press_set": str(ps.root)})
+    calib = Calibration(method, ps.sensor, ps.mm_per_px, ps.background().copy(), params, info)
+    calib.info["height_noise_mm"] = height_noise(calib, ps, train)
+    return calib
+
+
+def cached_calibration(ps: PressSet, method: str, holdout: str | None = None,
+                       opts: TrainOptions | None = None) -> Calibration:
+    """Train (or load from ``cache_dir()/tactile``) a calibration on the non-held-out presses of a press set."""
+    import hashlib
+
+    from vtrack.paths import cache_dir
+
+    opts = opts or TrainOptions()
+    train, _ = ps.split(holdout)
+    key = json.dumps({"root": str(ps.root.resolve()), "meta": ps.meta(), "method": method,
+                      "train": [p.file for p in train], "opts": opts.__dict__, "v": FORMAT_VERSION}, sort_keys=True)
+    digest = hashlib.sha1(key.encode()).hexdigest()[:16]
+    path = cache_dir() / "tactile" / f"calib_{method}_{digest}.npz"
+    if path.is_file():
+        try:
+            return Calibration.load(path)
+        except InputError:
+            pass  # stale/corrupt cache entry: retrain
+    calib = calibrate(ps, method, train, opts)
+    calib.info["holdout"] = holdout
+    calib.save(path)
+    return calib
+
+
+def held_out_presses(calib: Calibration, ps: PressSet) -> list[Press]:
+    """Presses of ``ps`` not used to train ``calib`` (all of them for a calibration from another set)."""
+    same = str(Path(calib.info.get("press_set", "")).resolve()) == str(ps.root.resolve())
+    used = set(calib.info.get("train_files", [])) if same else set()
+    return [p for p in ps.presses if p.file not in used]

@@ -1,0 +1,289 @@
+"""Real-time tactile pipeline: BGR image -> slopes -> height (mm) -> contact mask -> sensor-frame points.
+
+Registry key ``"tactile"`` (``TactilePipeline.from_scene(scene, sensor_name=None)``). Points and normals are in
+the sensor frame of :mod:`vtrack.geometry.tactile_frame` (metres), ready for ``T_world_sensor`` from forward
+kinematics. Optional stages: marker shear (:mod:`~vtrack.tactile.markers`), slip
+(:mod:`~vtrack.tactile.slip`) and force (:mod:`~vtrack.tactile.force`).
+
+Speed: slopes and Poisson run at a working resolution ``downsample`` times smaller than the image (slopes
+are in mm/mm so they do not depend on resolution; the height map is returned at full image size).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.geometry.tactile_frame import height_to_points
+from vtrack.tactile.calibration import Calibration, gate_mask_images, lambertian_calibration
+from vtrack.tactile.contact import ContactStats, contact_mask, contact_stats
+from vtrack.tactile.poisson import poisson_dct, poisson_fft, poisson_masked_lsq
+
+
+@dataclass
+class TactileFrame:
+    """Output of :meth:`TactilePipeline.process` for one image.
+
+    Attributes:
+        height_mm: (H, W) float32 indentation into the gel, mm (>= 0 in contact, ~0 elsewhere).
+        contact: (H, W) bool contact mask.
+        points: (N, 3) float64 contact points, sensor frame, m.
+        normals: (N, 3) float64 outward unit normals at ``points`` (sensor frame).
+        stats: contact area / centroid / axes / depth.
+        shear: marker shear estimate (``markers.ShearEstimate``) or None.
+        slip: slip signal (``slip.SlipState``) or None.
+        force: force estimate (``force.ForceEstimate``) or None.
+        timings_ms: per-stage wall time, ms.
+    """
+
+    height_mm: np.ndarray
+    contact: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    stats: ContactStats
+    shear: Any = None
+    slip: Any = None
+    force: Any = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def in_contact(self) -> bool:
+        return self.stats.area_px > 0
+
+
+class TactilePipeline:
+    """Image -> height -> contact -> points for one vision-based tactile sensor.
+
+    Args:
+        calib: a :class:`Calibration` (or path to its ``.npz``); None -> Lambertian model (matches
+            :func:`vtrack.tactile.render.render_tactile_image` without calibration).
+        mm_per_px: pixel pitch (default: the calibration's).
+        background: no-contact BGR frame (default: the calibration's; with neither, the first frame).
+        solver: ``dct`` (default), ``fft`` or ``lsq`` (masked sparse LSQ on the colour-change region).
+        downsample: working-resolution factor for slopes + Poisson (1 = full resolution).
+        contact_threshold_mm: minimum indentation counted as contact (noise-aware floor, see contact.py).
+        point_stride: keep every n-th contact pixel (in working pixels) as a point.
+        markers / slip / force_model: optional extra stages.
+    """
+
+    def __init__(self, calib: Calibration | str | Path | None = None, *, mm_per_px: float | None = None,
+                 background: np.ndarray | None = None, image_shape: tuple[int, int] | None = None,
+                 solver: str = "dct", downsample: int = 1, contact_threshold_mm: float = 0.05,
+                 point_stride: int = 1, markers: bool = False, slip: bool = False, force_model: Any = None,
+                 sensor_name: str = "tactile") -> None:
+        if isinstance(calib, (str, Path)):
+            calib = Calibration.load(calib)
+        if solver not in ("dct", "fft", "lsq"):
+            raise InputError("unknown Poisson solver", field="solver", expected="dct | fft | lsq", got=solver)
+        if int(downsample) < 1:
+            raise InputError("downsample must be >= 1", field="downsample", got=downsample)
+        self.sensor_name = sensor_name
+        self.calib = calib
+        self.mm_per_px = float(mm_per_px if mm_per_px is not None else (calib.mm_per_px if calib else 0.0))
+        if not self.mm_per_px > 0:
+            raise InputError("mm_per_px is required without a calibration", field="mm_per_px", expected="> 0")
+        self.solver = solver
+        self.downsample = int(downsample)
+        self.contact_threshold_mm = float(contact_threshold_mm)
+        self.point_stride = max(1, int(point_stride))
+        self.image_shape = image_shape if calib is None else calib.shape
+        self._bg_full: np.ndarray | None = None
+        self._bg_work: np.ndarray | None = None
+        self._model: Calibration | None = None
+        self.noise_mm = float(calib.info.get("height_noise_mm", 0.0)) if calib is not None else 0.0
+        bg = background if background is not None else (calib.background if calib is not None else None)
+        if bg is not None:
+            self.set_background(bg)
+        self.markers = None
+        if markers:
+            from vtrack.tactile.markers import MarkerTracker
+
+            self.markers = MarkerTracker()
+        self.slip = None
+        if slip:
+            from vtrack.tactile.slip import SlipDetector
+
+            self.slip = SlipDetector()
+        self.force_model = force_model
+        self.sensors: dict[str, TactilePipeline] = {sensor_name: self}
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_scene(cls, scene: Any, sensor_name: str | None = None, **options: Any) -> TactilePipeline:
+        """Pipeline of one tactile sensor of a scene (default: the first non-dome sensor).
+
+        All non-dome sensors get their own pipeline in ``.sensors`` (name -> pipeline).
+        """
+        specs = [t for t in scene.tactile if t.type != "dome"]
+        if not specs:
+            raise InputError("scene has no (non-dome) tactile sensor", field="tactile")
+        if sensor_name is not None and sensor_name not in {t.name for t in specs}:
+            raise InputError("unknown tactile sensor", field="sensor_name",
+                             expected=" | ".join(t.name for t in specs), got=sensor_name)
+        built = {t.name: cls._from_spec(t, **options) for t in specs}
+        main = built[sensor_name or specs[0].name]
+        main.sensors = built
+        return main
+
+    @classmethod
+    def _from_spec(cls, spec: Any, **options: Any) -> TactilePipeline:
+        from vtrack.tactile.pressset import read_bgr
+
+        bg = read_bgr(spec.background) if spec.background is not None else None
+        opts = {"contact_threshold_mm": spec.contact_threshold_mm, **options}
+        return cls(spec.calibration, mm_per_px=spec.mm_per_px, background=bg,
+                   image_shape=(spec.height, spec.width), sensor_name=spec.name, **opts)
+
+    def for_sensor(self, name: str) -> TactilePipeline:
+        try:
+            return self.sensors[name]
+        except KeyError:
+            raise InputError("unknown tactile sensor", field="sensor", expected=" | ".join(self.sensors),
+                             got=name) from None
+
+    # ------------------------------------------------------------------ background / working resolution
+    def _check(self, image: np.ndarray, name: str = "image") -> np.ndarray:
+        img = np.asarray(image)
+        if img.ndim == 2:
+            img = np.repeat(img[..., None], 3, axis=2)
+        if img.ndim != 3 or img.shape[2] != 3 or img.size == 0:
+            raise InputError("tactile image must be (H, W, 3) BGR", field=name, expected="(H, W, 3)", got=img.shape)
+        if self.image_shape is not None and img.shape[:2] != tuple(self.image_shape):
+            raise InputError("image size differs from the sensor calibration", field=name,
+                             expected=f"{self.image_shape[0]}x{self.image_shape[1]} (HxW)", got=img.shape[:2])
+        if img.dtype != np.uint8:
+            # float images: NaN/Inf -> 0 and clip into 8 bits (the calibration is defined on 8-bit colour)
+            img = np.clip(np.nan_to_num(img.astype(np.float32), nan=0.0, posinf=255.0, neginf=0.0), 0, 255)
+            img = img.astype(np.uint8)
+        return img
+
+    def _to_work(self, img: np.ndarray) -> np.ndarray:
+        import cv2
+
+        if self.downsample == 1:
+            return img
+        H, W = img.shape[:2]
+        w, h = max(1, W // self.downsample), max(1, H // self.downsample)
+        return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+
+    def set_background(self, background: np.ndarray) -> None:
+        """Set the no-contact reference frame (e.g. re-taken when the lighting drifts)."""
+        bg = self._check(background, "background")
+        if self.image_shape is None:
+            self.image_shape = bg.shape[:2]
+        self._bg_full = bg
+        self._bg_work = self._to_work(bg)
+        wh = self._bg_work.shape[:2]
+        if self.calib is None:
+            self._model = lambertian_calibration(self._bg_work, self.mm_per_px * self.downsample)
+        elif self.downsample == 1:
+            self._model = self.calib
+        else:
+            self._model = self.calib.resized(self._bg_work)
+        assert self._model.shape == wh
+
+    @property
+    def background(self) -> np.ndarray | None:
+        return self._bg_full
+
+    # ------------------------------------------------------------------ processing
+    def height_work(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(checked full-res image, height_mm at working resolution float32, colour-change gate there)."""
+        import cv2
+
+        img = self._check(image_bgr)
+        if self._bg_full is None:
+            self.set_background(img)  # first frame is the reference: assumed out of contact
+        work = self._to_work(img)
+        model = self._model
+        gate = gate_mask_images(work, self._bg_work, float(model.info.get("gate", 6.0)))
+        gx, gy = model.slopes_from_images(work, self._bg_work, gate)
+        s = np.float32(self.mm_per_px * self.downsample)
+        gx *= s
+        gy *= s
+        if self.solver == "dct":
+            hw = poisson_dct(gx, gy, dtype=np.float32)
+        elif self.solver == "fft":
+            hw = poisson_fft(gx, gy)
+        else:
+            hw = poisson_masked_lsq(gx, gy, cv2.dilate(gate.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+        return img, hw.astype(np.float32, copy=False), gate
+
+    def height(self, image_bgr: np.ndarray) -> np.ndarray:
+        """Height map (mm, float32) at full image resolution."""
+        img, hw, _ = self.height_work(image_bgr)
+        return self._to_full(hw, img.shape[:2])
+
+    def _to_full(self, a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        import cv2
+
+        if self.downsample == 1:
+            return a
+        H, W = shape
+        if a.dtype == bool:
+            return cv2.resize(a.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).view(bool)
+        return cv2.resize(a, (W, H), interpolation=cv2.INTER_LINEAR)
+
+    def process(self, image_bgr: np.ndarray, t: float | None = None) -> TactileFrame:
+        """Run the pipeline on one BGR image of this sensor (see :class:`TactileFrame`).
+
+        Contact detection and point lifting run at the working resolution (points are spaced
+        ``downsample * point_stride`` image pixels); height and mask are returned at full resolution.
+        """
+        t0 = time.perf_counter()
+        img, hw, gate = self.height_work(image_bgr)
+        t1 = time.perf_counter()
+        s_work = self.mm_per_px * self.downsample
+        mask_w = contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, diff_mask=gate)
+        stats = contact_stats(hw, mask_w, s_work)
+        if self.downsample > 1 and stats.area_px:
+            d = self.downsample
+            stats.area_px *= d * d
+            stats.centroid_px = tuple(c * d + (d - 1) / 2.0 for c in stats.centroid_px)
+            stats.axes_px = tuple(a * d for a in stats.axes_px)
+        t2 = time.perf_counter()
+        pts, nrm = self.contact_points(hw, mask_w, s_work, self.point_stride)
+        t3 = time.perf_counter()
+        H, W = img.shape[:2]
+        frame = TactileFrame(self._to_full(hw, (H, W)), self._to_full(mask_w, (H, W)), pts, nrm, stats,
+                             timings_ms={"height": (t1 - t0) * 1e3, "contact": (t2 - t1) * 1e3,
+                                         "points": (t3 - t2) * 1e3})
+        if self.markers is not None:
+            frame.shear = self.markers.update(img)
+        if self.slip is not None:
+            frame.slip = self.slip.update(img, frame.contact)
+        if self.force_model is not None:
+            frame.force = self.force_model.predict_frame(frame)
+        frame.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
+        return frame
+
+    @staticmethod
+    def contact_points(height_mm: np.ndarray, mask: np.ndarray, mm_per_px: float, stride: int = 1
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor-frame points (m) and normals of the contact pixels of a height map with pitch ``mm_per_px``.
+
+        Only the contact bounding box is lifted (with ``height_to_points``), then shifted to full-map coordinates.
+        """
+        if not mask.any():
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        H, W = mask.shape
+        rows = np.flatnonzero(mask.any(axis=1))
+        cols = np.flatnonzero(mask.any(axis=0))
+        r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, H)
+        c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, W)
+        # align the stride grid with the full image so points do not jump between frames
+        r0s, c0s = r0 - r0 % stride, c0 - c0 % stride
+        sub_h = height_mm[r0s:r1, c0s:c1]
+        sub_m = mask[r0s:r1, c0s:c1]
+        pts, nrm = height_to_points(sub_h, mm_per_px, mask=sub_m, stride=stride)
+        # height_to_points centres the crop: shift to full-image sensor coordinates
+        s = mm_per_px / 1000.0
+        hs, ws = sub_h.shape
+        pts[:, 0] += (c0s + (ws - 1) / 2.0 - (W - 1) / 2.0) * s
+        pts[:, 1] += (r0s + (hs - 1) / 2.0 - (H - 1) / 2.0) * s
+        return pts, nrm

@@ -1,0 +1,238 @@
+"""Press-set format: ball-press calibration images with labelled contact circles.
+
+A press set is a folder holding
+- ``background.png``: a no-contact frame (BGR, as ``cv2.imread`` returns it);
+- the press images named in ``labels.csv`` with columns ``file,center_x_px,center_y_px,contact_radius_px``
+  (x = column, y = row, origin top-left; the radius is the visible contact circle, not the ball);
+- ``meta.json`` with ``sensor``, ``mm_per_px`` and ``ball_radius_mm``.
+
+When the folder is read-only and has no ``meta.json``, the metadata comes (in order of precedence) from
+explicit overrides (CLI flags), a ``--meta`` JSON file, ``meta.json`` in the folder, or a preset shipped in
+``vtrack/tactile/presets/<folder name>.json`` for the known shared sets.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+PRESETS_DIR = Path(__file__).resolve().parent / "presets"
+META_FIELDS = ("sensor", "mm_per_px", "ball_radius_mm")
+LABEL_COLUMNS = ("file", "center_x_px", "center_y_px", "contact_radius_px")
+
+
+@dataclass
+class Press:
+    """One labelled press: image file, contact-circle centre (x = col, y = row) and radius in px."""
+
+    file: str
+    center_xy_px: tuple[float, float]
+    contact_radius_px: float
+    index: int = 0
+
+
+@dataclass
+class PressSet:
+    """A loaded press set; images are read lazily and cached (uint8 BGR, (H, W, 3))."""
+
+    root: Path
+    presses: list[Press]
+    sensor: str
+    mm_per_px: float
+    ball_radius_mm: float
+    background_file: str = "background.png"
+    _cache: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+
+    @property
+    def ball_radius_px(self) -> float:
+        return self.ball_radius_mm / self.mm_per_px
+
+    def meta(self) -> dict:
+        return {"sensor": self.sensor, "mm_per_px": self.mm_per_px, "ball_radius_mm": self.ball_radius_mm}
+
+    def read(self, name: str) -> np.ndarray:
+        if name not in self._cache:
+            self._cache[name] = read_bgr(self.root / name)
+        return self._cache[name]
+
+    def background(self) -> np.ndarray:
+        return self.read(self.background_file)
+
+    def image(self, press: Press) -> np.ndarray:
+        img = self.read(press.file)
+        bg = self.background()
+        if img.shape != bg.shape:
+            raise InputError("press image size differs from the background", path=self.root / press.file,
+                             expected=str(bg.shape), got=img.shape)
+        return img
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.background().shape[:2]
+
+    def split(self, holdout: str | None) -> tuple[list[Press], list[Press]]:
+        """(train, test) presses from a hold-out spec (see :func:`parse_holdout`)."""
+        test_idx = parse_holdout(holdout, self.presses)
+        train = [p for p in self.presses if p.index not in test_idx]
+        test = [p for p in self.presses if p.index in test_idx]
+        return train, test
+
+
+def read_bgr(path: str | Path) -> np.ndarray:
+    """Read an 8-bit 3-channel image (BGR) with a clear error when it is missing or unreadable."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("image file not found", path=path)
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise InputError("cannot decode image", path=path, expected="PNG/JPEG readable by OpenCV")
+    return img
+
+
+DEFAULT_HOLDOUT = "every:4:3"
+
+
+def parse_holdout(spec: str | None, presses: list[Press]) -> set[int]:
+    """Indices of held-out presses.
+
+    ``spec``: ``every:K[:OFFSET]`` (every K-th press from OFFSET; default ``every:4:3``, i.e. 25 %),
+    ``idx:1,5,9`` (press indices), ``files:press_03.png,press_07.png``, ``last:N``, ``none``.
+    """
+    spec = DEFAULT_HOLDOUT if spec in (None, "") else spec.strip()
+    n = len(presses)
+    kind, _, rest = spec.partition(":")
+    try:
+        if kind == "none":
+            return set()
+        if kind == "every":
+            parts = [int(x) for x in rest.split(":") if x]
+            k = parts[0]
+            off = parts[1] if len(parts) > 1 else k - 1
+            if k < 2:
+                raise ValueError
+            return {p.index for p in presses if p.index % k == off % k}
+        if kind == "idx":
+            want = {int(x) for x in rest.split(",") if x.strip()}
+            bad = want - {p.index for p in presses}
+            if bad:
+                raise InputError("hold-out index out of range", field="holdout", expected=f"0..{n - 1}",
+                                 got=sorted(bad))
+            return want
+        if kind == "files":
+            names = {x.strip() for x in rest.split(",") if x.strip()}
+            found = {p.index for p in presses if p.file in names}
+            missing = names - {p.file for p in presses}
+            if missing:
+                raise InputError("hold-out file not in labels.csv", field="holdout", got=sorted(missing))
+            return found
+        if kind == "last":
+            k = int(rest)
+            return {p.index for p in presses[n - k:]} if k > 0 else set()
+    except (ValueError, IndexError):
+        pass
+    raise InputError("bad hold-out spec", field="holdout",
+                     expected="every:K[:OFFSET] | idx:i,j | files:a.png,b.png | last:N | none", got=spec)
+
+
+def _read_meta_file(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError("meta file not found", path=path) from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"meta file is not valid JSON ({e})", path=path) from None
+    if not isinstance(data, dict):
+        raise InputError("meta file must hold a JSON object", path=path, expected="{sensor, mm_per_px, ...}")
+    return data
+
+
+def resolve_meta(root: Path, meta_file: str | Path | None = None, **overrides) -> dict:
+    """Merge metadata: preset < folder meta.json < --meta file < explicit overrides (None = unset)."""
+    meta: dict = {}
+    preset = PRESETS_DIR / f"{root.name}.json"
+    if preset.is_file():
+        meta.update(_read_meta_file(preset))
+    if (root / "meta.json").is_file():
+        meta.update(_read_meta_file(root / "meta.json"))
+    if meta_file is not None:
+        meta.update(_read_meta_file(Path(meta_file)))
+    meta.update({k: v for k, v in overrides.items() if v is not None})
+    missing = [k for k in META_FIELDS if k not in meta]
+    if missing:
+        raise InputError("press-set metadata missing (add meta.json, pass --meta FILE or the flags "
+                         "--sensor/--mm-per-px/--ball-radius-mm)", path=root, field=",".join(missing))
+    for k in ("mm_per_px", "ball_radius_mm"):
+        try:
+            v = float(meta[k])
+        except (TypeError, ValueError):
+            raise InputError("not a number", path=root, field=k, got=meta[k]) from None
+        if not (np.isfinite(v) and v > 0):
+            raise InputError("must be a positive number", path=root, field=k, expected="> 0", got=meta[k])
+        meta[k] = v
+    meta["sensor"] = str(meta["sensor"])
+    return meta
+
+
+def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sensor: str | None = None,
+                   mm_per_px: float | None = None, ball_radius_mm: float | None = None) -> PressSet:
+    """Load a press-set folder (see module docstring). Images are read on first use."""
+    root = Path(path)
+    if not root.is_dir():
+        raise InputError("press-set folder not found", path=root,
+                         expected="folder with labels.csv, background.png and press images")
+    labels = root / "labels.csv"
+    if not labels.is_file():
+        raise InputError("labels.csv not found in the press set", path=labels)
+    meta = resolve_meta(root, meta_file, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
+    presses: list[Press] = []
+    with open(labels, newline="") as f:
+        reader = csv.DictReader(f)
+        cols = reader.fieldnames or []
+        if any(c not in cols for c in LABEL_COLUMNS):
+            raise InputError("labels.csv header", path=labels, expected=",".join(LABEL_COLUMNS), got=cols)
+        for i, row in enumerate(reader):
+            try:
+                cx, cy, r = (float(row[c]) for c in LABEL_COLUMNS[1:])
+            except (TypeError, ValueError):
+                raise InputError(f"row {i + 2}: non-numeric label", path=labels, got=row) from None
+            if not (np.isfinite([cx, cy, r]).all() and r > 0):
+                raise InputError(f"row {i + 2}: bad contact circle", path=labels, expected="finite, radius > 0",
+                                 got=row)
+            presses.append(Press(row["file"], (cx, cy), r, index=i))
+    if not presses:
+        raise InputError("labels.csv has no presses", path=labels)
+    if not (root / "background.png").is_file():
+        raise InputError("background.png not found in the press set", path=root / "background.png")
+    return PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"])
+
+
+def sphere_truth(press: Press, shape: tuple[int, int], ball_radius_px: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Analytic ball-press surface of one press.
+
+    Returns ``(height_px, gx, gy, inside)``: the indentation (px units) of a sphere of radius
+    ``ball_radius_px`` whose intersection with the undeformed gel is the labelled contact circle, its slopes
+    dh/dx, dh/dy (px/px = mm/mm) and the boolean contact disc. Outside the disc the gel is flat.
+    """
+    H, W = shape
+    cx, cy = press.center_xy_px
+    r = min(press.contact_radius_px, 0.999 * ball_radius_px)
+    yy, xx = np.mgrid[0:H, 0:W]
+    dx, dy = xx - cx, yy - cy
+    rho2 = dx * dx + dy * dy
+    inside = rho2 < r * r
+    R2 = ball_radius_px**2
+    s = np.sqrt(np.clip(R2 - rho2, 1e-12, None))
+    base = np.sqrt(R2 - r * r)
+    h = np.where(inside, s - base, 0.0)
+    gx = np.where(inside, -dx / s, 0.0)
+    gy = np.where(inside, -dy / s, 0.0)
+    return h, gx, gy, inside
