@@ -35,14 +35,20 @@ class _Slot:
                                                initargs=(threads, os.getpid()))
         self.token: int | None = None
         self.future: cf.Future | None = None
+        self.procs: list[Any] = []
 
     def pids(self) -> list[int]:
         # Private attribute, used only to kill a timed-out task and to read a crash's exit code.
         return list((getattr(self.executor, "_processes", None) or {}).keys())
 
+    def remember_processes(self) -> None:
+        # The executor forgets its processes once broken; keep them to read the exit code.
+        self.procs = list((getattr(self.executor, "_processes", None) or {}).values())
+
     def exit_codes(self) -> list[int | None]:
-        procs = getattr(self.executor, "_processes", None) or {}
-        return [p.exitcode for p in procs.values()]
+        for p in self.procs:
+            p.join(timeout=1.0)
+        return [p.exitcode for p in self.procs]
 
 
 class LocalEngine:
@@ -93,6 +99,7 @@ class LocalEngine:
             slot = next(s for s in self._slots if s.future is None)
             slot.future = slot.executor.submit(execute, job)
         slot.token = token
+        slot.remember_processes()
         return token
 
     def _replace(self, slot: _Slot) -> _Slot:

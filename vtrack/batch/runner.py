@@ -157,6 +157,8 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
             t_end = time.perf_counter()
         finally:
             eng.close()
+        # Temp folders of attempts that died (their workers are gone now) are never results.
+        run_info["removed_leftovers"] += results.clean_leftovers(out_root)
         ran = sum(1 for r in records.values() if r["status"] == "ok")
         wall = t_end - t_ready
         run_info.update({

@@ -37,7 +37,7 @@ def write_synthetic_session(path: str | Path, *, seed: int = 0, frames: int = 20
     ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
     phase = rng.uniform(0, 2 * np.pi)
     radius = 0.05
-    with SessionWriter(path, None, overwrite=overwrite, info={"generator": "vtrack.batch.synthetic",
+    with SessionWriter(path, None, overwrite=overwrite, flush_every=64, info={"generator": "vtrack.batch.synthetic",
                                                                 "seed": seed}) as w:
         w.add_stream("camera/cam0", cam)
         w.add_stream("tactile/pad", tac)
