@@ -22,22 +22,33 @@ def tactile_image(i: int, h: int = 40, w: int = 30) -> np.ndarray:
 
 def write_feelsight(root: Path, n: int = 10, cams: tuple[str, ...] = ("front-left",), cam_hw=(48, 64),
                     tac_hw=(40, 30), sim: bool = True, rate_hz: float = 30.0) -> Path:
-    """Write a FeelSight log folder ``root`` with ``n`` frames; returns ``root``."""
+    """Write a FeelSight log folder ``root`` with ``n`` frames; returns ``root``.
+
+    Tactile image content repeats every 50 frames (encoded once, written as bytes) to keep large
+    fixtures quick to write; the importer still decodes every file.
+    """
     import cv2
 
     root.mkdir(parents=True, exist_ok=True)
+    enc_cache: dict = {}
+
+    def imwrite(path: Path, img: np.ndarray, key) -> None:
+        if key not in enc_cache:
+            ok, buf = cv2.imencode(path.suffix, img)
+            enc_cache[key] = buf.tobytes()
+        path.write_bytes(enc_cache[key])
+
     H, W = cam_hw
     for f in FINGERS:
         for sub in ("image", *(("depth", "mask") if sim else ())):
             (root / "allegro" / f / sub).mkdir(parents=True, exist_ok=True)
         for i in range(n):
-            img = tactile_image(i, *tac_hw)
-            cv2.imwrite(str(root / "allegro" / f / "image" / f"{i}.jpg"), img)
+            imwrite(root / "allegro" / f / "image" / f"{i}.jpg", tactile_image(i % 50, *tac_hw), ("tac", i % 50))
             if sim:
                 d = np.zeros(tac_hw, np.uint8)
                 d[5:15, 5:15] = 200
-                cv2.imwrite(str(root / "allegro" / f / "depth" / f"{i}.jpg"), d)
-                cv2.imwrite(str(root / "allegro" / f / "mask" / f"{i}.jpg"), (d > 0).astype(np.uint8) * 255)
+                imwrite(root / "allegro" / f / "depth" / f"{i}.jpg", d, "depth")
+                imwrite(root / "allegro" / f / "mask" / f"{i}.jpg", (d > 0).astype(np.uint8) * 255, "mask")
     cam_info = {}
     for c in cams:
         (root / "realsense" / c / "image").mkdir(parents=True, exist_ok=True)
@@ -48,13 +59,13 @@ def write_feelsight(root: Path, n: int = 10, cams: tuple[str, ...] = ("front-lef
             rgb = np.zeros((H, W, 3), np.uint8)
             rgb[..., 0] = 200  # red in RGB -> stored as BGR by cv2.imwrite after conversion
             rgb[H // 4:H // 2, W // 4:W // 2] = (0, 255, 0)
-            cv2.imwrite(str(root / "realsense" / c / "image" / f"{i}.jpg"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+            imwrite(root / "realsense" / c / "image" / f"{i}.jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), "rgb")
             depth[i] = 0.5 + 0.001 * i
             depth[i, 0, 0] = np.nan  # invalid pixel
             if sim:
                 seg = np.zeros((H, W), np.uint8)
                 seg[H // 4:H // 2, W // 4:W // 2] = 255
-                cv2.imwrite(str(root / "realsense" / c / "seg" / f"{i}.jpg"), seg)
+                imwrite(root / "realsense" / c / "seg" / f"{i}.jpg", seg, "seg")
         np.savez_compressed(root / "realsense" / c / "depth.npz", depth=depth)
         T = np.eye(4)
         T[:3, 3] = [0.4, 0.1, 0.2]

@@ -145,7 +145,7 @@ def _depth_to_u16(d: np.ndarray, depth_scale: float) -> np.ndarray:
     return np.clip(d, 0, 65535).astype(np.uint16)
 
 
-def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = False, flush_every: int = 64,
+def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = False, flush_every: int = 256,
                      max_frames: int | None = None, object_mesh: str | Path | None = None,
                      hand_urdf: str | None = "${shared}/data/robots/allegro_digit/allegro_digit_left.urdf",
                      rate_hz: float | None = None) -> ImportReport:

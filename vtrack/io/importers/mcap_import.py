@@ -16,7 +16,7 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def import_mcap(src: str | Path, out: str | Path, *, topic_map: dict[str, str] | None = None,
-                overwrite: bool = False, flush_every: int = 64, pair_tolerance_s: float = 0.02,
+                overwrite: bool = False, flush_every: int = 256, pair_tolerance_s: float = 0.02,
                 world_frame: str = "world", object_frame: str = "object",
                 tactile_type: str | None = None) -> ImportReport:
     """Convert an MCAP file into a session at ``out``.

@@ -170,7 +170,7 @@ class RosSessionBuilder:
     """
 
     def __init__(self, out: str | Path, report: ImportReport, *, topic_map: dict[str, str] | None = None,
-                 overwrite: bool = False, flush_every: int = 64, pair_tolerance_s: float = 0.02,
+                 overwrite: bool = False, flush_every: int = 256, pair_tolerance_s: float = 0.02,
                  world_frame: str = "world", object_frame: str = "object", source: Path | None = None,
                  tactile_type: str | None = None) -> None:
         self.out = Path(out)

@@ -31,7 +31,7 @@ def _check_bag_path(src: Path) -> None:
 
 
 def import_rosbag(src: str | Path, out: str | Path, *, topic_map: dict[str, str] | None = None,
-                  overwrite: bool = False, flush_every: int = 64, pair_tolerance_s: float = 0.02,
+                  overwrite: bool = False, flush_every: int = 256, pair_tolerance_s: float = 0.02,
                   world_frame: str = "world", object_frame: str = "object",
                   tactile_type: str | None = None) -> ImportReport:
     """Convert a ROS 1 ``.bag`` or a ROS 2 bag folder into a session at ``out``.
