@@ -154,7 +154,9 @@ class SessionFrames:
     def build(self, t: float, raw: dict) -> TrackingFrame:
         """Points from decoded arrays (the per-frame work a live pipeline does)."""
         vis = []
+        info: dict = {}
         for c, d, m in raw["cams"]:
+            info.setdefault("camera_origin", c.T_wc[:3, 3].copy())
             mask = None if m is None else (m > 0)
             pts, _ = c.cam.unproject(d, mask=mask, depth_scale=c.depth_scale, stride=self.depth_stride)
             if len(pts):
@@ -182,6 +184,7 @@ class SessionFrames:
             touch_points=np.concatenate(tp) if tp else None,
             touch_normals=np.concatenate(tn) if tn else None,
             free_points=np.concatenate(free) if free else None,
+            info=info,
         )
 
     def __iter__(self) -> Iterator[tuple[TrackingFrame, float]]:

@@ -133,3 +133,25 @@ def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: f
         ))
     return SynthSequence(frames=frames, gt=np.stack(gts), vertices=V, faces=F, centre=centre,
                          info={"occlusion": occlusion, "depth_noise": depth_noise, "fps": fps})
+
+
+def run_sequence(tracker, seq: SynthSequence, drop: tuple[str, ...] = (), frames=None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Step ``tracker`` over ``seq`` (optionally dropping "vision"/"touch").
+
+    Returns the estimates (N, 4, 4) and the per-frame error of the object centre (N,), m.
+    """
+    import copy
+
+    est = []
+    for f in (frames if frames is not None else seq.frames):
+        f = copy.copy(f)
+        if "touch" in drop:
+            f.touch_points = f.touch_normals = f.free_points = None
+        if "vision" in drop:
+            f.vision_points = None
+        est.append(tracker.step(f))
+    E = np.stack(est)
+    c = seq.centre[None]
+    err = np.linalg.norm(se3.transform_points(E, c)[:, 0] - se3.transform_points(seq.gt[: len(E)], c)[:, 0], axis=1)
+    return E, err
