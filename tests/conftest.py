@@ -28,3 +28,11 @@ def _isolated_cache(tmp_path_factory) -> None:
     """Use a per-run cache unless VTRACK_CACHE is set (so CI never reads stale generated data)."""
     if "VTRACK_CACHE" not in os.environ:
         os.environ["VTRACK_CACHE"] = str(tmp_path_factory.mktemp("vtrack_cache"))
+
+
+@pytest.fixture(scope="session")
+def tiny_session(shared_data) -> Path:
+    """A 1 s synthetic session of the default scene (occlusion none), generated once per test run."""
+    from vtrack.sim.fixtures import tiny_session_path
+
+    return tiny_session_path(occlusion="none", seconds=1.0)

@@ -192,6 +192,49 @@ class HandKinematics:
             return {k: v for k, v in T.items() if k in want}
         return T
 
+    def chain_joints(self, link: str) -> list[int]:
+        """Columns (in :attr:`joint_names`) of the movable joints between the root and ``link``."""
+        parent_joint = {j.child: j for j in self._joints}
+        if link not in self.link_names:
+            raise InputError("unknown link", field="link", expected=f"one of {self.link_names}", got=link)
+        cols = []
+        while link in parent_joint:
+            j = parent_joint[link]
+            if j.index >= 0:
+                cols.append(j.index)
+            link = j.parent
+        return cols[::-1]
+
+    def jacobian(self, q, link: str, T_link_point: np.ndarray | None = None,
+                 poses: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Geometric Jacobian of a frame rigidly attached to ``link``.
+
+        Args:
+            q: (N, J) or (J,) joint vectors, rad.
+            link: link carrying the frame; ``T_link_point`` its (4, 4) offset (default identity).
+            poses: optional precomputed :meth:`link_poses` of ``q`` (saves a FK pass).
+
+        Returns:
+            ``T_world_point`` (N, 4, 4) and ``J`` (N, 6, J): rows 0-2 linear velocity (m/rad) of the
+            frame origin, rows 3-5 angular velocity (rad/rad), both in the world frame.
+        """
+        q2, _ = self._as_q(q)
+        T = self.link_poses(q2) if poses is None else poses
+        Tp = T[link] @ (np.eye(4) if T_link_point is None else np.asarray(T_link_point, dtype=np.float64))
+        p = Tp[:, :3, 3]
+        J = np.zeros((q2.shape[0], 6, self.n_joints))
+        by_col = {j.index: j for j in self._joints if j.index >= 0}
+        for c in self.chain_joints(link):
+            j = by_col[c]
+            Tc = T[j.child]  # joint motion keeps the child origin on the axis; axis fixed in child frame
+            w = Tc[:, :3, :3] @ j.axis
+            if j.type == "prismatic":
+                J[:, :3, c] = w
+            else:
+                J[:, :3, c] = np.cross(w, p - Tc[:, :3, 3])
+                J[:, 3:, c] = w
+        return Tp, J
+
     def sensor_poses(self, q) -> dict[str, np.ndarray]:
         """``T_world_sensor`` (N, 4, 4) per tactile sensor for joint vectors ``q`` (rad)."""
         T = self.link_poses(q, links=list(set(self.sensor_links.values())))
@@ -220,7 +263,7 @@ class HandKinematics:
         return np.asarray(q, dtype=np.float64)[..., idx]
 
     # ------------------------------------------------------------------------------------
-    def _link_meshes(self) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    def link_meshes(self) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
         """Visual meshes per link in the link frame (loaded once, trimesh)."""
         if self._mesh_cache is not None:
             return self._mesh_cache
@@ -262,7 +305,7 @@ class HandKinematics:
                              got=np.shape(q))
         T = self.link_poses(q2)
         out = []
-        for link, meshes in self._link_meshes().items():
+        for link, meshes in self.link_meshes().items():
             Tl = T[link][0]
             for v, f in meshes:
                 out.append((v @ Tl[:3, :3].T + Tl[:3, 3], f))
@@ -270,4 +313,4 @@ class HandKinematics:
 
     def hand_mesh_links(self) -> list[str]:
         """Link name of each entry returned by :meth:`hand_meshes` (same order)."""
-        return [link for link, meshes in self._link_meshes().items() for _ in meshes]
+        return [link for link, meshes in self.link_meshes().items() for _ in meshes]

@@ -1,0 +1,304 @@
+"""Generate a synthetic in-hand visuo-tactile session with exact ground truth.
+
+``generate_session(scene, out_dir)`` writes a session (see :mod:`vtrack.io.session`) with the
+standard streams of :mod:`vtrack.io.streams`:
+
+- ``joints`` (q, rad, ``sim.joint_rate_hz``; column order ``HandKinematics.joint_names``; optional
+  encoder noise ``sim.joint_noise``), ``gt/object_pose`` (T_world_object at the joint times);
+- ``tactile/<sensor>`` (BGR image) and ``gt/tactile/<sensor>`` (height_mm, contact) at each sensor's
+  rate; the image comes from :func:`vtrack.tactile.render.render_tactile_image` (the calibrated
+  inverse model when the sensor has a calibration, else a three-light Lambertian model) on the real
+  DIGIT background, from the elastomer-smoothed height map, with pixel noise;
+- ``camera/<cam>`` (rgb, depth uint16, mask) and ``gt/camera/<cam>`` (visible_fraction) at each
+  camera's rate (see :mod:`vtrack.sim.rgbd` for the rendering and the depth-noise model);
+- ``assets/object.ply``: the object mesh in the object frame (bounding-box centre).
+
+Simplifications (stated): the gel is flat (the real DIGIT gel bulges <= 4-5 mm); contacts are
+geometric (no contact forces, no shear); the hand does not collide with the object except at the
+gels; the object moves on a prescribed trajectory (not simulated dynamics).
+
+The first camera is placed by the occlusion level (``none`` / ``medium`` / ``heavy``) on a sphere
+around the grasp at the distance of its declared placement; other cameras keep theirs. The
+session's embedded scene records the effective values (camera extrinsics, duration, seed, mesh).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+#: Direction from the object (grasp) centre to the first camera, hand-base frame, per occlusion
+#: level. Chosen by measuring the object's visible fraction (see docs in the module docstring).
+OCCLUSION_VIEWS: dict[str, tuple[float, float, float]] = {
+    "none": (0.75, -0.45, -0.5),
+    "medium": (0.5, 0.0, 1.0),
+    "heavy": (-0.25, 0.15, 1.0),
+}
+
+_HAND_MESH_CACHE: dict[str, list] = {}
+
+
+def _log(progress: bool, msg: str) -> None:
+    if progress:
+        print(f"[generate] {msg}", file=sys.stderr, flush=True)
+
+
+def _decimated_link_meshes(hk, max_faces: int = 2500) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """Link-frame visual meshes, decimated for fast per-frame BVH builds (cached per URDF)."""
+    key = str(hk.urdf_path)
+    if key in _HAND_MESH_CACHE:
+        return _HAND_MESH_CACHE[key]
+    import open3d as o3d
+
+    out: dict[str, list] = {}
+    for link, meshes in hk.link_meshes().items():
+        for v, f in meshes:
+            if len(f) > max_faces:
+                m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
+                m = m.simplify_quadric_decimation(max_faces)
+                v, f = np.asarray(m.vertices), np.asarray(m.triangles, dtype=np.int32)
+            out.setdefault(link, []).append((v, f))
+    _HAND_MESH_CACHE[key] = out
+    return out
+
+
+def _hand_world_meshes(link_meshes, poses: dict[str, np.ndarray], i: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    out = []
+    for link, meshes in link_meshes.items():
+        T = poses[link][i]
+        for v, f in meshes:
+            out.append((v @ T[:3, :3].T + T[:3, 3], f))
+    return out
+
+
+def _times(seconds: float, rate_hz: float) -> np.ndarray:
+    n = max(1, int(np.floor(seconds * rate_hz + 1e-9)))
+    return np.arange(n, dtype=np.float64) / rate_hz
+
+
+def _load_background(spec) -> np.ndarray:
+    import cv2
+
+    from vtrack.paths import shared_data_dir
+
+    candidates = []
+    if spec.background is not None:
+        candidates.append(Path(spec.background))
+    if spec.type == "digit":
+        candidates.append(shared_data_dir() / "backgrounds" / "digit_bg_tacto_240x320.jpg")
+    elif spec.type in ("gelsight_mini", "gelsight"):
+        candidates.append(shared_data_dir() / "backgrounds" / "gelsight_mini_bg_normalflow_320x240.png")
+    for p in candidates:
+        if p.exists():
+            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+            if img is not None:
+                if img.shape[:2] != (spec.height, spec.width):
+                    if img.shape[:2] == (spec.width, spec.height):
+                        img = np.ascontiguousarray(np.rot90(img))
+                    img = cv2.resize(img, (spec.width, spec.height), interpolation=cv2.INTER_AREA)
+                return img
+    # No real background available: a plausible flat, slightly vignetted gel.
+    yy, xx = np.mgrid[0:spec.height, 0:spec.width]
+    r = np.hypot((xx - spec.width / 2) / spec.width, (yy - spec.height / 2) / spec.height)
+    base = np.array([150.0, 140.0, 130.0])[None, None] * (1.0 - 0.4 * r[..., None])
+    return base.astype(np.uint8)
+
+
+def _render_tactile(height_mm, spec, background, calib, rng, noise_scale: float, blur_mm: float = 0.35):
+    from vtrack.tactile.render import render_tactile_image
+
+    return render_tactile_image(height_mm, spec.mm_per_px, background, calib=calib,
+                                rng=rng if noise_scale > 0 else None, noise_std=1.5 * noise_scale,
+                                blur_px=blur_mm / spec.mm_per_px)
+
+
+def place_camera(cam, occlusion: str, centre: np.ndarray) -> np.ndarray:
+    """``T_world_camera`` of a camera looking at ``centre`` from the occlusion level's direction."""
+    from vtrack.geometry.se3 import look_at
+
+    T_decl = cam.extrinsics()
+    dist = float(np.linalg.norm(T_decl[:3, 3] - centre))
+    if cam.look_at is not None:
+        dist = float(np.linalg.norm(np.asarray(cam.look_at.eye) - np.asarray(cam.look_at.target)))
+    dist = min(max(dist, cam.depth_min + 0.1), cam.depth_max - 0.1)
+    d = np.asarray(OCCLUSION_VIEWS[occlusion], dtype=np.float64)
+    d /= np.linalg.norm(d)
+    up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.9 else (1.0, 0.0, 0.0)
+    return look_at(centre + dist * d, centre, up)
+
+
+def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None = None, seed: int | None = None,
+                     occlusion: str | None = None, object_mesh: str | Path | None = None,
+                     overwrite: bool = False, progress: bool = False) -> Path:
+    """Generate a synthetic session from a scene (a :class:`~vtrack.scene.schema.Scene` or a YAML path).
+
+    Args:
+        seconds, seed, occlusion: override ``scene.sim`` (``occlusion`` in none|medium|heavy).
+        object_mesh: override the object with any watertight mesh in metres.
+        overwrite: replace an existing ``out_dir``.
+        progress: log stage timings to stderr.
+
+    Returns:
+        the session directory.
+
+    Raises:
+        InputError: the scene has no hand / tactile sensors, bad overrides, unreadable meshes.
+    """
+    from vtrack.geometry import se3
+    from vtrack.io.session import SessionWriter
+    from vtrack.io.streams import (
+        camera_stream,
+        joints_stream,
+        pose_stream,
+        scalar_stream,
+        tactile_gt_stream,
+        tactile_stream,
+    )
+    from vtrack.kinematics.hand import HandKinematics
+    from vtrack.scene import load_scene
+    from vtrack.scene.schema import SimSpec
+    from vtrack.sim.grasp import plan_grasp
+    from vtrack.sim.objects import load_object_mesh
+    from vtrack.sim.raycast import Raycaster
+    from vtrack.sim.rgbd import add_depth_noise, object_colour, render_geometry, shade_rgb
+
+    t_start = time.perf_counter()
+    if isinstance(scene, (str, Path)):
+        scene = load_scene(scene)
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not overwrite:
+        raise InputError("output session directory exists (pass overwrite=True / --force)", path=out_dir)
+    if scene.hand is None or not scene.hand.sensors:
+        raise InputError("a synthetic session needs a hand with tactile sensors", path=scene.source, field="hand")
+    sim = (scene.sim or SimSpec()).model_copy()
+    if seconds is not None:
+        if not (np.isfinite(seconds) and 0 < seconds <= 600):
+            raise InputError("duration out of range", field="seconds", expected="0 < s <= 600", got=seconds)
+        sim.seconds = float(seconds)
+    if seed is not None:
+        sim.seed = int(seed)
+    if occlusion is not None:
+        if occlusion not in OCCLUSION_VIEWS:
+            raise InputError("unknown occlusion level", field="occlusion", expected="none|medium|heavy",
+                             got=occlusion)
+        sim.occlusion = occlusion
+    mesh_path = Path(object_mesh) if object_mesh is not None else scene.object.mesh
+    if mesh_path is None:
+        raise InputError("the simulator needs an object mesh", path=scene.source, field="object.mesh")
+    scale = 1.0 if object_mesh is not None else scene.object.scale
+    obj_name = Path(mesh_path).stem if object_mesh is not None else scene.object.name
+
+    ss = np.random.SeedSequence(sim.seed)
+    rng_plan, rng_joint, rng_tac, rng_cam = (np.random.default_rng(s) for s in ss.spawn(4))
+
+    hk = HandKinematics.from_scene(scene)
+    obj = load_object_mesh(mesh_path, scale)
+    obj_rc = Raycaster([(obj.vertices, obj.faces)])
+    specs = {m.sensor: scene.tactile_by_name(m.sensor) for m in scene.hand.sensors}
+    _log(progress, f"setup {time.perf_counter() - t_start:.2f} s")
+
+    # 1. Motion: object trajectory + joint angles (contacts by IK on the closing synergies).
+    t0 = time.perf_counter()
+    t_joint = _times(sim.seconds, sim.joint_rate_hz)
+    plan = plan_grasp(hk, obj, obj_rc, sim, specs, t_joint, rng_plan)
+    _log(progress, f"grasp/IK {time.perf_counter() - t0:.2f} s")
+
+    # 2. Effective scene embedded in the manifest.
+    centre = plan.T0[:3, 3]
+    cams = list(scene.cameras)
+    T_cams = {c.name: c.extrinsics() for c in cams}
+    if cams:
+        T_cams[cams[0].name] = place_camera(cams[0], sim.occlusion, centre)
+    sd = scene.to_dict()
+    sd["object"].update({"name": obj_name, "mesh": "assets/object.ply", "scale": 1.0,
+                         "T_world_object": {"matrix": plan.T0.tolist()}})
+    for c in sd.get("cameras", []):
+        c["look_at"] = None
+        c["T_world_camera"] = {"matrix": T_cams[c["name"]].tolist()}
+    sd["sim"] = sim.model_dump(mode="json")
+    info = {"generator": "vtrack.sim.generate", "seed": sim.seed, "seconds": sim.seconds,
+            "occlusion": sim.occlusion, "object_source": str(mesh_path),
+            "T_source_object": obj.T_source_object.tolist()}
+
+    writer = SessionWriter(out_dir, sd, overwrite=overwrite, flush_every=16, info=info)
+    try:
+        obj.write_ply(writer.path / "assets" / "object.ply")
+        writer.manifest["assets"]["object.ply"] = {"role": "object_mesh", "frame": "object",
+                                                   "source": str(mesh_path)}
+
+        # 3. Joints and object pose.
+        writer.add_stream("joints", joints_stream(hk.joint_names, sim.joint_rate_hz))
+        writer.add_stream("gt/object_pose", pose_stream(rate_hz=sim.joint_rate_hz))
+        q_meas = plan.q + (rng_joint.normal(0.0, sim.joint_noise, plan.q.shape) if sim.joint_noise > 0 else 0.0)
+        for i, t in enumerate(t_joint):
+            writer.append("joints", float(t), q=q_meas[i])
+            writer.append("gt/object_pose", float(t), T_world_object=plan.T_world_object[i])
+
+        # 4. Tactile: GT height maps (full resolution) and images.
+        t0 = time.perf_counter()
+        from vtrack.sim.grasp import gel_heights
+
+        calib_cache: dict[str, Any] = {}
+        for s, spec in specs.items():
+            t_tac = _times(sim.seconds, spec.rate_hz)
+            T_wo = plan.object_pose_at(t_tac)
+            T_ws = hk.sensor_poses(plan.q_at(t_tac))[s]
+            heights = gel_heights(obj_rc, se3.invert(T_wo) @ T_ws, spec.width, spec.height, spec.mm_per_px,
+                                  spec.gel_thickness_mm)
+            bg = _load_background(spec)
+            calib = None
+            if spec.calibration is not None:
+                calib = calib_cache.setdefault(str(spec.calibration), str(spec.calibration))
+            writer.add_stream(f"tactile/{s}", tactile_stream(spec))
+            writer.add_stream(f"gt/tactile/{s}", tactile_gt_stream(spec))
+            for i, t in enumerate(t_tac):
+                h = heights[i]
+                img = _render_tactile(h, spec, bg, calib, rng_tac, sim.tactile_noise)
+                writer.append(f"tactile/{s}", float(t), image=img)
+                writer.append(f"gt/tactile/{s}", float(t), height_mm=h,
+                              contact=(h > spec.contact_threshold_mm).astype(np.uint8))
+        _log(progress, f"tactile {time.perf_counter() - t0:.2f} s")
+
+        # 5. Cameras.
+        t0 = time.perf_counter()
+        link_meshes = _decimated_link_meshes(hk) if cams else {}
+        rgb_obj = object_colour(obj_name)
+        for cam in cams:
+            K = cam.intrinsics()
+            rays = K.pixel_rays()
+            d_unit = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+            T_wc = T_cams[cam.name]
+            t_cam = _times(sim.seconds, cam.rate_hz)
+            T_wo = plan.object_pose_at(t_cam)
+            poses = hk.link_poses(plan.q_at(t_cam))
+            writer.add_stream(f"camera/{cam.name}", camera_stream(cam, True, T_world_camera=T_wc))
+            writer.add_stream(f"gt/camera/{cam.name}",
+                              scalar_stream("visible_fraction", "fraction", kind="visibility", rate_hz=cam.rate_hz))
+            for i, t in enumerate(t_cam):
+                hand_rc = Raycaster(_hand_world_meshes(link_meshes, poses, i))
+                fr = render_geometry(rays, T_wc, obj_rc, T_wo[i], hand_rc, cam.depth_max)
+                depth = add_depth_noise(fr.depth_m, fr.cos_incidence, rng_cam, sim.depth_noise)
+                depth = np.where((depth >= cam.depth_min) & (depth <= cam.depth_max), depth, 0.0)
+                depth_u16 = np.clip(np.rint(depth / cam.depth_scale), 0, 65535).astype(np.uint16)
+                rgb = shade_rgb(fr, d_unit @ T_wc[:3, :3].T, rgb_obj, rng_cam, noise=2.0 * sim.depth_noise)
+                n_all = int(fr.object_unoccluded.sum())
+                vis = float(fr.object_mask.sum()) / n_all if n_all else 0.0
+                writer.append(f"camera/{cam.name}", float(t), rgb=rgb, depth=depth_u16,
+                              mask=fr.object_mask.astype(np.uint8))
+                writer.append(f"gt/camera/{cam.name}", float(t), visible_fraction=np.float32(vis))
+        _log(progress, f"cameras {time.perf_counter() - t0:.2f} s")
+
+        contact_frac = {s: float(plan.in_contact_phase[s].mean()) for s in hk.sensor_names}
+        writer.set_info(contact_fraction=contact_frac, generate_seconds=time.perf_counter() - t_start)
+    except BaseException:
+        writer.flush()
+        raise
+    writer.close()
+    _log(progress, f"total {time.perf_counter() - t_start:.2f} s -> {out_dir}")
+    return out_dir

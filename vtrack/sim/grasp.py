@@ -1,0 +1,322 @@
+"""Grasp placement, object trajectory and fingertip contacts by inverse kinematics.
+
+World frame = the hand's world frame of the scene (``hand.T_world_base``). The object is placed
+between the four fingertips of a nominal grasp posture: its shortest bounding-box axis along the
+squeeze direction (fingers vs thumb), its longest along the line of fingertips. It then rotates
+about ``sim.rotation_axis`` (object frame, through the object centre) at ``sim.rotation_speed`` (with a
+smooth 0.5 s ramp-in) and translates by a small Lissajous wobble of ``sim.translation_amplitude``.
+
+Each finger closes along a one-parameter *closing synergy* ``q(s) = q_open + s (q_closed - q_open)``
+(its own joints only, inside the joint limits) until its gel is indented by the target depth ``d``:
+for every frame and finger, ``s`` is found by batched bisection on the ray-cast gel indentation
+(max of the height map), so the penetration is exact (to ~0.02 mm) whenever the finger reaches the
+object, and contacts slide over the surface as the object turns. ``d`` follows a slow per-finger
+schedule inside ``sim.penetration_mm``. The object's rest position is chosen by a grid search so
+that every finger meets it mid-way along its synergy with the largest contact patch. Finger
+gaiting opens one finger at a time (contact breaks) and closes it again (contact re-made).
+The general batched IK (:mod:`vtrack.kinematics.ik`) then optionally re-aligns each gel with the
+surface normal while keeping the depth (``align_normals``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vtrack.geometry import se3
+from vtrack.kinematics.hand import HandKinematics
+from vtrack.sim.objects import ObjectMesh
+from vtrack.sim.raycast import Raycaster
+
+#: Allegro closing synergy (rad, joint_0.0 .. joint_15.0): open and closed postures, thumb opposed.
+# Both sweeps converge in front of the palm: fingers curl down and back, the thumb up and back.
+ALLEGRO_OPEN = np.array([0.0, 0.2, 0.2, 0.2, 0.0, 0.2, 0.2, 0.2, 0.0, 0.2, 0.2, 0.2, 1.35, 0.4, 0.0, 0.0])
+ALLEGRO_CLOSED = np.array([0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 1.35, 0.4, 0.6, 1.7])
+
+LIFT_S = 0.12  # how far (in synergy units) a gaiting finger opens
+
+
+@dataclass
+class GraspPlan:
+    """Result of planning: everything sampled at ``times`` (s)."""
+
+    times: np.ndarray  # (N,)
+    T_world_object: np.ndarray  # (N, 4, 4)
+    q: np.ndarray  # (N, J) true joint angles, rad
+    in_contact_phase: dict[str, np.ndarray]  # sensor -> (N,) bool (not lifted by gaiting, surface found)
+    target_penetration_mm: dict[str, np.ndarray]  # sensor -> (N,)
+    measured_penetration_mm: dict[str, np.ndarray]  # sensor -> (N,) max gel indentation (coarse grid)
+    T0: np.ndarray  # (4, 4) rest pose of the object
+    axis_world: np.ndarray  # (3,) rotation axis, world
+    speed: float  # rad/s
+    amplitude: float  # m
+
+    def object_pose_at(self, times: np.ndarray) -> np.ndarray:
+        """Exact ``T_world_object`` (N, 4, 4) at any times (s) (the trajectory is analytic)."""
+        return object_trajectory(self.T0, np.asarray(times, np.float64), self.axis_world, self.speed,
+                                 self.amplitude)
+
+    def q_at(self, times: np.ndarray) -> np.ndarray:
+        """Joint vectors (N, J) at any times, linearly interpolated (as readers interpolate)."""
+        t = np.asarray(times, np.float64)
+        return np.stack([np.interp(t, self.times, self.q[:, j]) for j in range(self.q.shape[1])], axis=1)
+
+
+def closing_synergy(hk: HandKinematics) -> tuple[np.ndarray, np.ndarray]:
+    """(q_open, q_closed) (J,) rad of the hand's closing synergy (Allegro preset, else from limits)."""
+    if hk.joint_names == [f"joint_{i}.0" for i in range(16)]:
+        return hk.clip_to_limits(ALLEGRO_OPEN), hk.clip_to_limits(ALLEGRO_CLOSED)
+    lo = np.where(np.isfinite(hk.lower), hk.lower, -1.0)
+    hi = np.where(np.isfinite(hk.upper), hk.upper, 1.0)
+    return lo + 0.1 * (hi - lo), lo + 0.9 * (hi - lo)
+
+
+def _finger_columns(hk: HandKinematics) -> dict[str, list[int]]:
+    return {s: hk.chain_joints(hk.sensor_links[s]) for s in hk.sensor_names}
+
+
+def _posture(q_open: np.ndarray, q_closed: np.ndarray, cols: dict[str, list[int]],
+             s_by_sensor: dict[str, np.ndarray]) -> np.ndarray:
+    """(N, J) joint vectors with each finger's joints at its synergy value (other joints open)."""
+    n = len(next(iter(s_by_sensor.values())))
+    q = np.repeat(q_open[None], n, 0)
+    for s, c in cols.items():
+        if s in s_by_sensor:
+            q[:, c] = q_open[c] + s_by_sensor[s][:, None] * (q_closed[c] - q_open[c])
+    return q
+
+
+def _max_indentation(hk, obj_rc, T_ow, q, sensor, spec, stride_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Max gel indentation (mm) and contact-pixel fraction of ``sensor`` for postures ``q`` (N, J)."""
+    T = hk.sensor_poses(q)[sensor]
+    stride = max(1, int(round(stride_mm / spec.mm_per_px)))
+    h = gel_heights(obj_rc, T_ow @ T, spec.width, spec.height, spec.mm_per_px, spec.gel_thickness_mm,
+                    stride=stride).reshape(len(q), -1)
+    return h.max(1).astype(np.float64), (h > spec.contact_threshold_mm).mean(1)
+
+
+def _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, sensor, spec, depth_mm: np.ndarray,
+                    scan: int = 12, iters: int = 8, guess: np.ndarray | None = None,
+                    window: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the synergy value where ``sensor`` first reaches ``depth_mm`` of indentation.
+
+    The closing motion is scanned coarsely (first level that is deep enough = first contact, as a
+    real finger stops there), then bisected inside that interval. Returns ``s`` (N,) and
+    ``reached`` (N,): False where the closed hand never reaches the depth (then ``s`` = 1).
+    With ``guess`` (N,), frames whose depth is bracketed by ``guess +- window`` skip the scan.
+    """
+    n = len(T_ow)
+    if guess is not None:
+        lo = np.clip(guess - window, 0.0, 1.0)
+        hi = np.clip(guess + window, 0.0, 1.0)
+        h_lo, _ = _max_indentation(hk, obj_rc, T_ow, _posture(q_open, q_closed, cols, {sensor: lo}), sensor, spec)
+        h_hi, _ = _max_indentation(hk, obj_rc, T_ow, _posture(q_open, q_closed, cols, {sensor: hi}), sensor, spec)
+        ok = (h_lo < depth_mm) & (h_hi >= depth_mm)
+        s_out = np.ones(n)
+        reached = np.zeros(n, bool)
+        if (~ok).any():
+            bad = np.nonzero(~ok)[0]
+            s_out[bad], reached[bad] = _close_to_depth(hk, obj_rc, T_ow[bad], q_open, q_closed, cols, sensor, spec,
+                                                       depth_mm[bad], scan, iters)
+        if ok.any():
+            good = np.nonzero(ok)[0]
+            a, b = lo[good], hi[good]
+            for _ in range(iters):
+                mid = 0.5 * (a + b)
+                h, _ = _max_indentation(hk, obj_rc, T_ow[good], _posture(q_open, q_closed, cols, {sensor: mid}),
+                                        sensor, spec)
+                deep = h >= depth_mm[good]
+                b = np.where(deep, mid, b)
+                a = np.where(deep, a, mid)
+            s_out[good] = 0.5 * (a + b)
+            reached[good] = True
+        return s_out, reached
+    levels = np.linspace(0.0, 1.0, scan + 1)
+    first = np.full(n, -1)
+    for k, lv in enumerate(levels):
+        todo = first < 0
+        if not todo.any():
+            break
+        h, _ = _max_indentation(hk, obj_rc, T_ow[todo],
+                                _posture(q_open, q_closed, cols, {sensor: np.full(todo.sum(), lv)}), sensor, spec)
+        idx = np.nonzero(todo)[0]
+        first[idx[h >= depth_mm[todo]]] = k
+    reached = first > 0
+    hi = np.where(reached, levels[np.maximum(first, 0)], 1.0)
+    lo = np.where(reached, levels[np.maximum(first - 1, 0)], 1.0)
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        h, _ = _max_indentation(hk, obj_rc, T_ow, _posture(q_open, q_closed, cols, {sensor: mid}), sensor, spec)
+        deep = h >= depth_mm
+        hi = np.where(deep, mid, hi)
+        lo = np.where(deep, lo, mid)
+    return np.where(reached, 0.5 * (lo + hi), 1.0), reached
+
+
+def object_rest_pose(hk: HandKinematics, obj: ObjectMesh, q_ref: np.ndarray) -> np.ndarray:
+    """Object orientation (and a first centre) between the fingertips of posture ``q_ref``: shortest
+    extent along the squeeze direction (fingers -> thumb), longest along the line of fingertips."""
+    sp = hk.sensor_poses(q_ref)
+    names = hk.sensor_names
+    g = np.stack([sp[s][0, :3, 3] for s in names])
+    thumb = [i for i, s in enumerate(names) if "thumb" in s]
+    fingers = [i for i in range(len(names)) if i not in thumb]
+    if thumb and fingers:
+        squeeze = g[fingers].mean(0) - g[thumb].mean(0)
+        centre = 0.5 * (g[fingers].mean(0) + g[thumb].mean(0))
+        spread = g[fingers[-1]] - g[fingers[0]] if len(fingers) > 1 else np.cross(squeeze, [1.0, 0, 0])
+    else:  # no thumb: squeeze along the mean gel normal, object just in front of the gels
+        nrm = np.stack([sp[s][0, :3, 2] for s in names]).mean(0)
+        squeeze = -nrm
+        centre = g.mean(0) + nrm * 0.5 * float(obj.extents.min())
+        spread = g[-1] - g[0] if len(g) > 1 else np.cross(squeeze, [1.0, 0, 0])
+    z = squeeze / max(np.linalg.norm(squeeze), 1e-12)
+    y = spread - z * (spread @ z)
+    if np.linalg.norm(y) < 1e-9:
+        y = np.cross(z, [1.0, 0.0, 0.0])
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    R_world_target = np.stack([x, y, z], axis=1)
+    # Object axes sorted by extent: shortest -> squeeze (z), middle -> x, longest -> spread (y).
+    order = np.argsort(obj.extents)
+    R_target_obj = np.zeros((3, 3))
+    for target_axis, obj_axis in zip((2, 0, 1), order, strict=True):
+        R_target_obj[target_axis, obj_axis] = 1.0
+    if np.linalg.det(R_target_obj) < 0:
+        R_target_obj[0] *= -1.0
+    return se3.make_transform(R_world_target @ R_target_obj, centre)
+
+
+
+
+def object_trajectory(T0: np.ndarray, times: np.ndarray, axis, speed: float, amplitude: float,
+                      ramp_s: float = 0.5) -> np.ndarray:
+    """(N, 4, 4) object poses: rotation about a world ``axis`` through the object centre at ``speed``
+    rad/s (cosine ramp-in over ``ramp_s``), plus a Lissajous translation of ``amplitude`` m."""
+    t = np.asarray(times, dtype=np.float64)
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / max(np.linalg.norm(a), 1e-12)
+    # angle = speed * integral of the ramp, so angular velocity rises smoothly from 0.
+    r = np.clip(t / max(ramp_s, 1e-9), 0.0, 1.0)
+    ramp_int = np.where(t < ramp_s, ramp_s * (r - np.sin(np.pi * r) / np.pi) / 2.0, t - ramp_s / 2.0)
+    angle = speed * ramp_int
+    R = se3.so3_exp(a[None] * angle[:, None])
+    env = 0.5 - 0.5 * np.cos(np.pi * r)
+    trans = amplitude * env[:, None] * np.stack(
+        [np.sin(2 * np.pi * 0.37 * t), np.sin(2 * np.pi * 0.23 * t + 1.0), np.sin(2 * np.pi * 0.29 * t + 2.0)],
+        axis=1)
+    T = np.repeat(T0[None], len(t), axis=0)
+    T[:, :3, :3] = R @ T0[:3, :3]
+    T[:, :3, 3] = T0[:3, 3] + trans
+    return T
+
+
+def gel_heights(obj_rc: Raycaster, T_object_sensor: np.ndarray, width: int, height: int, mm_per_px: float,
+                thickness_mm: float, stride: int = 1, max_rays: int = 400_000) -> np.ndarray:
+    """Gel indentation height maps (mm, >= 0) by casting one ray per pixel along the gel normal.
+
+    Rays start ``thickness_mm`` below the gel surface (inside the sensor) and go along +z of the
+    sensor frame; an object surface met before the gel surface (z < 0) indents the gel by -z.
+
+    Args:
+        obj_rc: ray caster holding the object mesh in the object frame.
+        T_object_sensor: (N, 4, 4) sensor poses in the object frame.
+        stride: sample every ``stride``-th pixel (coarse maps for the IK feedback).
+
+    Returns:
+        (N, ceil(H/stride), ceil(W/stride)) float32 heights in mm, clipped to the gel thickness.
+    """
+    rows = np.arange(0, height, stride)
+    cols = np.arange(0, width, stride)
+    s = mm_per_px / 1000.0
+    X, Y = np.meshgrid((cols - (width - 1) / 2.0) * s, (rows - (height - 1) / 2.0) * s)
+    thk = thickness_mm / 1000.0
+    o_s = np.stack([X, Y, np.full_like(X, -thk)], axis=-1).reshape(-1, 3)
+    out = np.zeros((len(T_object_sensor), len(rows), len(cols)), dtype=np.float32)
+    chunk = max(1, max_rays // len(o_s))
+    for i0 in range(0, len(T_object_sensor), chunk):
+        T = T_object_sensor[i0:i0 + chunk]
+        o = np.matmul(o_s[None], np.swapaxes(T[:, :3, :3], 1, 2)) + T[:, None, :3, 3]
+        d = np.broadcast_to(T[:, None, :3, 2], o.shape)
+        hit = obj_rc.cast(o, d)
+        t = hit["t"]
+        h = np.where(np.isfinite(t), (thk - t) * 1000.0, 0.0)  # z_hit = -thk + t
+        out[i0:i0 + chunk] = np.clip(h, 0.0, thickness_mm).reshape(len(T), len(rows), len(cols))
+    return out
+
+def _fit_rest_pose(hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, depth_mm: float,
+                   steps: int = 5, reach: float = 0.03) -> np.ndarray:
+    """Grid search of the object's rest centre (3-D, +-``reach`` m) for the pose where every finger
+    reaches ``depth_mm`` mid-way along its synergy with a large contact patch."""
+    T0 = object_rest_pose(hk, obj, _posture(q_open, q_closed, cols, {s: np.full(1, 0.3) for s in cols})[0])
+    offs = np.linspace(-reach, reach, steps)
+    A, B, C = np.meshgrid(offs, offs, offs, indexing="ij")
+    cands = np.repeat(T0[None], A.size, 0)
+    cands[:, :3, 3] += A.reshape(-1, 1) * T0[:3, 0] + B.reshape(-1, 1) * T0[:3, 1] + C.reshape(-1, 1) * T0[:3, 2]
+    T_ow = se3.invert(cands)
+    score = np.zeros(len(cands))
+    for s in hk.sensor_names:
+        spec = tactile_specs[s]
+        sv, ok = _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, s, spec,
+                                 np.full(len(cands), depth_mm), scan=10, iters=4)
+        q = _posture(q_open, q_closed, cols, {s: sv})
+        _, area = _max_indentation(hk, obj_rc, T_ow, q, s, spec, stride_mm=1.5)
+        # Unreached fingers are disqualifying; prefer mid-synergy and big patches (flush gels).
+        score += np.where(ok, area - 0.5 * np.abs(sv - 0.35), -10.0)
+    return cands[int(np.argmax(score))]
+
+
+def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tactile_specs: dict,
+               times: np.ndarray, rng: np.random.Generator) -> GraspPlan:
+    """Object trajectory and joint angles keeping every fingertip in contact (see module docstring).
+
+    Args:
+        sim: the scene's :class:`~vtrack.scene.schema.SimSpec` (penetration range, motion, gaiting).
+        tactile_specs: sensor name -> :class:`~vtrack.scene.schema.TactileSpec` (gel geometry).
+        times: (N,) joint-state times, s.
+    """
+    n = len(times)
+    names = hk.sensor_names
+    q_open, q_closed = closing_synergy(hk)
+    cols = _finger_columns(hk)
+    lo, hi = (float(v) for v in sim.penetration_mm)
+    span = hi - lo
+    T0 = _fit_rest_pose(hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, lo + 0.5 * span)
+    # sim.rotation_axis is given in the object frame (bounding-box-centred mesh axes).
+    axis_world = T0[:3, :3] @ np.asarray(sim.rotation_axis, dtype=np.float64)
+    T_wo = object_trajectory(T0, times, axis_world, sim.rotation_speed, sim.translation_amplitude)
+    T_ow = se3.invert(T_wo)
+
+    d_target, lift = {}, {}
+    fingers = [s for s in names if "thumb" not in s]
+    for s in names:
+        period = rng.uniform(1.5, 3.0)
+        phase = rng.uniform(0, 2 * np.pi)
+        d_target[s] = lo + span * (0.5 + 0.3 * np.sin(2 * np.pi * times / period + phase))
+        lift[s] = np.zeros(n)
+        if sim.finger_gaiting and s in fingers:
+            # One finger at a time: each opens for 0.5 s in a cycle of 0.5 s per finger + 1 s.
+            cycle = 0.5 * len(fingers) + 1.0
+            start = 1.0 + 0.5 * fingers.index(s)
+            u = ((times - start) % cycle) / 0.5
+            lifting = (times >= start) & (u < 1.0)
+            lift[s] = np.where(lifting, LIFT_S * np.sin(np.pi * np.clip(u, 0, 1)) ** 2, 0.0)
+
+    s_val, phase_ok, meas = {}, {}, {}
+    sub = np.arange(0, n, 6)  # full scan on a subsample, then local bisection around its interpolation
+    for s in names:
+        sv_sub, ok_sub = _close_to_depth(hk, obj_rc, T_ow[sub], q_open, q_closed, cols, s, tactile_specs[s],
+                                         d_target[s][sub])
+        guess = np.interp(np.arange(n), sub, np.where(ok_sub, sv_sub, np.nan)) if ok_sub.all() else None
+        sv, ok = _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, s, tactile_specs[s], d_target[s],
+                                 guess=guess)
+        s_val[s] = np.clip(sv - lift[s], 0.0, 1.0)
+        phase_ok[s] = ok & (lift[s] <= 0.0)
+    q = _posture(q_open, q_closed, cols, s_val)
+    for s in names:
+        meas[s], _ = _max_indentation(hk, obj_rc, T_ow, q, s, tactile_specs[s])
+        # A first contact can jump (e.g. onto a rim) inside a bisection bracket: not a controlled contact.
+        phase_ok[s] &= np.abs(meas[s] - d_target[s]) < 0.15
+    return GraspPlan(times, T_wo, q, phase_ok, d_target, meas, T0, axis_world, float(sim.rotation_speed),
+                     float(sim.translation_amplitude))
