@@ -322,7 +322,7 @@ class NeuralSDFReconstructor:
         P, Nn, W = s["p"], s["n"], s["w"]
         has_n = np.linalg.norm(Nn, axis=1) > 0.5
         # along-normal offsets: tighter inside (thin objects), full range outside
-        d = rng.uniform(-0.4 * o["normal_offset"], o["normal_offset"], B).astype(np.float32)
+        d = rng.uniform(-0.6 * o["normal_offset"], o["normal_offset"], B).astype(np.float32)
         Xn = P + d[:, None] * Nn
         # ray samples (vision with a viewpoint)
         has_o = np.isfinite(s["o"]).all(1)
