@@ -47,7 +47,8 @@ class TrainOptions:
     mlp_lr: float = 3e-3
     inside_frac: float = 0.95  # use the labelled disc shrunk by this factor as gradient truth
     outside_frac: float = 1.15  # and pixels beyond this factor x radius as flat gel
-    flat_per_press: int = 6000
+    flat_per_press: int = 3000
+    inside_per_press: int = 4000  # 0 = every contact pixel; else a random subset (faster MLP training)
     gate: float = 6.0  # grey levels: |colour change| (sum of channels, smoothed) below this -> flat
     seed: int = 0
 
@@ -85,6 +86,22 @@ def gate_mask(dI: np.ndarray, gate: float) -> np.ndarray:
 
 
 _ONES3 = np.ones((1, 3), np.float32)
+
+
+def drift_offset(image: np.ndarray, background: np.ndarray, step: int = 4) -> np.ndarray:
+    """(3,) global colour offset of a frame against the background: per-channel median of the colour change
+    on a sparse grid (contact covers a minority of the gel, so the median is the illumination drift)."""
+    a = np.asarray(image)[::step, ::step].astype(np.int16)
+    b = np.asarray(background)[::step, ::step]
+    if a.size == 0:
+        return np.zeros(3)
+    return np.rint(np.median((a - b).reshape(-1, 3), axis=0))
+
+
+def shift_background(background: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Background plus a per-channel offset (grey levels), clipped to uint8."""
+    out = np.asarray(background).astype(np.int16) + np.asarray(offset, np.int16).reshape(1, 1, 3)
+    return np.clip(out, 0, 255).astype(np.uint8)
 
 
 def gate_mask_images(image: np.ndarray, background: np.ndarray, gate: float) -> np.ndarray:
@@ -292,10 +309,14 @@ def training_samples(ps: PressSet, presses: list[Press], opts: TrainOptions
         fr, fc = np.nonzero(flat)
         pick = rng.choice(len(fr), size=min(opts.flat_per_press, len(fr)), replace=False)
         ir, ic = np.nonzero(inside)
+        if 0 < opts.inside_per_press < len(ir):
+            sel = rng.choice(len(ir), size=opts.inside_per_press, replace=False)
+            ir, ic = ir[sel], ic[sel]
         rows = np.concatenate([ir, fr[pick]])
         cols = np.concatenate([ic, fc[pick]])
         nx, ny = slopes_to_normals(gx[rows, cols], gy[rows, cols])
-        d = colour_change(img, bg)
+        # same drift compensation as the pipeline, so training and use see the same colour changes
+        d = colour_change(img, shift_background(bg, drift_offset(img, bg)))
         out["dI"].append(d[rows, cols])
         out["raw"].append(img[rows, cols].astype(np.float32))
         out["rows"].append(rows)
@@ -464,14 +485,14 @@ def lambertian_calibration(background: np.ndarray, mm_per_px: float, gain: float
 
 def height_noise(calib: Calibration, ps: PressSet, presses: list[Press], max_presses: int = 6) -> float:
     """Robust std (1.4826 MAD, mm) of the reconstructed height on flat gel (beyond 1.3 x contact radius)."""
-    from vtrack.tactile.poisson import poisson_dct
+    from vtrack.tactile.pipeline import TactilePipeline
 
+    pipe = TactilePipeline(calib)
     vals = []
     H, W = ps.shape
     yy, xx = np.mgrid[0:H, 0:W]
     for p in presses[:max_presses]:
-        gx, gy = calib.slopes(ps.image(p))
-        h = poisson_dct(gx * ps.mm_per_px, gy * ps.mm_per_px, dtype=np.float32)
+        h = pipe.height(ps.image(p))
         far = np.hypot(xx - p.center_xy_px[0], yy - p.center_xy_px[1]) > 1.3 * p.contact_radius_px
         v = h[far]
         vals.append(1.4826 * np.median(np.abs(v - np.median(v))))

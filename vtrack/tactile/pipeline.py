@@ -20,7 +20,13 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry.tactile_frame import height_to_points
-from vtrack.tactile.calibration import Calibration, gate_mask_images, lambertian_calibration
+from vtrack.tactile.calibration import (
+    Calibration,
+    drift_offset,
+    gate_mask_images,
+    lambertian_calibration,
+    shift_background,
+)
 from vtrack.tactile.contact import ContactStats, contact_mask, contact_stats
 from vtrack.tactile.poisson import poisson_dct, poisson_fft, poisson_masked_lsq
 
@@ -50,6 +56,8 @@ class TactileFrame:
     slip: Any = None
     force: Any = None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    quality: str = "ok"  # "ok" | "saturated" | "dark" (then no height/contact is reported)
+    drift: tuple[float, float, float] = (0.0, 0.0, 0.0)  # removed global colour offset vs background (B, G, R)
 
     @property
     def in_contact(self) -> bool:
@@ -69,12 +77,17 @@ class TactilePipeline:
         contact_threshold_mm: minimum indentation counted as contact (noise-aware floor, see contact.py).
         point_stride: keep every n-th contact pixel (in working pixels) as a point.
         markers / slip / force_model: optional extra stages.
+        drift_compensation: remove a global per-channel colour offset (illumination/background drift),
+            estimated as the median colour change over the frame (contact covers a minority of pixels).
+        bad_fraction: frames with more than this fraction of saturated (>= 250) or dark (<= 5) pixels are
+            reported with ``quality`` "saturated"/"dark" and no contact instead of a meaningless height map.
     """
 
     def __init__(self, calib: Calibration | str | Path | None = None, *, mm_per_px: float | None = None,
                  background: np.ndarray | None = None, image_shape: tuple[int, int] | None = None,
                  solver: str = "dct", downsample: int = 1, contact_threshold_mm: float = 0.05,
                  point_stride: int = 1, markers: bool = False, slip: bool = False, force_model: Any = None,
+                 drift_compensation: bool = True, bad_fraction: float = 0.5,
                  sensor_name: str = "tactile") -> None:
         if isinstance(calib, (str, Path)):
             calib = Calibration.load(calib)
@@ -91,6 +104,8 @@ class TactilePipeline:
         self.downsample = int(downsample)
         self.contact_threshold_mm = float(contact_threshold_mm)
         self.point_stride = max(1, int(point_stride))
+        self.drift_compensation = bool(drift_compensation)
+        self.bad_fraction = float(bad_fraction)
         self.image_shape = image_shape if calib is None else calib.shape
         self._bg_full: np.ndarray | None = None
         self._bg_work: np.ndarray | None = None
@@ -103,7 +118,7 @@ class TactilePipeline:
         if markers:
             from vtrack.tactile.markers import MarkerTracker
 
-            self.markers = MarkerTracker()
+            self.markers = MarkerTracker(mm_per_px=self.mm_per_px)
         self.slip = None
         if slip:
             from vtrack.tactile.slip import SlipDetector
@@ -194,6 +209,10 @@ class TactilePipeline:
     # ------------------------------------------------------------------ processing
     def height_work(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(checked full-res image, height_mm at working resolution float32, colour-change gate there)."""
+        img, hw, gate, _, _ = self._height_work(image_bgr)
+        return img, hw, gate
+
+    def _height_work(self, image_bgr: np.ndarray):
         import cv2
 
         img = self._check(image_bgr)
@@ -201,8 +220,25 @@ class TactilePipeline:
             self.set_background(img)  # first frame is the reference: assumed out of contact
         work = self._to_work(img)
         model = self._model
-        gate = gate_mask_images(work, self._bg_work, float(model.info.get("gate", 6.0)))
-        gx, gy = model.slopes_from_images(work, self._bg_work, gate)
+        bg = self._bg_work
+        probe = work[::4, ::4]
+        quality = "ok"
+        if probe.size:
+            if (probe.min(axis=2) >= 250).mean() > self.bad_fraction:
+                quality = "saturated"
+            elif (probe.max(axis=2) <= 5).mean() > self.bad_fraction:
+                quality = "dark"
+        if quality != "ok":
+            z = np.zeros(work.shape[:2], np.float32)
+            return img, z, np.zeros(work.shape[:2], bool), quality, (0.0, 0.0, 0.0)
+        drift = (0.0, 0.0, 0.0)
+        if self.drift_compensation and probe.size:
+            d = drift_offset(work, bg)
+            if np.abs(d).max() >= 1.0:
+                drift = tuple(float(x) for x in d)
+                bg = shift_background(bg, d)
+        gate = gate_mask_images(work, bg, float(model.info.get("gate", 6.0)))
+        gx, gy = model.slopes_from_images(work, bg, gate)
         s = np.float32(self.mm_per_px * self.downsample)
         gx *= s
         gy *= s
@@ -212,7 +248,7 @@ class TactilePipeline:
             hw = poisson_fft(gx, gy)
         else:
             hw = poisson_masked_lsq(gx, gy, cv2.dilate(gate.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-        return img, hw.astype(np.float32, copy=False), gate
+        return img, hw.astype(np.float32, copy=False), gate, quality, drift
 
     def height(self, image_bgr: np.ndarray) -> np.ndarray:
         """Height map (mm, float32) at full image resolution."""
@@ -236,7 +272,7 @@ class TactilePipeline:
         ``downsample * point_stride`` image pixels); height and mask are returned at full resolution.
         """
         t0 = time.perf_counter()
-        img, hw, gate = self.height_work(image_bgr)
+        img, hw, gate, quality, drift = self._height_work(image_bgr)
         t1 = time.perf_counter()
         s_work = self.mm_per_px * self.downsample
         mask_w = contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, diff_mask=gate)
@@ -252,7 +288,7 @@ class TactilePipeline:
         H, W = img.shape[:2]
         frame = TactileFrame(self._to_full(hw, (H, W)), self._to_full(mask_w, (H, W)), pts, nrm, stats,
                              timings_ms={"height": (t1 - t0) * 1e3, "contact": (t2 - t1) * 1e3,
-                                         "points": (t3 - t2) * 1e3})
+                                         "points": (t3 - t2) * 1e3}, quality=quality, drift=drift)
         if self.markers is not None:
             frame.shear = self.markers.update(img)
         if self.slip is not None:
