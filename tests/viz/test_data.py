@@ -76,9 +76,18 @@ def test_poses_csv_reader(view_fixture, tmp_path):
     bad.write_text("t,x,y,z,qx,qy,qz,qw\n")
     with pytest.raises(InputError, match="no rows"):
         read_poses_csv(bad)
-    bad.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n0.1,nan,0,0,0,0,0,0\n")
+    # Extra text columns (the tracker writes `status`) are ignored; a NaN row is a lost estimate.
+    bad.write_text("t,x,y,z,qx,qy,qz,qw,status,ms\n0.1,nan,0,0,0,0,0,0,lost,3.1\n0,1,2,3,0,0,0,1,ok,2.0\n")
     p = read_poses_csv(bad)
+    assert np.allclose(p["t"], [0.0, 0.1])  # sorted by time
     assert np.allclose(p["T_est"][0, :3, 3], [1, 2, 3]) and np.isnan(p["T_est"][1]).all()
+    bad.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2,abc,0,0,0,1\n")
+    with pytest.raises(InputError, match="non-numeric") as e:
+        read_poses_csv(bad)
+    assert "'z'" in str(e.value) and "abc" in str(e.value)
+    bad.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2\n")
+    with pytest.raises(InputError, match="row 2 has 3 fields"):
+        read_poses_csv(bad)
 
 
 @pytest.mark.parametrize("case, match", [

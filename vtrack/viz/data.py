@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import csv
 import json
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -192,14 +194,23 @@ def read_poses_csv(path: str | Path) -> dict[str, np.ndarray | None]:
                          expected="header t,x,y,z,qx,qy,qz,qw[,gt_x,...,gt_qw]", got=header)
     if not rows:
         raise InputError("poses.csv has no rows", path=path)
-    try:
-        A = np.array([[float(c) if c.strip() else np.nan for c in r] for r in rows], dtype=np.float64)
-    except ValueError as e:
-        raise InputError(f"poses.csv holds a non-numeric value ({e})", path=path) from None
-    if A.ndim != 2 or A.shape[1] != len(header):
-        raise InputError("poses.csv rows differ in length from the header", path=path,
-                         expected=f"{len(header)} columns")
-    col = {h: i for i, h in enumerate(header)}
+    # Only the pose columns are numeric; others (e.g. the tracker's ``status``) are ignored.
+    names = [c for c in header if c in need or (c.startswith("gt_") and c[3:] in _POSE_COLS)]
+    idx = [header.index(c) for c in names]
+    A = np.full((len(rows), len(names)), np.nan)
+    for r, row in enumerate(rows):
+        if len(row) != len(header):
+            raise InputError(f"poses.csv row {r + 2} has {len(row)} fields", path=path,
+                             expected=f"{len(header)} (as the header)")
+        for k, j in enumerate(idx):
+            cell = row[j].strip()
+            if cell:
+                try:
+                    A[r, k] = float(cell)
+                except ValueError:
+                    raise InputError(f"poses.csv row {r + 2} holds a non-numeric value {cell!r}", path=path,
+                                     field=names[k], expected="a number or empty") from None
+    col = {h: i for i, h in enumerate(names)}
     t = A[:, col["t"]]
     if not np.all(np.isfinite(t)):
         raise InputError("poses.csv has non-finite timestamps", path=path, field="t")
@@ -302,42 +313,45 @@ def load_cloud(path: Path, max_points: int = DEFAULT_MAX_POINTS, notes: list[str
         raise InputError(f"cannot read cloud ({type(e).__name__}: {e})", path=path) from None
     if not all(k in d for k in ("x", "y", "z")):
         raise InputError("cloud has no x/y/z properties", path=path, got=sorted(d))
-    P = np.stack([d["x"], d["y"], d["z"]], axis=1).astype(np.float64)
-    n_total = len(P)
-    ok = np.isfinite(P).all(1)
-    if notes is not None and not ok.all():
-        notes.append(f"cloud.ply: dropped {int((~ok).sum())} non-finite points")
-    if not ok.any():
+    n_total = len(d["x"])
+    ok = np.isfinite(d["x"]) & np.isfinite(d["y"]) & np.isfinite(d["z"])
+    n_ok = int(ok.sum())
+    if notes is not None and n_ok < n_total:
+        notes.append(f"cloud.ply: dropped {n_total - n_ok} non-finite points")
+    if n_ok == 0:
         if notes is not None:
             notes.append("cloud.ply holds no (finite) points")
         return None
+    # Select first (decimate, sort by time), then gather only the kept points of each field.
+    keep = np.nonzero(ok)[0]
+    mod_all = d.get("modality")
+    mod_ok = np.zeros(len(keep), np.int64) if mod_all is None else mod_all[keep].astype(np.int64)
+    keep = keep[decimate_indices(mod_ok, max_points)]
+    if notes is not None and len(keep) < n_ok:
+        notes.append(f"cloud decimated for display: {len(keep):,} of {n_ok:,} points")
 
     def field_or(name: str, default: float) -> np.ndarray:
         v = d.get(name)
-        return np.full(n_total, default, dtype=np.float64) if v is None else np.asarray(v, np.float64)
+        return np.full(len(keep), default, dtype=np.float64) if v is None else v[keep].astype(np.float64)
 
-    mod = field_or("modality", 0).astype(np.int64)
     t = field_or("t", 0.0)
     t = np.where(np.isfinite(t), t, 0.0)
-    keep = np.nonzero(ok)[0]
-    keep = keep[decimate_indices(mod[keep], max_points)]
-    keep = keep[np.argsort(t[keep], kind="stable")]
-    if notes is not None and len(keep) < ok.sum():
-        notes.append(f"cloud decimated for display: {len(keep):,} of {int(ok.sum()):,} points")
-    tv = field_or("tactile_value", np.nan)[keep]
-    touch = mod[keep] == 1
-    tv_touch = np.where(touch, tv, np.nan)
+    order = np.argsort(t, kind="stable")
+    keep, t = keep[order], t[order]
+    mod = np.zeros(len(keep), np.int64) if mod_all is None else mod_all[keep].astype(np.int64)
+    P = np.stack([d["x"][keep], d["y"][keep], d["z"][keep]], axis=1).astype(np.float32)
+    tv_touch = np.where(mod == 1, field_or("tactile_value", np.nan), np.nan)
     cols = {
-        "modality": C.modality_colors(mod[keep]),
-        "time": C.scalar_colors(t[keep], cmap="viridis"),
+        "modality": C.modality_colors(mod),
+        "time": C.scalar_colors(t, cmap="viridis"),
         "tactile value": C.scalar_colors(tv_touch, vmin=0.0, cmap="plasma"),
-        "confidence": C.scalar_colors(field_or("confidence", np.nan)[keep], 0.0, 1.0, cmap="viridis"),
-        "sensor": C.categorical_colors(field_or("sensor_id", 0)[keep].astype(np.int64) + 3 * mod[keep]),
+        "confidence": C.scalar_colors(field_or("confidence", np.nan), 0.0, 1.0, cmap="viridis"),
+        "sensor": C.categorical_colors(field_or("sensor_id", 0).astype(np.int64) + 3 * mod),
     }
     if all(k in d for k in ("red", "green", "blue")):
-        cols["rgb"] = np.stack([d["red"], d["green"], d["blue"]], axis=1)[keep].astype(np.uint8)
-    return CloudData(points=P[keep].astype(np.float32), t=t[keep], modality=mod[keep], colors=cols,
-                     n_total=n_total, has_time="t" in d and float(np.ptp(t[keep])) > 0)
+        cols["rgb"] = np.stack([d["red"][keep], d["green"][keep], d["blue"][keep]], axis=1).astype(np.uint8)
+    return CloudData(points=P, t=t, modality=mod, colors=cols, n_total=n_total,
+                     has_time="t" in d and float(np.ptp(t)) > 0)
 
 
 @dataclass
@@ -487,6 +501,11 @@ class ViewData:
         if self.scene is not None and self.scene.sim is not None:
             self.height_vmax_mm = float(max(self.scene.sim.penetration_mm[1], 0.1)) * 1.25
         self.times = self._timeline()
+        # Decoded side-panel images per frame: scrubbing back and forth and playback after a prefetch
+        # then cost no zarr reads (a few ms each). Small (panel-sized) images, bounded count.
+        self._img_cache: OrderedDict[int, tuple[dict, dict]] = OrderedDict()
+        self._img_lock = threading.Lock()
+        self.image_cache_frames = 256
         if self.session is None and self.cloud is None and self.mesh is None and self.est is None:
             raise InputError("nothing to show", path=self.path)
 
@@ -618,13 +637,33 @@ class ViewData:
         panels: dict[str, np.ndarray] = {}
         cams: dict[str, np.ndarray] = {}
         if with_images and self.session is not None:
-            panels = self._tactile_panels(t)
-            for c in self.cameras:
-                if c.stream is not None and c.stream.n and "rgb" in c.stream.fields:
-                    j = int(c.stream.index_at(t)[0])
-                    cams[c.name] = _resize(np.asarray(c.stream["rgb"][j], np.uint8), PANEL_IMAGE_PX * 2)
+            panels, cams = self.images(i)
         n_cloud = len(self.cloud) if self.cloud is not None else 0
         return FrameState(i, t, gt, est, links, sensors, panels, cams, n_cloud)
+
+    def images(self, i: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Side-panel strips per tactile sensor and RGB image per camera at frame ``i`` (cached)."""
+        with self._img_lock:
+            hit = self._img_cache.get(i)
+            if hit is not None:
+                self._img_cache.move_to_end(i)
+                return hit
+        t = float(self.times[i])
+        panels = self._tactile_panels(t)
+        cams = {}
+        for c in self.cameras:
+            if c.stream is not None and c.stream.n and "rgb" in c.stream.fields:
+                j = int(c.stream.index_at(t)[0])
+                cams[c.name] = _resize(np.asarray(c.stream["rgb"][j], np.uint8), PANEL_IMAGE_PX * 2)
+        with self._img_lock:
+            self._img_cache[i] = (panels, cams)
+            while len(self._img_cache) > self.image_cache_frames:
+                self._img_cache.popitem(last=False)
+        return panels, cams
+
+    def is_cached(self, i: int) -> bool:
+        with self._img_lock:
+            return i in self._img_cache
 
     def _tactile_panels(self, t: float) -> dict[str, np.ndarray]:
         from vtrack.viz.colors import colorize_height, mask_image

@@ -46,6 +46,14 @@ def wxyz_position(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.array([q[3], q[0], q[1], q[2]]), np.asarray(T[:3, 3], np.float64)
 
 
+def wxyz_position_batch(Ts: np.ndarray) -> np.ndarray:
+    """(N, 4) viser quaternions (w, x, y, z) of (N, 4, 4) transforms."""
+    from vtrack.geometry.se3 import matrix_to_quat
+
+    q = matrix_to_quat(np.asarray(Ts, np.float64)[:, :3, :3])
+    return np.concatenate([q[:, 3:], q[:, :3]], axis=1)
+
+
 def default_view(data: ViewData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A camera ``(position, look_at, up)`` that frames the content from the front-right, above."""
     lo, hi = data.bounds()
@@ -383,6 +391,20 @@ class Viewer:
                 with self._cond:
                     self._busy = False
                     self._cond.notify_all()
+            self._prefetch(i)
+
+    def _prefetch(self, i: int) -> None:
+        """Decode the images of the frames around ``i`` while idle (stops at the next request)."""
+        n = self.data.n_frames
+        for k in (1, 2, 3, 4, 5, 6, 7, 8, -1, -2, -3, -4, 9, 10, 11, 12):
+            j = (i + k) % n
+            if self._pending is not None or self._stop.is_set():
+                return
+            if not self.data.is_cached(j):
+                try:
+                    self.data.images(j)
+                except Exception:  # a bad frame shows up (and is reported) when it is displayed
+                    return
 
     def _play(self) -> None:
         while not self._stop.is_set():
@@ -401,21 +423,17 @@ class Viewer:
         t0 = time.perf_counter()
         d = self.data
         st = d.frame(i)
+        # All node poses of this frame, converted to quaternions in one batched call.
+        nodes = [(self.obj_node, d.object_pose(st, self.pose_dd.value))]
+        if st.T_world_object_gt is not None:
+            nodes.append((self.gt_node, st.T_world_object_gt))
+        nodes += [(h, st.link_poses[k]) for k, h in self.hand_nodes.items() if k in st.link_poses]
+        nodes += [(h, st.sensor_poses[k]) for k, h in self.sensor_nodes.items() if k in st.sensor_poses]
+        Ts = np.stack([T for _, T in nodes])
+        quats = wxyz_position_batch(Ts)
         with self._lock, self.server.atomic():
-            T = d.object_pose(st, self.pose_dd.value)
-            q, p = wxyz_position(T)
-            self.obj_node.wxyz, self.obj_node.position = q, p
-            if st.T_world_object_gt is not None:
-                q, p = wxyz_position(st.T_world_object_gt)
-                self.gt_node.wxyz, self.gt_node.position = q, p
-            for link, h in self.hand_nodes.items():
-                if link in st.link_poses:
-                    q, p = wxyz_position(st.link_poses[link])
-                    h.wxyz, h.position = q, p
-            for s, h in self.sensor_nodes.items():
-                if s in st.sensor_poses:
-                    q, p = wxyz_position(st.sensor_poses[s])
-                    h.wxyz, h.position = q, p
+            for (h, T), q in zip(nodes, quats, strict=True):
+                h.wxyz, h.position = q, T[:3, 3]
             if self.bins is not None and self.cb["cloud"].value:
                 self.bins.show_until(self._cloud_count(st.index))
             for name, img in st.panels.items():
