@@ -1,0 +1,113 @@
+"""``vtrack dome``: dome-sensor simulator, training, evaluation and single-image reconstruction."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    dome_app = typer.Typer(help="Dome (TacTip/FusionTouch-style) marker sensor: simulate, train, eval, reconstruct.",
+                           no_args_is_help=True)
+    app.add_typer(dome_app, name="dome")
+
+    @dome_app.command("simulate")
+    def simulate(
+        out: Path = typer.Option(..., "--out", help="output folder (images + gt.npz)"),
+        n: int = typer.Option(20, "--n", min=1, help="number of samples"),
+        seed: int = typer.Option(0, "--seed"),
+    ) -> None:
+        """Simulate dome presses: PNG images + ground truth (markers, templates, contact, force) in gt.npz."""
+        import cv2
+        import numpy as np
+
+        from vtrack.dome.simulate import make_dataset
+
+        data = make_dataset(n, seed, cache=False)
+        out.mkdir(parents=True, exist_ok=True)
+        for i, img in enumerate(data["image"]):
+            cv2.imwrite(str(out / f"dome_{i:05d}.png"), img)
+        cv2.imwrite(str(out / "reference.png"), data["reference_image"])
+        np.savez_compressed(out / "gt.npz", **{k: v for k, v in data.items() if k != "image"})
+        typer.echo(f"wrote {n} images, reference.png and gt.npz to {out}")
+
+    @dome_app.command("train")
+    def train(
+        out: Path = typer.Option(None, "--out", help="weights folder (default: the shipped vtrack/dome/weights)"),
+        n_train: int = typer.Option(2000, "--n-train", min=16),
+        n_test: int = typer.Option(300, "--n-test", min=8),
+        epochs_coarse: int = typer.Option(8, "--epochs-coarse", min=1),
+        epochs_fine: int = typer.Option(6, "--epochs-fine", min=1),
+        epochs_force: int = typer.Option(8, "--epochs-force", min=1),
+        seed: int = typer.Option(0, "--seed"),
+        methods: str = typer.Option("gnn,cnn", "--methods", help="comma list of gnn, cnn"),
+        jobs: int = typer.Option(2, "--jobs", min=1, help="methods trained in parallel, 1 thread each"),
+        quick: bool = typer.Option(False, "--quick", help="tiny run (smoke test, not for shipping)"),
+    ) -> None:
+        """Simulate (cached) and train GNN and CNN with the same budget; writes <method>.pt bundles."""
+        import json
+        from concurrent.futures import ProcessPoolExecutor
+        from multiprocessing import get_context
+
+        from vtrack.dome.model import DomeConfig
+        from vtrack.dome.train import TrainConfig, load_sets, train_all, weights_dir
+
+        if quick:
+            n_train, n_test, epochs_coarse, epochs_fine, epochs_force = 128, 32, 1, 1, 1
+        tc = TrainConfig(n_train=n_train, n_test=n_test, seed=seed, epochs_coarse=epochs_coarse,
+                         epochs_fine=epochs_fine, epochs_force=epochs_force)
+        out = out or weights_dir()
+        kinds = tuple(m.strip() for m in methods.split(",") if m.strip())
+        load_sets(tc, DomeConfig(), progress=True)  # simulate once, before the workers read the cache
+        res: dict = {}
+        if jobs > 1 and len(kinds) > 1:
+            with ProcessPoolExecutor(min(jobs, len(kinds)), mp_context=get_context("spawn")) as ex:
+                futs = {k: ex.submit(train_all, tc, None, out, (k,)) for k in kinds}
+                for _k, f in futs.items():
+                    res.update(f.result())
+        else:
+            res = train_all(tc, None, out, kinds)
+        typer.echo(json.dumps(res, indent=1))
+
+    @dome_app.command("eval")
+    def eval_(
+        json_out: Path = typer.Option(None, "--json", help="write {gnn: {...}, cnn: {...}}"),
+        weights: Path = typer.Option(None, "--weights", help="weights folder (default: shipped)"),
+        n_test: int = typer.Option(300, "--n-test", min=4),
+        seed: int = typer.Option(12345, "--seed", help="test-set seed (12345 = the held-out set)"),
+    ) -> None:
+        """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms)."""
+        import json
+
+        from vtrack.dome.evaluate import EVAL_KEYS, evaluate
+        from vtrack_apps.output import print_table
+
+        res = evaluate(weights, n_test, seed)
+        print_table("dome eval", [{"method": m, **{k: round(r[k], 4) for k in EVAL_KEYS}} for m, r in res.items()])
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            json_out.write_text(json.dumps(res, indent=1))
+            typer.echo(f"wrote {json_out}")
+
+    @dome_app.command("reconstruct")
+    def reconstruct(
+        image: Path = typer.Argument(..., help="dome-sensor image (grey or colour)"),
+        pressure: float = typer.Option(0.0, "--pressure", help="internal pressure, kPa"),
+        method: str = typer.Option("gnn", "--method", help="gnn | cnn"),
+        weights: Path = typer.Option(None, "--weights", help="bundle .pt (default: shipped)"),
+        reference: Path = typer.Option(None, "--reference", help="no-contact image of the same sensor"),
+        resize: bool = typer.Option(False, "--resize", help="rescale the image to the model's input size"),
+        out: Path = typer.Option(None, "--out", help="write mesh.ply, coarse.ply, result.json here"),
+    ) -> None:
+        """One image (+ pressure) -> dense dome surface (mm), contact mask and force (N)."""
+        import json
+
+        from vtrack.dome.reconstruct import DomeReconstructor
+
+        rec = DomeReconstructor(method, weights, reference)
+        res = rec.reconstruct(image, pressure, resize=resize)
+        typer.echo(json.dumps(res.summary(), indent=1))
+        if out:
+            paths = res.save(out)
+            typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")

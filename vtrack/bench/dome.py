@@ -1,0 +1,78 @@
+"""``vtrack bench dome``: GNN vs CNN dome reconstruction, with/without pressure for force, ms per frame.
+
+Operating points: the fine-stage output resolution (dense template subsets of 256 / 512 / 1024 vertices;
+the fine stage is evaluated only at those vertices, GT is the same subset). The no-deformation template
+is added as a reference row (how much of each metric comes for free on this test set).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vtrack.bench.harness import BenchTable
+
+
+def run(quick: bool = False) -> BenchTable:
+    import torch
+
+    from vtrack.dome.evaluate import template_baseline
+    from vtrack.dome.metrics import evaluate_predictions
+    from vtrack.dome.model import DomeGeometry
+    from vtrack.dome.reconstruct import default_weights
+    from vtrack.dome.simulate import make_dataset
+    from vtrack.dome.train import Batcher, load_bundle, predict
+
+    torch.set_num_threads(1)
+    n_test = 40 if quick else 300
+    n_time = 10 if quick else 40
+    table = BenchTable(stage="dome", error_key="cd_fine", time_key="ms")
+    te = None
+    for method in ("gnn", "cnn"):
+        path = default_weights(method)
+        model, heads, cfg, _ = load_bundle(path)
+        geo = DomeGeometry(cfg)
+        if te is None:
+            te = make_dataset(n_test, 12345, cfg)
+            tb = template_baseline(te, geo)
+            table.add(method="template", setting="no deformation", ms=0.0, n_dense=cfg.n_dense,
+                      **{k: round(v, 4) for k, v in tb.items() if not k.startswith("force")},
+                      force_mae=round(tb["force_mae"], 4), force_mae_nop=round(tb["force_mae"], 4))
+        bte = Batcher(method, te, geo, f"{n_test}-12345-{cfg.to_dict()}")
+        for n_dense in (256, 512, cfg.n_dense):
+            sub = np.linspace(0, cfg.n_dense - 1, n_dense).round().astype(int)
+            model.decoder.set_dense(geo.dense_rest[sub])
+            pred = predict(model, heads, bte)
+            gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"][:, sub], "contact": te["contact_coarse"],
+                  "force": te["force_n"], "dense_rest": geo.dense_rest[sub]}
+            m = evaluate_predictions(pred, gt)
+            ms = _time(method, path, te, n_time, geo.dense_rest[sub])
+            table.add(method=method, setting=f"fine {n_dense} pts", ms=round(ms, 2), n_dense=n_dense,
+                      **{k: round(v, 4) for k, v in m.items() if not k.startswith("force")},
+                      force_mae=round(m["force_mae"], 4), force_mae_nop=round(m["force_nop_mae"], 4))
+        model.decoder.set_dense(geo.dense_rest)
+    table.notes += [
+        f"Held-out simulated test set: {n_test} presses (seed 12345), lengths in mm, force in N. "
+        "`force_mae` uses the pressure-FiLM head, `force_mae_nop` the same head trained without pressure.",
+        "ms = median wall time per frame, one frame at a time, 1 thread: image -> marker extraction -> Delaunay "
+        "graph -> GNN (or image -> CNN) -> dense surface + force. The machine was shared with other jobs, "
+        "so times are noisy (upper bounds).",
+        "`template` = predicting the undeformed dome: contact regions are small, so surface metrics start high.",
+        "Command: `vtrack bench dome`" + (" --quick" if quick else ""),
+    ]
+    return table
+
+
+def _time(method, path, te, n, dense_rest) -> float:
+    import time
+
+    from vtrack.dome.reconstruct import DomeReconstructor
+
+    rec = DomeReconstructor(method, path)
+    rec.model.decoder.set_dense(dense_rest)
+    rec._run(te["image"][0], float(te["pressure_kpa"][0]))
+    ts = []
+    for i in range(n):
+        t0 = time.perf_counter()
+        rec._run(te["image"][i], float(te["pressure_kpa"][i]))
+        ts.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(ts))

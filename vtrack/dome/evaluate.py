@@ -1,0 +1,72 @@
+"""Evaluation of shipped/trained dome models on the held-out simulated test set (``vtrack dome eval``)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+EVAL_KEYS = ("cd_coarse", "cd_fine", "hd95", "f2mm", "contact_l2", "force_mae", "ms_per_frame")
+
+
+def time_end_to_end(method: str, weights: Path, images: np.ndarray, pressures: np.ndarray) -> float:
+    """Median ms per frame for image -> (marker graph ->) dense surface + force, one frame at a time."""
+    from vtrack.dome.reconstruct import DomeReconstructor
+
+    rec = DomeReconstructor(method, weights)
+    rec._run(images[0], float(pressures[0]))  # warm-up
+    ts = []
+    for img, p in zip(images, pressures, strict=True):
+        t0 = time.perf_counter()
+        rec._run(img, float(p))
+        ts.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(ts))
+
+
+def evaluate(weights_dir: Path | None = None, n_test: int = 300, test_seed: int = 12345,
+             methods: tuple[str, ...] = ("gnn", "cnn"), timing_frames: int = 40, dense_rest: np.ndarray | None = None,
+             data: dict | None = None) -> dict[str, dict[str, float]]:
+    """Metrics of each method on the simulated test set (same samples for every method)."""
+    import torch
+
+    from vtrack.dome.metrics import evaluate_predictions
+    from vtrack.dome.model import DomeGeometry
+    from vtrack.dome.simulate import make_dataset
+    from vtrack.dome.train import Batcher, load_bundle, predict
+    from vtrack.dome.train import weights_dir as wdir
+    from vtrack.errors import InputError
+
+    torch.set_num_threads(1)
+    weights_dir = Path(weights_dir) if weights_dir else wdir()
+    results: dict[str, dict[str, float]] = {}
+    for m in methods:
+        path = weights_dir / f"{m}.pt"
+        if not path.exists():
+            raise InputError("weights not found (run `vtrack dome train`)", path=path)
+        model, heads, cfg, _ = load_bundle(path)
+        geo = DomeGeometry(cfg)
+        te = data if data is not None else make_dataset(n_test, test_seed, cfg)
+        bte = Batcher(m, te, geo, f"{len(te['image'])}-{test_seed}-{cfg.to_dict()}" if data is None else None)
+        pred = predict(model, heads, bte)
+        gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
+              "force": te["force_n"], "dense_rest": geo.dense_rest}
+        r = evaluate_predictions(pred, gt)
+        k = min(timing_frames, len(te["image"]))
+        r["ms_per_frame"] = time_end_to_end(m, path, te["image"][:k], te["pressure_kpa"][:k])
+        r["fps"] = 1000.0 / r["ms_per_frame"]
+        results[m] = r
+    return results
+
+
+def template_baseline(te: dict, geo) -> dict[str, float]:
+    """Metrics of predicting the undeformed template (no contact, zero force): how hard the set is."""
+    from vtrack.dome.metrics import evaluate_predictions
+
+    n = len(te["image"])
+    pred = {"coarse": np.broadcast_to(geo.coarse_rest, te["coarse_mm"].shape),
+            "dense": np.broadcast_to(geo.dense_rest, te["dense_mm"].shape),
+            "contact": np.zeros((n, geo.cfg.n_coarse)), "force": np.zeros((n, 3))}
+    gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
+          "force": te["force_n"], "dense_rest": geo.dense_rest}
+    return evaluate_predictions(pred, gt)

@@ -1,0 +1,177 @@
+"""``DomeReconstructor``: one dome-sensor image (+ internal pressure) -> dense surface, contact, force.
+
+Registry key ``"dome"``. Loads the shipped weights (``vtrack/dome/weights/{gnn,cnn}.pt``) unless told
+otherwise. Output frame: the dome frame of :mod:`vtrack.dome.model` (mm, origin at the sphere centre,
++z through the apex).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+
+@dataclass
+class DomeResult:
+    """Reconstruction of one frame (lengths mm, force N, dome frame)."""
+
+    dense_mm: np.ndarray
+    faces: np.ndarray
+    coarse_mm: np.ndarray
+    contact_prob: np.ndarray
+    force_n: np.ndarray
+    n_markers: int
+    graph_method: str
+    ms: float
+    info: dict = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        return {"n_markers": self.n_markers, "graph": self.graph_method, "ms": round(self.ms, 2),
+                "force_n": [round(float(v), 4) for v in self.force_n],
+                "contact_points": int((self.contact_prob > 0.5).sum()),
+                "max_indentation_mm": float(self.info.get("max_indentation_mm", 0.0)), **self.info}
+
+    def save(self, out_dir: Path) -> dict[str, Path]:
+        """``mesh.ply`` (dense surface, mm), ``coarse.ply`` (coarse template + contact prob), ``result.json``."""
+        import trimesh
+
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        mesh = trimesh.Trimesh(self.dense_mm, self.faces, process=False)
+        mesh.export(out_dir / "mesh.ply")
+        cols = np.zeros((len(self.coarse_mm), 4), np.uint8)
+        cols[:, 0] = (255 * self.contact_prob).astype(np.uint8)
+        cols[:, 2] = 255 - cols[:, 0]
+        cols[:, 3] = 255
+        trimesh.PointCloud(self.coarse_mm, colors=cols).export(out_dir / "coarse.ply")
+        (out_dir / "result.json").write_text(json.dumps({"kind": "dome", **self.summary()}, indent=1))
+        return {"mesh": out_dir / "mesh.ply", "coarse": out_dir / "coarse.ply", "json": out_dir / "result.json"}
+
+
+def default_weights(method: str = "gnn") -> Path:
+    return Path(__file__).resolve().parent / "weights" / f"{method}.pt"
+
+
+class DomeReconstructor:
+    """Image -> marker graph -> coarse-to-fine surface (GNN), or image -> CNN -> same decoder.
+
+    Args:
+        method: ``"gnn"`` (default) or ``"cnn"``.
+        weights: bundle file (default: the shipped ``vtrack/dome/weights/<method>.pt``).
+        reference: the sensor's no-contact image (array or path); default the simulator's reference frame.
+    """
+
+    def __init__(self, method: str = "gnn", weights: str | Path | None = None,
+                 reference: np.ndarray | str | Path | None = None) -> None:
+        import torch
+
+        from vtrack.dome.features import reference_centers
+        from vtrack.dome.model import DomeGeometry
+        from vtrack.dome.simulate import DomeSimulator
+        from vtrack.dome.train import load_bundle
+
+        if method not in ("gnn", "cnn"):
+            raise InputError("unknown dome method", field="method", expected="gnn or cnn", got=method)
+        path = Path(weights) if weights is not None else default_weights(method)
+        if not path.exists():
+            raise InputError("dome weights not found (train them with `vtrack dome train`)", path=path)
+        self.method = method
+        self.model, self.heads, self.cfg, self.info = load_bundle(path)
+        self.geo = DomeGeometry(self.cfg)
+        if reference is None:
+            ref = DomeSimulator(self.cfg).reference_image()
+        else:
+            ref = self._read(reference)
+            self._check_size(ref, reference if isinstance(reference, (str, Path)) else None)
+        from vtrack.dome.markers import check_image
+
+        self.reference = check_image(ref)
+        self.ref_centers = reference_centers(self.reference)
+        self._torch = torch
+
+    @classmethod
+    def from_scene(cls, scene: Any, **opts: Any) -> DomeReconstructor:
+        """Build from a scene: uses the first ``type: dome`` tactile sensor's ``background`` as reference."""
+        ref = opts.pop("reference", None)
+        if ref is None:
+            for t in getattr(scene, "tactile", []) or []:
+                if t.type == "dome" and t.background is not None:
+                    ref = t.background
+                    break
+        return cls(reference=ref, **opts)
+
+    @staticmethod
+    def _read(image: np.ndarray | str | Path) -> np.ndarray:
+        if isinstance(image, (str, Path)):
+            import cv2
+
+            p = Path(image)
+            if not p.exists():
+                raise InputError("image file not found", path=p)
+            a = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+            if a is None:
+                raise InputError("could not decode image", path=p, expected="PNG/JPG")
+            return a
+        return np.asarray(image)
+
+    def _check_size(self, img: np.ndarray, path=None) -> None:
+        S = self.cfg.image_size
+        if img.shape[:2] != (S, S):
+            raise InputError("image of the wrong size for this model", path=path, field="image",
+                             expected=f"{S}x{S} px (pass resize=True to rescale)", got=f"{img.shape[1]}x{img.shape[0]}")
+
+    def reconstruct(self, image: np.ndarray | str | Path, pressure_kpa: float = 0.0, *,
+                    resize: bool = False) -> DomeResult:
+        """Reconstruct one frame. ``pressure_kpa`` must lie in ``[0, cfg.pressure_max_kpa]``."""
+        from vtrack.dome.markers import check_image
+
+        path = image if isinstance(image, (str, Path)) else None
+        img = check_image(self._read(image), path=path)
+        if img.dtype != np.uint8:
+            img = np.clip(img, 0, 255).astype(np.uint8)
+        if resize and img.shape != (self.cfg.image_size,) * 2:
+            import cv2
+
+            img = cv2.resize(img, (self.cfg.image_size,) * 2, interpolation=cv2.INTER_AREA)
+        self._check_size(img, path)
+        p = float(pressure_kpa)
+        if not np.isfinite(p) or p < 0 or p > self.cfg.pressure_max_kpa:
+            raise InputError("internal pressure out of the trained range", field="pressure_kpa",
+                             expected=f"0 <= P <= {self.cfg.pressure_max_kpa} kPa", got=pressure_kpa)
+        return self._run(img, p)
+
+    def _run(self, img: np.ndarray, p: float) -> DomeResult:
+        torch = self._torch
+        from vtrack.dome.features import collate_graphs, graph_arrays, image_batch
+
+        t0 = time.perf_counter()
+        n_markers, method = 0, "image"
+        with torch.no_grad():
+            if self.method == "gnn":
+                g = graph_arrays(img, self.ref_centers, self.geo)
+                n_markers, method = len(g["x"]), g["method"]
+                out = self.model(collate_graphs([g]))
+            else:
+                out = self.model(image_batch(img, self.reference))
+            force = np.zeros(3, np.float32)
+            if "p" in self.heads:
+                force = self.heads["p"](out, torch.tensor([p]), self.model.decoder.coarse_rest)[0].numpy()
+        ms = (time.perf_counter() - t0) * 1e3
+        dense = out["dense"][0].numpy().astype(np.float64)
+        coarse = out["coarse"][0].numpy().astype(np.float64)
+        prob = torch.sigmoid(out["contact_logit"][0]).numpy().astype(np.float64)
+        for name, arr in (("dense", dense), ("coarse", coarse), ("force", force)):
+            if not np.all(np.isfinite(arr)):  # never let NaN/Inf out silently
+                raise InputError("non-finite network output", field=name, expected="finite values")
+        ind = np.linalg.norm(self.geo.dense_rest, axis=1) - np.linalg.norm(dense, axis=1)
+        info = {"max_indentation_mm": float(max(0.0, ind.max())), "pressure_kpa": p,
+                "low_marker_count": bool(self.method == "gnn" and n_markers < 0.5 * self.cfg.n_markers)}
+        return DomeResult(dense, self.geo.dense_faces, coarse, prob, force.astype(np.float64), n_markers, method,
+                          ms, info)

@@ -1,0 +1,290 @@
+"""Training: two-phase reconstruction training (coarse, then fine) and force heads, for GNN and CNN.
+
+Losses (our reading of S13-S17): contact BCE on the coarse template (S13); L2 position loss on contact
+points (S14) and on non-contact points (S15), on the coarse template (phase 1) and the dense template
+(phase 2); Laplacian loss (S16, uniform Laplacian of the dense kNN graph, predicted vs GT) and
+edge-length loss (S17, kNN edge lengths predicted vs GT). Phase 2 trains the fine stage with the encoder
+at a tenth of the learning rate. Force heads are trained last on the frozen reconstruction net, once
+with the internal pressure (FiLM) and once without.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vtrack.dome.model import DomeConfig, DomeGeometry, knn_np
+
+
+@dataclass
+class TrainConfig:
+    n_train: int = 3000
+    n_test: int = 400
+    seed: int = 0
+    test_seed: int = 12345
+    epochs_coarse: int = 12
+    epochs_fine: int = 10
+    epochs_force: int = 10
+    batch: int = 32
+    lr: float = 2e-3
+    hidden: int = 64
+    threads: int = 1
+
+
+def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple[dict, dict]:
+    from vtrack.dome.simulate import make_dataset
+
+    return (make_dataset(tc.n_train, tc.seed, cfg, progress=progress),
+            make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress))
+
+
+def build_model(kind: str, geo: DomeGeometry, hidden: int = 64):
+    from vtrack.dome.nets import DomeCNN, DomeGNN
+
+    if kind == "gnn":
+        return DomeGNN(geo, hidden)
+    if kind == "cnn":
+        return DomeCNN(geo, hidden)
+    raise ValueError(f"unknown model kind {kind!r} (gnn | cnn)")
+
+
+class Batcher:
+    """Builds model inputs and targets for index sets of one dataset."""
+
+    def __init__(self, kind: str, data: dict, geo: DomeGeometry, cache_key: str | None) -> None:
+        import torch
+
+        from vtrack.dome.features import prepare_graphs
+
+        self.kind, self.data, self.geo = kind, data, geo
+        self.graphs = prepare_graphs(data, geo, cache_key) if kind == "gnn" else None
+        t = lambda k, dt=torch.float32: torch.as_tensor(np.asarray(data[k]), dtype=dt)  # noqa: E731
+        self.coarse, self.dense = t("coarse_mm"), t("dense_mm")
+        self.contact, self.contact_d = t("contact_coarse"), t("contact_dense")
+        self.force, self.pressure = t("force_n"), t("pressure_kpa")
+
+    def __len__(self) -> int:
+        return len(self.coarse)
+
+    def inputs(self, idx: np.ndarray) -> dict:
+        from vtrack.dome.features import collate_graphs, image_batch, slice_graph
+
+        if self.kind == "gnn":
+            return collate_graphs([slice_graph(self.graphs, int(i)) for i in idx])
+        return image_batch(self.data["image"][idx], self.data["reference_image"])
+
+    def targets(self, idx: np.ndarray) -> dict:
+        i = np.asarray(idx)
+        return {"coarse": self.coarse[i], "dense": self.dense[i], "contact": self.contact[i],
+                "contact_dense": self.contact_d[i], "force": self.force[i], "pressure": self.pressure[i]}
+
+
+def _dense_graph(geo: DomeGeometry, k: int = 6):
+    import torch
+
+    nbr, _ = knn_np(geo.dense_rest, geo.dense_rest, k + 1)
+    return torch.as_tensor(nbr[:, 1:])
+
+
+def recon_loss(out: dict, tg: dict, nbr, phase: int) -> tuple:
+    import torch
+    import torch.nn.functional as F
+
+    c = tg["contact"]
+    bce = F.binary_cross_entropy_with_logits(out["contact_logit"], c, pos_weight=torch.tensor(4.0))
+
+    def region_l2(pred, gt, mask):
+        e = ((pred - gt) ** 2).sum(-1)
+        con = (e * mask).sum() / mask.sum().clamp_min(1.0)
+        non = (e * (1 - mask)).sum() / (1 - mask).sum().clamp_min(1.0)
+        return con, non
+
+    lc, lnc = region_l2(out["coarse"], tg["coarse"], c)
+    loss = bce + lc + 4.0 * lnc
+    parts = {"bce": bce.item(), "coarse": (lc + lnc).item()}
+    if phase == 2:
+        d, g = out["dense"], tg["dense"]
+        dc, dnc = region_l2(d, g, tg["contact_dense"])
+        lap = ((d - d[:, nbr].mean(2)) - (g - g[:, nbr].mean(2))).pow(2).sum(-1).mean()
+        el = ((d.unsqueeze(2) - d[:, nbr]).norm(dim=-1) - (g.unsqueeze(2) - g[:, nbr]).norm(dim=-1)).pow(2).mean()
+        loss = loss + dc + 4.0 * dnc + 2.0 * lap + 2.0 * el
+        parts.update(dense=(dc + dnc).item(), lap=lap.item(), edge=el.item())
+    return loss, parts
+
+
+def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
+    """Two-phase training of a reconstruction net; returns the model (eval mode)."""
+    import torch
+
+    torch.manual_seed(tc.seed)
+    model = build_model(kind, train.geo, tc.hidden)
+    nbr = _dense_graph(train.geo)
+    rng = np.random.default_rng(tc.seed)
+    n = len(train)
+    for phase, epochs in ((1, tc.epochs_coarse), (2, tc.epochs_fine)):
+        if phase == 1:
+            params = [p for nm, p in model.named_parameters() if not nm.startswith(("decoder.edge", "decoder.fine"))]
+            opt = torch.optim.Adam(params, lr=tc.lr)
+        else:
+            fine = [p for nm, p in model.named_parameters() if nm.startswith(("decoder.edge", "decoder.fine"))]
+            rest = [p for nm, p in model.named_parameters() if not nm.startswith(("decoder.edge", "decoder.fine"))]
+            opt = torch.optim.Adam([{"params": fine, "lr": tc.lr}, {"params": rest, "lr": tc.lr * 0.1}])
+        steps = max(1, epochs * (n // tc.batch))
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=[g["lr"] for g in opt.param_groups],
+                                                    total_steps=steps, pct_start=0.15)
+        model.train()
+        t0 = time.time()
+        step = 0
+        for ep in range(epochs):
+            perm = rng.permutation(n)
+            agg: dict[str, float] = {}
+            for b in range(n // tc.batch):
+                idx = perm[b * tc.batch:(b + 1) * tc.batch]
+                out = model(train.inputs(idx), coarse_only=phase == 1)
+                loss, parts = recon_loss(out, train.targets(idx), nbr, phase)
+                opt.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
+                opt.step()
+                if step < steps - 1:
+                    sched.step()
+                step += 1
+                for k, v in parts.items():
+                    agg[k] = agg.get(k, 0.0) + v / (n // tc.batch)
+            log(f"[{kind}] phase {phase} epoch {ep + 1}/{epochs} " + " ".join(f"{k}={v:.4f}" for k, v in agg.items())
+                + f" ({time.time() - t0:.0f}s)")
+    model.eval()
+    return model
+
+
+def train_force(model, train: Batcher, tc: TrainConfig, use_pressure: bool, log=print):
+    """Train a force head on the frozen reconstruction net (features computed once)."""
+    import torch
+
+    from vtrack.dome.nets import ForceHead
+
+    torch.manual_seed(tc.seed + 1)
+    head = ForceHead(train.geo, tc.hidden, 2 * tc.hidden, use_pressure=use_pressure)
+    n = len(train)
+    feats = []
+    with torch.no_grad():
+        for b in range(0, n, 128):
+            idx = np.arange(b, min(n, b + 128))
+            o = model(train.inputs(idx), coarse_only=True)
+            feats.append({k: o[k] for k in ("hidden", "disp_coarse", "contact_logit", "glob")})
+    cat = {k: torch.cat([f[k] for f in feats]) for k in feats[0]}
+    opt = torch.optim.Adam(head.parameters(), lr=tc.lr)
+    steps = max(1, tc.epochs_force * (n // tc.batch))
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=steps, pct_start=0.15)
+    rng = np.random.default_rng(tc.seed + 2)
+    rest = model.decoder.coarse_rest
+    step = 0
+    for ep in range(tc.epochs_force):
+        perm = rng.permutation(n)
+        tot = 0.0
+        for b in range(n // tc.batch):
+            idx = torch.as_tensor(perm[b * tc.batch:(b + 1) * tc.batch])
+            pred = head({k: v[idx] for k, v in cat.items()}, train.pressure[idx], rest)
+            loss = torch.nn.functional.smooth_l1_loss(pred, train.force[idx], beta=0.1)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if step < steps - 1:
+                sched.step()
+            step += 1
+            tot += loss.item() / (n // tc.batch)
+        if ep == tc.epochs_force - 1 or ep % 5 == 0:
+            log(f"[force p={use_pressure}] epoch {ep + 1}/{tc.epochs_force} loss={tot:.4f}")
+    head.eval()
+    return head
+
+
+def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: TrainConfig, info: dict) -> None:
+    """Weights in float16 (they are small; halves the shipped size) plus configs."""
+    import torch
+
+    def half(sd):
+        return {k: (v.half() if v.is_floating_point() else v) for k, v in sd.items()}
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"kind": kind, "cfg": cfg.to_dict(), "train": asdict(tc), "info": info,
+                "recon": half(model.state_dict()), **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()}},
+               path)
+
+
+def load_bundle(path: Path):
+    """-> (model, {"p": head, "nop": head}, DomeConfig, info) in eval mode, float32."""
+    import torch
+
+    from vtrack.dome.nets import ForceHead
+
+    b = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = DomeConfig(**b["cfg"])
+    geo = DomeGeometry(cfg)
+    hidden = b["train"]["hidden"]
+    model = build_model(b["kind"], geo, hidden)
+    model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
+    heads = {}
+    for key, use_p in (("p", True), ("nop", False)):
+        if f"force_{key}" in b:
+            h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
+            h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[f"force_{key}"].items()})
+            heads[key] = h.eval()
+    return model.eval(), heads, cfg, b.get("info", {})
+
+
+def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str, np.ndarray]:
+    """Run a model (and force heads) over a whole dataset."""
+    import torch
+
+    outs: dict[str, list] = {}
+    with torch.no_grad():
+        for b in range(0, len(batcher), batch):
+            idx = np.arange(b, min(len(batcher), b + batch))
+            o = model(batcher.inputs(idx))
+            outs.setdefault("coarse", []).append(o["coarse"].numpy())
+            outs.setdefault("dense", []).append(o["dense"].numpy())
+            outs.setdefault("contact", []).append(torch.sigmoid(o["contact_logit"]).numpy())
+            for key, h in heads.items():
+                f = h(o, batcher.pressure[idx], model.decoder.coarse_rest).numpy()
+                outs.setdefault("force" if key == "p" else "force_nop", []).append(f)
+    return {k: np.concatenate(v) for k, v in outs.items()}
+
+
+def weights_dir() -> Path:
+    return Path(__file__).resolve().parent / "weights"
+
+
+def train_all(tc: TrainConfig | None = None, cfg: DomeConfig | None = None, out_dir: Path | None = None,
+              kinds: tuple[str, ...] = ("gnn", "cnn"), log=print) -> dict[str, dict]:
+    """The full reproducible training: simulate (cached), train GNN and CNN with the same budget, save, eval."""
+    import torch
+
+    from vtrack.dome.metrics import evaluate_predictions
+
+    tc = tc or TrainConfig()
+    cfg = cfg or DomeConfig()
+    torch.set_num_threads(tc.threads)
+    out_dir = out_dir or weights_dir()
+    geo = DomeGeometry(cfg)
+    tr, te = load_sets(tc, cfg, progress=True)
+    results = {}
+    for kind in kinds:
+        t0 = time.time()
+        btr = Batcher(kind, tr, geo, f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
+        bte = Batcher(kind, te, geo, f"{tc.n_test}-{tc.test_seed}-{cfg.to_dict()}")
+        model = train_recon(kind, btr, tc, log)
+        heads = {"p": train_force(model, btr, tc, True, log), "nop": train_force(model, btr, tc, False, log)}
+        secs = time.time() - t0
+        pred = predict(model, heads, bte)
+        gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
+              "force": te["force_n"], "dense_rest": geo.dense_rest}
+        m = evaluate_predictions(pred, gt)
+        m["train_seconds"] = secs
+        log(f"[{kind}] test: " + " ".join(f"{k}={v:.4f}" for k, v in m.items()))
+        save_bundle(out_dir / f"{kind}.pt", kind, model, heads, cfg, tc, {"test": m})
+        results[kind] = m
+    return results
