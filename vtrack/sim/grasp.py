@@ -34,6 +34,7 @@ from vtrack.sim.raycast import Raycaster
 ALLEGRO_OPEN = np.array([0.0, 0.2, 0.2, 0.2, 0.0, 0.2, 0.2, 0.2, 0.0, 0.2, 0.2, 0.2, 1.35, 0.4, 0.0, 0.0])
 ALLEGRO_CLOSED = np.array([0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 1.35, 0.4, 0.6, 1.7])
 
+FINE_STRIDE_MM = 0.5  # grid of the indentation checks (thin features such as can rims are ~1 mm)
 LIFT_S = 0.12  # how far (in synergy units) a gaiting finger opens
 
 
@@ -94,6 +95,18 @@ def _max_indentation(hk, obj_rc, T_ow, q, sensor, spec, stride_mm: float = 1.0) 
     h = gel_heights(obj_rc, T_ow @ T, spec.width, spec.height, spec.mm_per_px, spec.gel_thickness_mm,
                     stride=stride).reshape(len(q), -1)
     return h.max(1).astype(np.float64), (h > spec.contact_threshold_mm).mean(1)
+
+
+def _closest_contacts(obj_rc: Raycaster, T_wo: np.ndarray, gel_world: np.ndarray, gel_normal: np.ndarray):
+    """Closest object surface point (world) and outward normal for gel centres (N, 3), world frame."""
+    T_ow = se3.invert(T_wo)
+    g_o = se3.transform_points(T_ow, gel_world[:, None])[:, 0]
+    p, nrm = obj_rc.closest(g_o)
+    p_w = se3.transform_points(T_wo, p[:, None])[:, 0]
+    n_w = np.einsum("nij,nj->ni", T_wo[:, :3, :3], nrm)
+    # Faceted normals may point inwards for a gel already inside: always push the gel back out.
+    flip = np.einsum("ni,ni->n", n_w, gel_normal) > 0
+    return p_w, np.where(flip[:, None], -n_w, n_w)
 
 
 def _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, sensor, spec, depth_mm: np.ndarray,
@@ -218,6 +231,8 @@ def gel_heights(obj_rc: Raycaster, T_object_sensor: np.ndarray, width: int, heig
 
     Rays start ``thickness_mm`` below the gel surface (inside the sensor) and go along +z of the
     sensor frame; an object surface met before the gel surface (z < 0) indents the gel by -z.
+    At full resolution (``stride`` 1) a 4-px pre-pass finds where the object is near the gel and
+    only that window (plus a margin) is cast per pixel; pixels outside it are 0.
 
     Args:
         obj_rc: ray caster holding the object mesh in the object frame.
@@ -227,8 +242,15 @@ def gel_heights(obj_rc: Raycaster, T_object_sensor: np.ndarray, width: int, heig
     Returns:
         (N, ceil(H/stride), ceil(W/stride)) float32 heights in mm, clipped to the gel thickness.
     """
+    if stride == 1 and min(width, height) >= 32:
+        return _gel_heights_windowed(obj_rc, T_object_sensor, width, height, mm_per_px, thickness_mm, max_rays)
     rows = np.arange(0, height, stride)
     cols = np.arange(0, width, stride)
+    return _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px, thickness_mm, max_rays)
+
+
+def _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px, thickness_mm, max_rays,
+                  probe_mm: float = 0.0) -> np.ndarray:
     s = mm_per_px / 1000.0
     X, Y = np.meshgrid((cols - (width - 1) / 2.0) * s, (rows - (height - 1) / 2.0) * s)
     thk = thickness_mm / 1000.0
@@ -241,34 +263,70 @@ def gel_heights(obj_rc: Raycaster, T_object_sensor: np.ndarray, width: int, heig
         d = np.broadcast_to(T[:, None, :3, 2], o.shape)
         hit = obj_rc.cast(o, d)
         t = hit["t"]
-        h = np.where(np.isfinite(t), (thk - t) * 1000.0, 0.0)  # z_hit = -thk + t
-        out[i0:i0 + chunk] = np.clip(h, 0.0, thickness_mm).reshape(len(T), len(rows), len(cols))
+        # probe_mm > 0 reports surfaces up to probe_mm *outside* the gel as negative heights.
+        h = np.where(np.isfinite(t), (thk - t) * 1000.0, -np.inf)  # z_hit = -thk + t
+        out[i0:i0 + chunk] = np.clip(h, -probe_mm, thickness_mm).reshape(len(T), len(rows), len(cols))
+    return out
+
+
+def _gel_heights_windowed(obj_rc, T_os, width, height, mm_per_px, thickness_mm, max_rays, step: int = 4):
+    rows_c = np.arange(0, height, step)
+    cols_c = np.arange(0, width, step)
+    # Probe 3 mm beyond the gel so the window also covers thin features between coarse samples.
+    coarse = _cast_heights(obj_rc, T_os, rows_c, cols_c, width, height, mm_per_px, thickness_mm, max_rays,
+                           probe_mm=3.0)
+    out = np.zeros((len(T_os), height, width), dtype=np.float32)
+    near = coarse > -3.0
+    for i in np.nonzero(near.any(axis=(1, 2)))[0]:
+        rr, cc = np.nonzero(near[i])
+        r0 = max(0, (rr.min() - 2) * step)
+        r1 = min(height, (rr.max() + 3) * step)
+        c0 = max(0, (cc.min() - 2) * step)
+        c1 = min(width, (cc.max() + 3) * step)
+        win = _cast_heights(obj_rc, T_os[i:i + 1], np.arange(r0, r1), np.arange(c0, c1), width, height,
+                            mm_per_px, thickness_mm, max_rays)[0]
+        out[i, r0:r1, c0:c1] = np.maximum(win, 0.0)
     return out
 
 def _fit_rest_pose(hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, depth_mm: float,
-                   steps: int = 5, reach: float = 0.03) -> np.ndarray:
-    """Grid search of the object's rest centre (3-D, +-``reach`` m) for the pose where every finger
-    reaches ``depth_mm`` mid-way along its synergy with a large contact patch."""
+                   n_s: int = 41, iters: int = 20) -> np.ndarray:
+    """Rest pose where every gel can lie flush on the object.
+
+    For finger f at synergy value s the gel centre is P_f(s) with inward normal N_f(s); the object
+    centre that makes that gel flush is c_f(s) = P_f(s) + (r_f(s) - d) N_f(s), where r_f(s) is the
+    object's radius in direction -N_f(s) (ray cast from the centre; exact for spheres, close for
+    convex shapes). The rest centre is the point closest to all four curves c_f (alternating
+    nearest point / mean, like 1-means), with the orientation of :func:`object_rest_pose`.
+    """
     T0 = object_rest_pose(hk, obj, _posture(q_open, q_closed, cols, {s: np.full(1, 0.3) for s in cols})[0])
-    offs = np.linspace(-reach, reach, steps)
-    A, B, C = np.meshgrid(offs, offs, offs, indexing="ij")
-    cands = np.repeat(T0[None], A.size, 0)
-    cands[:, :3, 3] += A.reshape(-1, 1) * T0[:3, 0] + B.reshape(-1, 1) * T0[:3, 1] + C.reshape(-1, 1) * T0[:3, 2]
-    T_ow = se3.invert(cands)
-    score = np.zeros(len(cands))
+    R0 = T0[:3, :3]
+    sv = np.linspace(0.1, 0.9, n_s)
+    curves = []
     for s in hk.sensor_names:
-        spec = tactile_specs[s]
-        sv, ok = _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, s, spec,
-                                 np.full(len(cands), depth_mm), scan=10, iters=4)
-        q = _posture(q_open, q_closed, cols, {s: sv})
-        _, area = _max_indentation(hk, obj_rc, T_ow, q, s, spec, stride_mm=1.5)
-        # Unreached fingers are disqualifying; prefer mid-synergy and big patches (flush gels).
-        score += np.where(ok, area - 0.5 * np.abs(sv - 0.35), -10.0)
-    return cands[int(np.argmax(score))]
+        T = hk.sensor_poses(_posture(q_open, q_closed, cols, {s: sv}))[s]
+        P, N = T[:, :3, 3], T[:, :3, 2]
+        d_obj = (-N) @ R0  # directions in the object frame (rows: R0^T @ -N)
+        hit = obj_rc.cast(np.zeros_like(d_obj), d_obj)
+        r = np.where(np.isfinite(hit["t"]), hit["t"], np.nan)
+        curves.append(P + (r - depth_mm / 1000.0)[:, None] * N)
+    pts = np.concatenate([c[np.isfinite(c).all(1)] for c in curves])
+    if len(pts) == 0:
+        return T0
+    c = pts.mean(0)
+    for _ in range(iters):
+        near = []
+        for cv in curves:
+            ok = np.isfinite(cv).all(1)
+            if ok.any():
+                near.append(cv[ok][np.argmin(np.linalg.norm(cv[ok] - c, axis=1))])
+        c = np.mean(near, axis=0)
+    T = T0.copy()
+    T[:3, 3] = c
+    return T
 
 
 def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tactile_specs: dict,
-               times: np.ndarray, rng: np.random.Generator) -> GraspPlan:
+               times: np.ndarray, rng: np.random.Generator, align_normals: bool = False) -> GraspPlan:
     """Object trajectory and joint angles keeping every fingertip in contact (see module docstring).
 
     Args:
@@ -314,9 +372,46 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
         s_val[s] = np.clip(sv - lift[s], 0.0, 1.0)
         phase_ok[s] = ok & (lift[s] <= 0.0)
     q = _posture(q_open, q_closed, cols, s_val)
+    if align_normals:
+        q = _align_gels(hk, obj_rc, T_wo, q, tactile_specs, d_target, phase_ok)
     for s in names:
-        meas[s], _ = _max_indentation(hk, obj_rc, T_ow, q, s, tactile_specs[s])
+        meas[s], _ = _max_indentation(hk, obj_rc, T_ow, q, s, tactile_specs[s], stride_mm=FINE_STRIDE_MM)
         # A first contact can jump (e.g. onto a rim) inside a bisection bracket: not a controlled contact.
         phase_ok[s] &= np.abs(meas[s] - d_target[s]) < 0.15
     return GraspPlan(times, T_wo, q, phase_ok, d_target, meas, T0, axis_world, float(sim.rotation_speed),
                      float(sim.translation_amplitude))
+
+
+def _align_gels(hk, obj_rc, T_wo, q_syn, tactile_specs, d_target, active, iters: int = 4) -> np.ndarray:
+    """Refine touching postures with the batched IK so each gel lies flush on the surface.
+
+    Target: the gel centre ``d`` inside the closest surface point along its normal, gel normal
+    against the surface normal; the indentation measured on the height map is fed back into ``d``.
+    Frames/fingers not in contact keep their synergy posture (they are the IK's rest posture).
+    """
+    from vtrack.kinematics.ik import solve_sensor_ik
+
+    names = hk.sensor_names
+    T_ow = se3.invert(T_wo)
+    d_cmd = {s: d_target[s].copy() for s in names}
+    q = q_syn.copy()
+    for it in range(iters):
+        sp = hk.sensor_poses(q)
+        tp, tn = {}, {}
+        for s in names:
+            g = sp[s][:, :3, 3]
+            p, n_w = _closest_contacts(obj_rc, T_wo, g, sp[s][:, :3, 2])
+            tp[s] = p - n_w * (d_cmd[s] / 1000.0)[:, None]
+            tn[s] = -n_w
+        q_new = solve_sensor_ik(hk, q_syn, tp, tn, active=active, q_init=q, iterations=12,
+                                normal_weight=0.05, tangent_weight=0.3, rest_weight=0.01).q
+        # Inactive fingers keep their synergy posture exactly.
+        for s in names:
+            c = hk.chain_joints(hk.sensor_links[s])
+            q_new[np.ix_(~active[s], c)] = q_syn[np.ix_(~active[s], c)]
+        q = q_new
+        if it < iters - 1:
+            for s in names:
+                m, _ = _max_indentation(hk, obj_rc, T_ow, q, s, tactile_specs[s], stride_mm=FINE_STRIDE_MM)
+                d_cmd[s] = np.clip(d_cmd[s] + (d_target[s] - m), -5.0, 5.0)
+    return q

@@ -40,8 +40,23 @@ class RenderedFrame:
 
 
 def render_geometry(rays_cam: np.ndarray, T_world_camera: np.ndarray, obj_rc: Raycaster, T_world_object: np.ndarray,
-                    hand_rc: Raycaster | None, depth_max: float) -> RenderedFrame:
-    """Cast ``rays_cam`` (H, W, 3), z = 1 per ray, from the camera against the object and the hand."""
+                    hand_rc: Raycaster | None, depth_max: float,
+                    window: tuple[int, int, int, int] | None = None) -> RenderedFrame:
+    """Cast ``rays_cam`` (H, W, 3), z = 1 per ray, from the camera against the object and the hand.
+
+    ``window`` = (r0, r1, c0, c1) casts only that pixel block (the rest is background), e.g. the
+    projected bounding box of the object and the hand.
+    """
+    if window is not None:
+        r0, r1, c0, c1 = window
+        H, W, _ = rays_cam.shape
+        sub = render_geometry(rays_cam[r0:r1, c0:c1], T_world_camera, obj_rc, T_world_object, hand_rc, depth_max)
+        full = RenderedFrame(np.zeros((H, W)), np.zeros((H, W), bool), np.zeros((H, W), bool),
+                             np.zeros((H, W, 3)), np.zeros((H, W)), np.zeros((H, W), np.int8),
+                             np.zeros((H, W, 3)))
+        for f in ("depth_m", "object_mask", "object_unoccluded", "normal", "cos_incidence", "kind", "points_obj"):
+            getattr(full, f)[r0:r1, c0:c1] = getattr(sub, f)
+        return full
     H, W, _ = rays_cam.shape
     R_wc, t_wc = T_world_camera[:3, :3], T_world_camera[:3, 3]
     d_world = rays_cam @ R_wc.T
@@ -97,10 +112,10 @@ def _albedo_object(points_obj: np.ndarray, base_rgb: np.ndarray) -> np.ndarray:
     """Object colour with a smooth procedural pattern fixed in the object frame (gives texture)."""
     p = points_obj * 60.0
     pattern = 0.75 + 0.25 * np.sin(p[..., 0] + 2 * np.sin(p[..., 1])) * np.cos(p[..., 2] * 1.3)
-    return base_rgb[None, None] * pattern[..., None]
+    return base_rgb * pattern[..., None]
 
 
-def shade_rgb(fr: RenderedFrame, d_world_unit: np.ndarray, object_rgb: np.ndarray, rng: np.random.Generator,
+def shade_rgb(fr: RenderedFrame, object_rgb: np.ndarray, rng: np.random.Generator,
               noise: float = 2.0) -> np.ndarray:
     """uint8 sRGB image: Lambertian + ambient lighting with a head light and a key light."""
     H, W = fr.kind.shape
@@ -114,8 +129,7 @@ def shade_rgb(fr: RenderedFrame, d_world_unit: np.ndarray, object_rgb: np.ndarra
     img[:] = g * np.array([1.0, 1.0, 1.1])
     obj = fr.kind == 1
     hand = fr.kind == 2
-    alb = _albedo_object(fr.points_obj, object_rgb)
-    img[obj] = alb[obj] * lam[obj, None]
+    img[obj] = _albedo_object(fr.points_obj[obj], object_rgb) * lam[obj, None]
     img[hand] = np.array([48.0, 48.0, 52.0]) * lam[hand, None] * 1.6
     if noise > 0:
         img += rng.normal(0.0, noise, img.shape)
@@ -130,3 +144,24 @@ def object_colour(name: str) -> np.ndarray:
     palette = np.array([[200, 50, 40], [220, 190, 40], [60, 120, 200], [70, 160, 80], [200, 120, 60],
                         [180, 180, 170], [140, 80, 160]], dtype=np.float64)
     return palette[h % len(palette)]
+
+
+def projected_window(K, T_world_camera: np.ndarray, points_world: np.ndarray, width: int, height: int,
+                     margin: int = 6) -> tuple[int, int, int, int] | None:
+    """Pixel block (r0, r1, c0, c1) covering the projection of ``points_world`` (None: nothing in view
+    or a point behind the camera, i.e. no safe bound: cast the whole image)."""
+    T_cw = np.linalg.inv(T_world_camera)
+    pc = points_world @ T_cw[:3, :3].T + T_cw[:3, 3]
+    if len(pc) == 0:
+        return None
+    if np.any(pc[:, 2] <= 1e-3):
+        return (0, height, 0, width)
+    u = K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2]
+    v = K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]
+    c0 = int(np.clip(np.floor(u.min()) - margin, 0, width))
+    c1 = int(np.clip(np.ceil(u.max()) + margin + 1, 0, width))
+    r0 = int(np.clip(np.floor(v.min()) - margin, 0, height))
+    r1 = int(np.clip(np.ceil(v.max()) + margin + 1, 0, height))
+    if r1 <= r0 or c1 <= c0:
+        return None
+    return (r0, r1, c0, c1)
