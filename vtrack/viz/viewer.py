@@ -189,6 +189,8 @@ class Viewer:
         self._worker.start()
         self._player = threading.Thread(target=self._play, name="vtrack-view-play", daemon=True)
         self._player.start()
+        self._filler = threading.Thread(target=self._fill_cache, name="vtrack-view-cache", daemon=True)
+        self._filler.start()
         self.startup_s = time.perf_counter() - t0
 
     @property
@@ -404,6 +406,21 @@ class Viewer:
                 try:
                     self.data.images(j)
                 except Exception:  # a bad frame shows up (and is reported) when it is displayed
+                    return
+
+    def _fill_cache(self) -> None:
+        """Decode every frame's images in the background (yielding to frame requests) until the cache
+        budget is reached, so that playback and scrubbing never wait for the session store."""
+        time.sleep(0.5)  # let the first client load the page first
+        for j in range(self.data.n_frames):
+            while (self._busy or self._pending is not None) and not self._stop.is_set():
+                time.sleep(0.02)
+            if self._stop.is_set() or self.data.image_cache_full:
+                return
+            if not self.data.is_cached(j):
+                try:
+                    self.data.images(j)
+                except Exception:  # reported when the frame is displayed
                     return
 
     def _play(self) -> None:
