@@ -49,7 +49,9 @@ class TrainOptions:
     outside_frac: float = 1.15  # and pixels beyond this factor x radius as flat gel
     flat_per_press: int = 3000
     inside_per_press: int = 4000  # 0 = every contact pixel; else a random subset (faster MLP training)
-    gate: float = 6.0  # grey levels: |colour change| (sum of channels, smoothed) below this -> flat
+    # grey levels: |colour change| (sum of channels, 5x5 mean) below this -> flat gel. 12 cuts the flagged
+    # area of the real GelSight frames from 46 % to 25 % (JPEG noise, uneven drift) at no accuracy cost.
+    gate: float = 12.0
     seed: int = 0
 
 
@@ -88,14 +90,29 @@ def gate_mask(dI: np.ndarray, gate: float) -> np.ndarray:
 _ONES3 = np.ones((1, 3), np.float32)
 
 
-def drift_offset(image: np.ndarray, background: np.ndarray, step: int = 4) -> np.ndarray:
-    """(3,) global colour offset of a frame against the background: per-channel median of the colour change
-    on a sparse grid (contact covers a minority of the gel, so the median is the illumination drift)."""
-    a = np.asarray(image)[::step, ::step].astype(np.int16)
-    b = np.asarray(background)[::step, ::step]
+def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 6.0, step: int = 4
+                 ) -> tuple[np.ndarray, float]:
+    """Global colour drift of a frame against the background, and the frame's typical colour change.
+
+    Returns ``(offset, level)``: ``offset`` (3,) is the per-channel median colour change on a sparse grid
+    (contact covers a minority of the gel, so the median is the illumination drift), or zeros when the
+    median absolute deviation exceeds ``max_spread`` grey levels (most of the gel is deformed: a full-frame
+    contact's own shading must not be "compensated"); ``level`` is the expected total |change| of pure sensor
+    noise, ``sum_c 0.8 sigma_c`` with ``sigma_c`` from the median absolute difference of horizontally
+    adjacent pixels (shading is smooth, noise is not, so contact does not inflate it).
+    """
+    a = np.asarray(image)[::step, ::step].reshape(-1, 3).astype(np.int16)
+    b = np.asarray(background)[::step, ::step].reshape(-1, 3)
     if a.size == 0:
-        return np.zeros(3)
-    return np.rint(np.median((a - b).reshape(-1, 3), axis=0))
+        return np.zeros(3), 0.0
+    d = a - b
+    med = np.median(d, axis=0)
+    if np.abs(med).max() < 1.0 or np.median(np.abs(d - med)) > max_spread:
+        med = np.zeros(3)
+    row = np.asarray(image)[::step].astype(np.int16) - np.asarray(background)[::step]
+    adj = np.abs(np.diff(row, axis=1)).reshape(-1, 3)
+    sigma = 1.4826 * np.median(adj, axis=0) / np.sqrt(2.0) if adj.size else np.zeros(3)
+    return med, float(0.8 * sigma.sum())
 
 
 def shift_background(background: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -316,7 +333,7 @@ def training_samples(ps: PressSet, presses: list[Press], opts: TrainOptions
         cols = np.concatenate([ic, fc[pick]])
         nx, ny = slopes_to_normals(gx[rows, cols], gy[rows, cols])
         # same drift compensation as the pipeline, so training and use see the same colour changes
-        d = colour_change(img, shift_background(bg, drift_offset(img, bg)))
+        d = colour_change(img, shift_background(bg, drift_offset(img, bg)[0]))
         out["dI"].append(d[rows, cols])
         out["raw"].append(img[rows, cols].astype(np.float32))
         out["rows"].append(rows)

@@ -1,9 +1,11 @@
 """Contact mask and contact statistics from a height map (mm) and, optionally, the image difference.
 
-The mask is ``h > tau`` where ``tau = max(threshold_mm, k_sigma * noise_mm)`` (noise-aware: the height noise
-of the sensor, measured on no-contact pixels of the calibration presses), intersected with the pixels whose
-colour changed (image-difference support, removes integration drift in untouched regions), then cleaned by
-a morphological closing and removal of components smaller than ``min_area_px``.
+The mask is ``h > tau`` where ``tau = max(threshold_mm, k_sigma * noise_mm, rel * max(h))`` (noise-aware: the
+height noise of the sensor, measured on no-contact pixels of the calibration presses; ``rel`` rejects the
+skirt of gel pulled down around a deep contact, which is deformed but not touching the object -- on the real
+GelSight ball presses ``rel = 0.15`` raises the IoU with the labelled contact disc from 0.36 to 0.67),
+intersected with the pixels whose colour changed (image-difference support, removes integration drift in
+untouched regions), then cleaned by a morphological closing and removal of components < ``min_area_px``.
 """
 
 from __future__ import annotations
@@ -35,13 +37,17 @@ class ContactStats:
 
 
 def contact_mask(height_mm: np.ndarray, threshold_mm: float = 0.05, *, noise_mm: float = 0.0,
-                 k_sigma: float = 3.0, diff_mask: np.ndarray | None = None, min_area_px: int = 3,
-                 close_px: int = 3) -> np.ndarray:
+                 k_sigma: float = 3.0, rel: float = 0.0, diff_mask: np.ndarray | None = None,
+                 min_area_px: int = 3, close_px: int = 3) -> np.ndarray:
     """Boolean contact mask (H, W). NaN heights are never in contact."""
     import cv2
 
     h = np.asarray(height_mm)
     tau = max(float(threshold_mm), float(k_sigma) * float(noise_mm))
+    if rel > 0 and h.size:
+        hmax = np.nanmax(np.where(np.isfinite(h), h, np.nan)) if not np.isfinite(h).all() else h.max()
+        if np.isfinite(hmax):
+            tau = max(tau, float(rel) * float(hmax))
     with np.errstate(invalid="ignore"):
         m = h > tau  # NaN compares False
     if diff_mask is not None:

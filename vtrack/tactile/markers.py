@@ -64,7 +64,7 @@ class ShearEstimate:
         reference: (M, 2) reference marker positions (x, y), px.
         displacement: (M, 2) displacement of each reference marker, px (NaN when lost).
         tracked: (M,) bool, marker found in this frame.
-        shear_px: (2,) mean displacement of tracked markers (x, y), px.
+        shear_px: (2,) in-plane translation of the marker field at the reference centroid (x, y), px.
         shear_mm: (2,) the same in mm (NaN without mm_per_px).
         torsion_rad: in-plane rotation of the tracked markers about their centroid (rad, x towards y).
     """
@@ -139,8 +139,12 @@ class MarkerTracker:
         self.last = np.where(tracked[:, None], cur, last) if M else last
         disp = cur - ref
         if tracked.any():
-            shear = disp[tracked].mean(0)
-            ang, _ = rigid_2d(ref[tracked], cur[tracked])
+            # rigid fit of the tracked markers, evaluated at the centroid of ALL reference markers: missing
+            # markers then do not bias the shear through the rotation part of the field
+            ang, t = rigid_2d(ref[tracked], cur[tracked])
+            c0 = ref.mean(0)
+            R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+            shear = R @ c0 + t - c0
         else:
             shear, ang = np.zeros(2), 0.0
         mm = shear * self.mm_per_px if self.mm_per_px else np.full(2, np.nan)

@@ -75,10 +75,14 @@ class TactilePipeline:
         solver: ``dct`` (default), ``fft`` or ``lsq`` (masked sparse LSQ on the colour-change region).
         downsample: working-resolution factor for slopes + Poisson (1 = full resolution).
         contact_threshold_mm: minimum indentation counted as contact (noise-aware floor, see contact.py).
+        contact_rel: also require ``h > contact_rel * max(h)`` (rejects the deformed skirt around a contact).
         point_stride: keep every n-th contact pixel (in working pixels) as a point.
         markers / slip / force_model: optional extra stages.
         drift_compensation: remove a global per-channel colour offset (illumination/background drift),
-            estimated as the median colour change over the frame (contact covers a minority of pixels).
+            estimated as the median colour change over the frame (contact covers a minority of pixels); only
+            applied when the median absolute deviation of the change is <= ``drift_max_spread`` grey levels.
+        gate_k: noise-aware colour gate: pixels whose (5x5 mean) total colour change is below
+            ``max(calibration gate, gate_k * median total change)`` are treated as flat gel.
         bad_fraction: frames with more than this fraction of saturated (>= 250) or dark (<= 5) pixels are
             reported with ``quality`` "saturated"/"dark" and no contact instead of a meaningless height map.
     """
@@ -86,8 +90,10 @@ class TactilePipeline:
     def __init__(self, calib: Calibration | str | Path | None = None, *, mm_per_px: float | None = None,
                  background: np.ndarray | None = None, image_shape: tuple[int, int] | None = None,
                  solver: str = "dct", downsample: int = 1, contact_threshold_mm: float = 0.05,
+                 contact_rel: float = 0.15,
                  point_stride: int = 1, markers: bool = False, slip: bool = False, force_model: Any = None,
-                 drift_compensation: bool = True, bad_fraction: float = 0.5,
+                 drift_compensation: bool = True, drift_max_spread: float = 6.0, gate_k: float = 2.0,
+                 bad_fraction: float = 0.5,
                  sensor_name: str = "tactile") -> None:
         if isinstance(calib, (str, Path)):
             calib = Calibration.load(calib)
@@ -103,8 +109,11 @@ class TactilePipeline:
         self.solver = solver
         self.downsample = int(downsample)
         self.contact_threshold_mm = float(contact_threshold_mm)
+        self.contact_rel = float(contact_rel)
         self.point_stride = max(1, int(point_stride))
         self.drift_compensation = bool(drift_compensation)
+        self.drift_max_spread = float(drift_max_spread)
+        self.gate_k = float(gate_k)
         self.bad_fraction = float(bad_fraction)
         self.image_shape = image_shape if calib is None else calib.shape
         self._bg_full: np.ndarray | None = None
@@ -232,12 +241,15 @@ class TactilePipeline:
             z = np.zeros(work.shape[:2], np.float32)
             return img, z, np.zeros(work.shape[:2], bool), quality, (0.0, 0.0, 0.0)
         drift = (0.0, 0.0, 0.0)
-        if self.drift_compensation and probe.size:
-            d = drift_offset(work, bg)
-            if np.abs(d).max() >= 1.0:
-                drift = tuple(float(x) for x in d)
-                bg = shift_background(bg, d)
-        gate = gate_mask_images(work, bg, float(model.info.get("gate", 6.0)))
+        gate_level = float(model.info.get("gate", 6.0))
+        if probe.size:
+            med, level = drift_offset(work, bg, self.drift_max_spread if self.drift_compensation else -1.0)
+            if med.any():
+                drift = tuple(float(x) for x in med)
+                bg = shift_background(bg, med)
+            # noise-aware gate: colour changes below gate_k x the frame's median change are sensor noise
+            gate_level = max(gate_level, self.gate_k * level)
+        gate = gate_mask_images(work, bg, gate_level)
         gx, gy = model.slopes_from_images(work, bg, gate)
         s = np.float32(self.mm_per_px * self.downsample)
         gx *= s
@@ -275,7 +287,8 @@ class TactilePipeline:
         img, hw, gate, quality, drift = self._height_work(image_bgr)
         t1 = time.perf_counter()
         s_work = self.mm_per_px * self.downsample
-        mask_w = contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, diff_mask=gate)
+        mask_w = contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, rel=self.contact_rel,
+                              diff_mask=gate)
         stats = contact_stats(hw, mask_w, s_work)
         if self.downsample > 1 and stats.area_px:
             d = self.downsample
