@@ -247,3 +247,23 @@ def write_live_session(path: Path, seconds: float = 1.0, cam_hw=(480, 640), tac_
                 w.append(f"tactile/{n}", i / tac_hz, image=tactile_image(i, th, tw))
             w.append("joints", i / tac_hz, q=np.full(16, 0.01 * i))
     return path
+
+
+def write_tactile_video(path: Path, n: int = 30, fps: float = 60.0, size=(320, 240)) -> Path:
+    """A lossless (FFV1) video whose frame i is ``tactile_image(i)`` resized to ``size`` (w, h):
+    stands in for a DIGIT's UVC stream (320x240 landscape)."""
+    import cv2
+
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), fps, size)
+    if not vw.isOpened():
+        raise RuntimeError("FFV1 writer unavailable")
+    for i in range(n):
+        vw.write(video_frame(i, size))
+    vw.release()
+    return path
+
+
+def video_frame(i: int, size=(320, 240)) -> np.ndarray:
+    import cv2
+
+    return cv2.resize(tactile_image(i % 200, 40, 30), size, interpolation=cv2.INTER_NEAREST)

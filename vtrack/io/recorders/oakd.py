@@ -82,8 +82,13 @@ def build_device_pipeline(pipeline: Any, cfg: OakConfig) -> dict[str, Any]:
     return queues
 
 
-def build_sync(pipeline: Any, rgb_out: Any, depth_out: Any, cfg: OakConfig) -> dict[str, Any]:
-    """Group colour and depth by timestamp with a host-side ``Sync`` node; returns the queue."""
+def build_sync(pipeline: Any, rgb_out: Any, depth_out: Any, cfg: OakConfig, lossless: bool = False
+               ) -> dict[str, Any]:
+    """Group colour and depth by timestamp with a host-side ``Sync`` node; returns the queue.
+
+    ``lossless``: a blocking output queue (host sources that can wait); devices use a short
+    non-blocking queue so that a slow host drops old groups instead of stalling the device.
+    """
     import depthai as dai
 
     sync = pipeline.create(dai.node.Sync)
@@ -93,6 +98,8 @@ def build_sync(pipeline: Any, rgb_out: Any, depth_out: Any, cfg: OakConfig) -> d
     depth_out.link(sync.inputs["depth"])
     # Non-blocking with a short queue: when the host falls behind the device drops old groups
     # instead of stalling the pipeline; drops show up as gaps in the sequence numbers.
+    if lossless:
+        return {"rgbd": sync.out.createOutputQueue(maxSize=64, blocking=True), "imu": None}
     return {"rgbd": sync.out.createOutputQueue(maxSize=8, blocking=False), "imu": None}
 
 
@@ -189,12 +196,13 @@ def oak_scene(cfg: OakConfig, calib: dict[str, Any], base: dict | None = None) -
 
 def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, stop: StopFlag,
                        is_running: Any = None, max_frames: int | None = None, status: StatusLine | None = None,
-                       stats: RecordingStats | None = None) -> RecordingStats:
+                       stats: RecordingStats | None = None, idle_timeout_s: float = 5.0) -> RecordingStats:
     """Host loop: pull synchronised colour/depth groups (and IMU) and append them to ``writer``.
 
     Stops when ``stop`` is set, ``max_frames`` frames were written, or ``is_running()`` turns false
-    (after draining what is queued). Frames whose device timestamp does not increase are dropped
-    and counted; sequence-number gaps are counted as frames dropped upstream.
+    (after draining what is queued), or nothing arrived for ``idle_timeout_s`` (a stalled or
+    unplugged device). Frames whose device timestamp does not increase are dropped and counted;
+    sequence-number gaps are counted as frames dropped upstream.
     """
     stats = stats or RecordingStats()
     cam_stream, imu_stream = f"camera/{cfg.name}", f"imu/{cfg.name}"
@@ -202,6 +210,7 @@ def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, s
     last_seq: int | None = None
     last_t = -np.inf
     last_imu_t = -np.inf
+    last_msg = time.monotonic()
     while not stop.is_set():
         got = False
         grp = q_rgbd.tryGet()
@@ -232,8 +241,13 @@ def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, s
         if max_frames is not None and stats.written.get(cam_stream, 0) >= max_frames:
             stop.set("frame count reached")
             break
-        if not got:
+        if got:
+            last_msg = time.monotonic()
+        else:
             if is_running is not None and not is_running():
+                break
+            if time.monotonic() - last_msg > idle_timeout_s:
+                stop.set(f"no frames for {idle_timeout_s:g} s")
                 break
             time.sleep(0.002)
     writer.flush()
@@ -339,9 +353,9 @@ def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_fra
     cfg = cfg or OakConfig()
     pipeline = dai.Pipeline(False)
     src = make_synthetic_source(pipeline, cfg, n_frames, realtime=realtime)
-    queues = build_sync(pipeline, src.rgb, src.depth, cfg)
+    queues = build_sync(pipeline, src.rgb, src.depth, cfg, lossless=True)
     if cfg.imu:
-        queues["imu"] = src.imu.createOutputQueue(maxSize=256, blocking=False)
+        queues["imu"] = src.imu.createOutputQueue(maxSize=256, blocking=True)
     calib_h = synthetic_calibration(cfg.width, cfg.height)
     calib = calibration_attrs(calib_h, cfg.width, cfg.height)
     scene_dict = oak_scene(cfg, calib, scene)

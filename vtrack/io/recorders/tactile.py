@@ -139,6 +139,15 @@ class _Reader(threading.Thread):
                 else:
                     rot = self.cam.rotate
                 frame = _rotate(frame, rot)
+                if self.is_file and not self.realtime:
+                    # Not a live stream: wait for the writer instead of dropping.
+                    while not self.halt.is_set():
+                        try:
+                            self.q.put((t, frame), timeout=0.1)
+                            break
+                        except queue.Full:
+                            pass
+                    continue
                 while True:
                     try:
                         self.q.put_nowait((t, frame))
@@ -242,6 +251,9 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
         last_t = {c.name: -np.inf for c in cams}
         last_jt = -np.inf
         next_poll = 0.0
+        # Clock for the joint source: wall time, or the media time when files are read unpaced.
+        media_clock = not realtime and all(r.is_file for r in readers)
+        latest_t = t0
         try:
             with StopFlag(seconds) as stop:
                 while not stop.is_set():
@@ -264,8 +276,9 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
                                 continue
                             w.append(key, t, image=frame)
                             last_t[r.cam.name] = t
+                            latest_t = max(latest_t, t)
                             stats.add(key)
-                    now = time.time()
+                    now = latest_t if media_clock else time.time()
                     if joints is not None and now >= next_poll:
                         next_poll = now + 1.0 / joint_poll_hz
                         for tj, q in joints.poll(now):
@@ -279,6 +292,12 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
                         stats.written.get(f"tactile/{c.name}", 0) >= max_frames for c in cams)
                     if finished or full:
                         stop.set("sources ended" if finished else "frame count reached")
+                        if joints is not None:  # samples up to the last frame's time
+                            for tj, q in joints.poll(latest_t):
+                                if tj > last_jt:
+                                    w.append("joints", tj, q=q)
+                                    last_jt = tj
+                                    stats.add("joints")
                         break
                     if not got:
                         time.sleep(0.002)
