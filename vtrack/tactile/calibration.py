@@ -90,7 +90,7 @@ def gate_mask(dI: np.ndarray, gate: float) -> np.ndarray:
 _ONES3 = np.ones((1, 3), np.float32)
 
 
-def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 6.0, step: int = 4
+def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 6.0, step: int = 0
                  ) -> tuple[np.ndarray, float]:
     """Global colour drift of a frame against the background, and the frame's typical colour change.
 
@@ -100,7 +100,10 @@ def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 
     contact's own shading must not be "compensated"); ``level`` is the expected total |change| of pure sensor
     noise, ``sum_c 0.8 sigma_c`` with ``sigma_c`` from the median absolute difference of horizontally
     adjacent pixels (shading is smooth, noise is not, so contact does not inflate it).
+    ``step`` = sampling stride (0: about 1200 samples).
     """
+    if step <= 0:
+        step = max(1, int(np.sqrt(np.asarray(image).shape[0] * np.asarray(image).shape[1] / 1200.0)))
     a = np.asarray(image)[::step, ::step].reshape(-1, 3).astype(np.int16)
     b = np.asarray(background)[::step, ::step].reshape(-1, 3)
     if a.size == 0:
@@ -116,9 +119,17 @@ def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 
 
 
 def shift_background(background: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """Background plus a per-channel offset (grey levels), clipped to uint8."""
-    out = np.asarray(background).astype(np.int16) + np.asarray(offset, np.int16).reshape(1, 1, 3)
-    return np.clip(out, 0, 255).astype(np.uint8)
+    """Background plus a per-channel offset (grey levels), saturated to uint8."""
+    import cv2
+
+    o = np.rint(np.asarray(offset, np.float64))
+    bg = np.asarray(background, np.uint8)
+    pos, neg = np.clip(o, 0, None), np.clip(-o, 0, None)
+    if pos.any():
+        bg = cv2.add(bg, (*pos.tolist(), 0.0))
+    if neg.any():
+        bg = cv2.subtract(bg, (*neg.tolist(), 0.0))
+    return bg
 
 
 def gate_mask_images(image: np.ndarray, background: np.ndarray, gate: float) -> np.ndarray:
@@ -197,20 +208,17 @@ class Calibration:
         import cv2
 
         if self.method == "lut":
-            table = self._slope_table()
-            B = table.shape[0]
-            lo, step = float(self.params["lut_lo"]), float(self.params["lut_step"])
-            # q = floor((img - bg - lo) / step) per channel, clamped to the table (OpenCV, float32)
-            qf = cv2.addWeighted(image, 1.0 / step, background, -1.0 / step, -lo / step, dtype=cv2.CV_32F)
-            np.clip(qf, 0.0, B - 0.5, out=qf)  # (cv2.min/max with a float scalar only clamp channel 0)
-            q = qf.astype(np.int32)
+            qtab, table = self._fast_lut()
+            B = int(round(len(table) ** (1 / 3)))
+            # colour change + 128 saturated to uint8, then one 256-entry table per channel -> bin index
+            d8 = cv2.addWeighted(image, 1.0, background, -1.0, 128.0, dtype=cv2.CV_8U)
+            q = cv2.LUT(d8, qtab)
             flat = cv2.transform(q, np.array([[B * B, B, 1]], np.float64))
-            flat[~mask] = (B * B * B) // 2 + (B * B) // 2 + B // 2  # zero-change bin
-            out = np.take(table.view(np.complex64).ravel(), flat)
-            gx, gy = out.real, out.imag
-            gx[~mask] = 0.0
-            gy[~mask] = 0.0
-            return gx, gy
+            if flat.dtype.kind == "f":  # B^3 > 65535: float path of cv2.LUT/transform
+                flat = flat.astype(np.int32)
+            flat = np.where(mask, flat, len(table) - 1)  # last entry: exact zero slope (flat gel)
+            out = np.take(table, flat)
+            return out.real, out.imag
         H, W = image.shape[:2]
         if self.method == "lut_raw":
             nx, ny = self.normals_from_change(None, image, mask)
@@ -226,6 +234,24 @@ class Calibration:
                 ny[rows, cols] = out[:, 1]
         gx, gy = normals_to_slopes(nx, ny)
         return gx.astype(np.float32, copy=False), gy.astype(np.float32, copy=False)
+
+    def _fast_lut(self) -> tuple[np.ndarray, np.ndarray]:
+        """(256-entry per-channel bin table for colour change + 128, flat complex64 slope table + zero entry)."""
+        t = self.params.get("_fast")
+        if t is None:
+            slopes = self._slope_table()
+            B = slopes.shape[0]
+            lo, step = float(self.params["lut_lo"]), float(self.params["lut_step"])
+            d = np.arange(256) - 128.0
+            bins = np.clip(np.floor((d - lo) / step), 0, B - 1)
+            depth = np.uint16 if B**3 < 65535 else np.int32
+            # OpenCV LUT output depth = table depth; uint16 keeps cv2.transform in range for B <= 40
+            qtab = bins.astype(depth if depth is np.uint16 else np.float32).reshape(1, 256)
+            flat = np.concatenate([slopes.reshape(-1, 2), np.zeros((1, 2), np.float32)])
+            table = np.ascontiguousarray(flat).view(np.complex64).ravel()
+            t = (qtab, table)
+            self.params["_fast"] = t  # type: ignore[assignment]
+        return t
 
     def _slope_table(self) -> np.ndarray:
         t = self.params.get("_slopes")

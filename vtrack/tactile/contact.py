@@ -45,9 +45,11 @@ def contact_mask(height_mm: np.ndarray, threshold_mm: float = 0.05, *, noise_mm:
     h = np.asarray(height_mm)
     tau = max(float(threshold_mm), float(k_sigma) * float(noise_mm))
     if rel > 0 and h.size:
-        hmax = np.nanmax(np.where(np.isfinite(h), h, np.nan)) if not np.isfinite(h).all() else h.max()
-        if np.isfinite(hmax):
-            tau = max(tau, float(rel) * float(hmax))
+        hmax = float(h.max())
+        if not np.isfinite(hmax):  # NaN/Inf present: use the finite maximum
+            fin = h[np.isfinite(h)]
+            hmax = float(fin.max()) if fin.size else 0.0
+        tau = max(tau, float(rel) * hmax)
     with np.errstate(invalid="ignore"):
         m = h > tau  # NaN compares False
     if diff_mask is not None:

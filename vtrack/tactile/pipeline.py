@@ -118,6 +118,7 @@ class TactilePipeline:
         self.image_shape = image_shape if calib is None else calib.shape
         self._bg_full: np.ndarray | None = None
         self._bg_work: np.ndarray | None = None
+        self._shifted: tuple | None = None
         self._model: Calibration | None = None
         self.noise_mm = float(calib.info.get("height_noise_mm", 0.0)) if calib is not None else 0.0
         bg = background if background is not None else (calib.background if calib is not None else None)
@@ -202,6 +203,7 @@ class TactilePipeline:
             self.image_shape = bg.shape[:2]
         self._bg_full = bg
         self._bg_work = self._to_work(bg)
+        self._shifted = None
         wh = self._bg_work.shape[:2]
         if self.calib is None:
             self._model = lambertian_calibration(self._bg_work, self.mm_per_px * self.downsample)
@@ -246,7 +248,9 @@ class TactilePipeline:
             med, level = drift_offset(work, bg, self.drift_max_spread if self.drift_compensation else -1.0)
             if med.any():
                 drift = tuple(float(x) for x in med)
-                bg = shift_background(bg, med)
+                if self._shifted is None or self._shifted[0] != drift:  # drift changes slowly: reuse
+                    self._shifted = (drift, shift_background(bg, med))
+                bg = self._shifted[1]
             # noise-aware gate: colour changes below gate_k x the frame's median change are sensor noise
             gate_level = max(gate_level, self.gate_k * level)
         gate = gate_mask_images(work, bg, gate_level)
