@@ -42,3 +42,29 @@ def test_scene_session_geometry_layers_are_light(shared_data) -> None:
 
 def test_cli_help_is_light() -> None:
     assert _loaded_after("import vtrack_apps.cli") == []
+
+
+_BUILD = """
+import yaml
+from vtrack import registry
+from vtrack.paths import default_scene_path
+from vtrack.scene import scene_from_dict
+d = yaml.safe_load(open(default_scene_path()))
+{edit}
+s = scene_from_dict(d, base_dir=default_scene_path().parent)
+built = registry.build_all(s)
+print("BUILT:" + ",".join(sorted(built)))
+"""
+
+
+def test_touch_only_scene_never_imports_the_rgbd_stack(shared_data) -> None:
+    edit = 'd.pop("cameras"); d["pipeline"] = {"reconstruction": "off", "tracking": "off", "modalities": ["touch"]}'
+    loaded = _loaded_after(_BUILD.format(edit=edit))
+    assert loaded == []  # no open3d (RGB-D), no torch, no viewer back-ends
+
+
+def test_tsdf_scene_never_imports_torch(shared_data) -> None:
+    edit = 'd["pipeline"] = {"reconstruction": "tsdf", "tracking": "off", "modalities": ["vision", "touch"]}'
+    loaded = _loaded_after(_BUILD.format(edit=edit))
+    assert "open3d" in loaded  # the TSDF really was built
+    assert "torch" not in loaded and "viser" not in loaded and "depthai" not in loaded
