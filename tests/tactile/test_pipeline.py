@@ -74,6 +74,11 @@ def test_from_scene_default():
     p.set_background(bg)
     f = p.process(render_tactile_image(h, spec.mm_per_px, bg))
     assert f.stats.max_depth_mm == pytest.approx(h.max(), rel=0.15)
+    # multi-sensor dispatch: process(sensor_name, image); the other sensor's first frame is its background
+    other = scene.tactile[1].name
+    assert not p.process(other, bg).in_contact
+    f2 = p.process(other, render_tactile_image(h, spec.mm_per_px, bg))
+    assert f2.stats.max_depth_mm == pytest.approx(h.max(), rel=0.15)
     with pytest.raises(InputError):
         TactilePipeline.from_scene(scene, sensor_name="nope")
 

@@ -281,12 +281,19 @@ class TactilePipeline:
             return cv2.resize(a.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).view(bool)
         return cv2.resize(a, (W, H), interpolation=cv2.INTER_LINEAR)
 
-    def process(self, image_bgr: np.ndarray, t: float | None = None) -> TactileFrame:
+    def process(self, image_bgr: np.ndarray | str, image: np.ndarray | None = None) -> TactileFrame:
         """Run the pipeline on one BGR image of this sensor (see :class:`TactileFrame`).
+
+        ``process(image)`` uses this sensor; ``process(sensor_name, image)`` dispatches to the pipeline of
+        another sensor of the scene (``from_scene`` builds one per sensor).
 
         Contact detection and point lifting run at the working resolution (points are spaced
         ``downsample * point_stride`` image pixels); height and mask are returned at full resolution.
         """
+        if isinstance(image_bgr, str):
+            if image is None:
+                raise InputError("process(sensor_name, image) needs an image", field="image")
+            return self.for_sensor(image_bgr).process(image)
         t0 = time.perf_counter()
         img, hw, gate, quality, drift = self._height_work(image_bgr)
         t1 = time.perf_counter()
