@@ -233,7 +233,8 @@ class RosSessionBuilder:
     def add(self, topic: str, msgtype: str, msg: Any, t_log: float) -> None:
         role = classify(topic, msgtype, self.topic_map)
         if role is None:
-            self.report.skip(f"topic {topic} ({norm_type(msgtype)}): not imported")
+            why = "ignored (--map)" if self.topic_map.get(topic) == "ignore" else "not imported"
+            self.report.skip(f"topic {topic} ({norm_type(msgtype)}): {why}")
             return
         stream, part = role
         if part == "info" or (stream == "tf" and part == "static"):

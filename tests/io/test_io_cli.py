@@ -1,0 +1,68 @@
+"""`vtrack import ...`, `vtrack record ...`, `vtrack live ...` end to end (in-process CLI runner; one
+subprocess checks the user-facing exit status 2 and one-line error)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fixtures_io import write_feelsight, write_live_session, write_mcap, write_tactile_video
+from typer.testing import CliRunner
+
+from vtrack.errors import InputError
+from vtrack.io.session import open_session
+
+
+def invoke(*args):
+    from vtrack_apps.cli import app
+
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def test_import_commands_and_clear_errors(tmp_path: Path) -> None:
+    src = write_feelsight(tmp_path / "log", n=4)
+    res = invoke("import", "feelsight", src, "--out", tmp_path / "s", "--json", tmp_path / "r.json")
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "r.json").read_text())["frames"]["joints"] == 4
+    assert open_session(tmp_path / "s").complete
+    again = invoke("import", "feelsight", src, "--out", tmp_path / "s")
+    assert isinstance(again.exception, InputError) and "exists" in str(again.exception)
+    mc = write_mcap(tmp_path / "x.mcap", n=4)
+    res = invoke("import", "mcap", mc, "--out", tmp_path / "m", "--map", "/chatter=ignore")
+    assert res.exit_code == 0, res.output
+    assert "/notes: unsupported encoding" in res.output and "/chatter (std_msgs/msg/String): ignored" in res.output
+    # The real console entry point: exit status 2, one line naming the file, no traceback.
+    out = subprocess.run([sys.executable, "-m", "vtrack_apps.cli", "import", "rosbag", str(mc), "--out",
+                          str(tmp_path / "b")], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert out.returncode == 2 and "x.mcap" in out.stderr and "vtrack import mcap" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_record_commands(tmp_path: Path) -> None:
+    vid = write_tactile_video(tmp_path / "d.avi", n=12)
+    res = invoke("record", "tactile", "--out", tmp_path / "t", "--camera", f"digit_index={vid}:digit",
+                 "--no-realtime")
+    assert res.exit_code == 0, res.output
+    assert open_session(tmp_path / "t")["tactile/digit_index"].n == 12
+    bad = invoke("record", "tactile", "--out", tmp_path / "t2", "--camera", "oops")
+    assert isinstance(bad.exception, InputError) and "NAME=SOURCE" in str(bad.exception)
+    pytest.importorskip("depthai")
+    res = invoke("record", "oak", "--simulate", "--out", tmp_path / "o", "--frames", "6", "--width", "64",
+                 "--height", "40")
+    assert res.exit_code == 0, res.output
+    assert open_session(tmp_path / "o")["camera/oak"].n == 6
+
+
+def test_live_command(tmp_path: Path) -> None:
+    sess = write_live_session(tmp_path / "s", seconds=0.5, cam_hw=(48, 64), tac_hw=(32, 24))
+    res = invoke("live", sess, "--consumer", "null", "--json", tmp_path / "live.json")
+    assert res.exit_code == 0, res.output
+    live = json.loads((tmp_path / "live.json").read_text())
+    assert live["source"]["emitted"]["camera/cam0"] + live["source"]["skipped_late"].get("camera/cam0", 0) == 15
+    bad = invoke("live", sess, "--consumer", "nonsense")
+    assert isinstance(bad.exception, InputError) and "track|reconstruct|null" in str(bad.exception)
