@@ -33,7 +33,7 @@ from vtrack.viz.data import DEFAULT_MAX_POINTS, ViewData
 
 MESH_RGB = (200, 200, 210)
 GT_MESH_RGB = (60, 200, 90)
-HAND_RGB = (120, 120, 130)
+HAND_RGB = (165, 165, 175)
 GT_TRAJ_RGB = (40, 170, 70)
 EST_TRAJ_RGB = (220, 40, 40)
 
@@ -64,22 +64,12 @@ def default_view(data: ViewData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return centre + d * radius * 2.6, centre, np.array([0.0, 0.0, 1.0])
 
 
-def srgb_to_linear_u8(rgb: np.ndarray) -> np.ndarray:
-    """sRGB uint8 -> linear uint8. three.js treats per-vertex colours as linear and encodes the output
-    as sRGB, so without this the browser shows point colours washed out (e.g. vision blue 70,130,180
-    appears as ~145,190,220)."""
-    x = np.asarray(rgb, np.float32) / 255.0
-    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-    return (lin * 255.0 + 0.5).astype(np.uint8)
-
-
 class _CloudBins:
     """The fused cloud as ``n_bins`` time-ordered point-cloud nodes (see module docstring)."""
 
     def __init__(self, scene, parent: str, cloud, mode: str, point_size: float, n_bins: int = 32) -> None:
         self.cloud = cloud
         self.mode = mode
-        self._lin: dict[str, np.ndarray] = {}
         n = len(cloud)
         n_bins = max(1, min(n_bins, n // 2000 or 1))
         self.edges = np.linspace(0, n, n_bins + 1).round().astype(np.int64)
@@ -94,9 +84,9 @@ class _CloudBins:
             self.shown[k] = b - a
 
     def _colors(self, mode: str) -> np.ndarray:
-        if mode not in self._lin:
-            self._lin[mode] = srgb_to_linear_u8(self.cloud.colors[mode])
-        return self._lin[mode]
+        # Sent as they are: with plain lights viser shows point colours unchanged (an HDRI environment
+        # map, --hdri, tone-maps them lighter).
+        return self.cloud.colors[mode]
 
     def show_until(self, n: int) -> int:
         """Show the first ``n`` (time-sorted) points; returns the number of points re-sent."""
@@ -152,7 +142,7 @@ class Viewer:
     """
 
     def __init__(self, data: ViewData, host: str = "127.0.0.1", port: int = 8080,
-                 log: Callable[[str], None] | None = None) -> None:
+                 log: Callable[[str], None] | None = None, hdri: bool = False) -> None:
         import viser
 
         self.data = data
@@ -160,6 +150,11 @@ class Viewer:
         t0 = time.perf_counter()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.scene.set_up_direction("+z")
+        if not hdri:
+            # Plain lights, no image-based lighting and no shadows: the HDRI environment map costs tens
+            # of seconds to prepare in software WebGL (machines without a GPU, headless browsers).
+            self.server.scene.configure_environment_map(None)
+            self.server.scene.configure_default_lights(True, cast_shadow=False)
         self.frame_ms: list[float] = []
         self._lock = threading.Lock()
         self._cond = threading.Condition()
@@ -478,7 +473,7 @@ class Viewer:
 
 
 def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8080, max_points: int = DEFAULT_MAX_POINTS,
-          block: bool = True, log: Callable[[str], None] | None = None) -> Viewer:
+          block: bool = True, log: Callable[[str], None] | None = None, hdri: bool = False) -> Viewer:
     """Load ``path`` and serve it; with ``block`` run until Ctrl-C.
 
     Raises:
@@ -486,7 +481,7 @@ def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8080, max_point
     """
     t0 = time.perf_counter()
     data = ViewData(path, max_points=max_points)
-    viewer = Viewer(data, host=host, port=port, log=log)
+    viewer = Viewer(data, host=host, port=port, log=log, hdri=hdri)
     viewer.log(f"ready in {time.perf_counter() - t0:.2f} s: {viewer.url}  "
                f"({data.n_frames} frames, {len(data.cloud) if data.cloud is not None else 0} cloud points shown)")
     if not block:

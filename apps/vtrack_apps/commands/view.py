@@ -17,6 +17,7 @@ def register(app: typer.Typer) -> None:
         frame: int = typer.Option(-1, "--frame", help="timeline frame for --screenshot (-1 = last)"),
         size: str = typer.Option("1280x960", "--size", help="screenshot size WxH, px"),
         max_points: int = typer.Option(200_000, "--max-points", help="display budget of cloud points"),
+        hdri: bool = typer.Option(False, "--hdri", help="image-based lighting (nicer; slow without a GPU)"),
     ) -> None:
         """Show a session or result in the browser (timeline, clouds, meshes, hand, tactile panels)."""
         from vtrack.errors import InputError
@@ -31,4 +32,4 @@ def register(app: typer.Typer) -> None:
             return
         from vtrack.viz.viewer import serve
 
-        serve(path, host=host, port=port, max_points=max_points, block=True)
+        serve(path, host=host, port=port, max_points=max_points, block=True, hdri=hdri)
