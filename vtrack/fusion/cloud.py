@@ -207,14 +207,21 @@ def from_rgbd(depth: np.ndarray, camera: PinholeCamera, T_world_camera: np.ndarr
         out = UnifiedCloud.empty()
         out.sensor_names = list(sensor_names or [])
         return out
-    zz = np.where(valid, z, 0.0)
-    rays = camera.pixel_rays()
+    # Work on the bounding box of valid pixels (+1 px for the normals' central differences): the
+    # object usually covers a small part of the image.
+    rr, cc = np.nonzero(valid.any(1))[0], np.nonzero(valid.any(0))[0]
+    r0, r1 = max(rr[0] - 1, 0), min(rr[-1] + 2, valid.shape[0])
+    c0, c1 = max(cc[0] - 1, 0), min(cc[-1] + 2, valid.shape[1])
+    vz = valid[r0:r1, c0:c1]
+    zz = np.where(vz, z[r0:r1, c0:c1], 0.0)
+    u, v = np.meshgrid(np.arange(c0, c1, dtype=np.float64), np.arange(r0, r1, dtype=np.float64))
+    rays = np.stack([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, np.ones_like(u)], axis=-1)
     P = rays * zz[..., None]
-    N = depth_normals(P, valid)
-    keep = valid.copy()
+    N = depth_normals(P, vz)
+    keep = vz.copy()
     if stride > 1:
         sub = np.zeros_like(keep)
-        sub[::stride, ::stride] = True
+        sub[(-r0) % stride::stride, (-c0) % stride::stride] = True  # same pixel lattice as the full image
         keep &= sub
     rows, cols = np.nonzero(keep)
     pts, nrm = P[rows, cols], N[rows, cols]

@@ -164,17 +164,20 @@ class NeuralSDFReconstructor:
         self.net = _SDFNet(res, o["features"], o["hidden"], o["seed"])
         self._center = torch.tensor(c, dtype=torch.float32)
         self._r0 = 0.45 * half
-        self._opt = torch.optim.Adam(self.net.parameters(), lr=o["lr"])
+        self._opt = torch.optim.Adam(self.net.parameters(), lr=o["lr"], foreach=True)
         self.resolutions = res
 
     @staticmethod
     def bounds_from_points(points: np.ndarray, margin: float = 0.15, pad: float = 0.01) -> np.ndarray:
-        """Robust cube around points (0.2 / 99.8 percentiles, +``margin`` relative, +``pad`` m)."""
+        """Robust cube around points (far outliers dropped, 0.2 / 99.8 percentiles, +``margin``, +``pad`` m)."""
         P = np.asarray(points, np.float64).reshape(-1, 3)
         P = P[np.isfinite(P).all(1)]
         if len(P) == 0:
             raise InputError("no finite points to size the reconstruction volume", field="points",
                              expected="> 0 points")
+        # Far outliers first (beyond 8x the median distance to the median point), then percentiles.
+        d = np.linalg.norm(P - np.median(P, axis=0), axis=1)
+        P = P[d <= max(8.0 * float(np.median(d)), 1e-3)]
         lo, hi = np.percentile(P, 0.2, axis=0), np.percentile(P, 99.8, axis=0)
         c = 0.5 * (lo + hi)
         half = 0.5 * float(np.max(hi - lo)) * (1 + margin) + pad
@@ -260,24 +263,31 @@ class NeuralSDFReconstructor:
         prior = torch.linalg.norm(x - self._center, dim=1) - self._r0
         return prior + self.net.mlp(h)[:, 0] * (0.5 * self.size)
 
+    def _pools(self) -> tuple[np.ndarray, np.ndarray]:
+        """Sorted buffer indices of touch and vision points (cached until the buffer changes)."""
+        n = self.n_points
+        if getattr(self, "_pool_n", -1) != n or getattr(self, "_pool_frame", -1) != self._frame:
+            m = self._buf["m"]
+            self._pool_cache = (np.nonzero(m == TOUCH)[0], np.nonzero(m != TOUCH)[0])
+            self._pool_n, self._pool_frame = n, self._frame
+        return self._pool_cache
+
     def _sample(self) -> dict[str, np.ndarray] | None:
         n = self.n_points
         if n == 0:
             return None
         B = int(self.opts["batch"])
-        m = self._buf["m"]
-        touch = np.nonzero(m == TOUCH)[0]
-        vis = np.nonzero(m != TOUCH)[0]
-        n_t = min(len(touch) and int(round(B * self.opts["touch_fraction"])), B) if len(vis) else B
+        touch, vis = self._pools()
+        n_t = int(round(B * self.opts["touch_fraction"])) if len(vis) else B
         n_t = n_t if len(touch) else 0
         n_v = B - n_t if len(vis) else 0
-        recent = np.arange(self._recent_from, n)
         picks = []
         for pool, k in ((touch, n_t), (vis, n_v)):
             if k <= 0 or len(pool) == 0:
                 continue
-            rp = np.intersect1d(pool, recent, assume_unique=True) if len(recent) < n else pool
-            if len(rp) and len(rp) < len(pool):
+            # Buffer indices grow with time, so the newest (not yet trained) points are a suffix.
+            rp = pool[np.searchsorted(pool, self._recent_from):]
+            if 0 < len(rp) < len(pool):
                 half = k // 2
                 picks.append(self._rng.choice(rp, half))
                 picks.append(self._rng.choice(pool, k - half))

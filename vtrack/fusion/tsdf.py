@@ -29,11 +29,12 @@ class TSDFReconstructor:
         touch_trunc_voxels: truncation for touch splats (narrow: touch is exact).
         touch_weight: TSDF weight of one touch frame (one camera frame weighs 1 per voxel).
         depth_max: m, beyond which depth is ignored. weight_threshold: min weight for meshing.
+        max_patch_m: touch points farther than this from their frame's median point are outliers.
     """
 
     def __init__(self, voxel_size: float = 0.002, *, block_resolution: int = 8, block_count: int = 20000,
                  trunc_voxels: float = 4.0, touch_trunc_voxels: float = 2.0, touch_weight: float = 3.0,
-                 depth_max: float = 3.0,
+                 depth_max: float = 3.0, max_patch_m: float = 0.05,
                  weight_threshold: float = 1.0) -> None:
         import open3d as o3d
 
@@ -43,6 +44,7 @@ class TSDFReconstructor:
         self.touch_trunc_voxels = float(touch_trunc_voxels)
         self.touch_weight = float(touch_weight)
         self.block_resolution = int(block_resolution)
+        self.max_patch_m = float(max_patch_m)
         self.depth_max = float(depth_max)
         self.weight_threshold = float(weight_threshold)
         self.device = o3d.core.Device("CPU:0")
@@ -109,6 +111,9 @@ class TSDFReconstructor:
             org = se3.invert(np.asarray(T_view_object, np.float64))[:3, 3]
             N = org - P
         ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)
+        if ok.any():
+            # One tactile frame is one fingertip patch: points far from its median are outliers.
+            ok &= np.linalg.norm(P - np.median(P[ok], axis=0), axis=1) < self.max_patch_m
         P, N = P[ok], N[ok]
         N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
         if len(P) == 0:
@@ -120,7 +125,7 @@ class TSDFReconstructor:
         bs = vs * self.block_resolution
         lo = np.floor((P.min(0) - trunc - vs) / bs).astype(np.int64)
         hi = np.floor((P.max(0) + trunc + vs) / bs).astype(np.int64)
-        if np.prod(hi - lo + 1) > 4096:  # a "patch" spanning > 4096 blocks is not a contact: refuse
+        if np.prod((hi - lo + 1).astype(np.float64)) > 4096:  # not a contact patch: refuse
             self.frames["skipped"] += 1
             return False
         g = np.stack(np.meshgrid(*[np.arange(lo[i], hi[i] + 1) for i in range(3)], indexing="ij"), -1)
