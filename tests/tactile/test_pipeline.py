@@ -94,3 +94,13 @@ def test_real_press_contact_matches_label(gelsight_set, mlp_calib):
     r_eq = np.sqrt(f.stats.area_px / np.pi)
     assert press.contact_radius_px * 0.9 < r_eq < press.contact_radius_px * 1.6
     assert 0.8 < f.stats.max_depth_mm < 2.5
+
+
+@pytest.mark.parametrize("solver", ["dct", "fft", "lsq"])
+def test_solvers_in_pipeline(solver):
+    h, bg, img = _press()
+    f = TactilePipeline(None, mm_per_px=S, background=bg, solver=solver).process(img)
+    assert f.stats.max_depth_mm == pytest.approx(h.max(), rel=0.1)
+    assert np.abs(f.height_mm[h == 0]).max() < 0.1 * h.max()
+    with pytest.raises(InputError):
+        TactilePipeline(None, mm_per_px=S, solver="bogus")
