@@ -39,15 +39,25 @@ def _threads() -> None:
         pass
 
 
+def _timed(tracker, seq, drop=()):
+    """Run a synthetic sequence; (errors m, CPU ms per frame, wall ms per frame)."""
+    from vtrack.tracking.synth import run_sequence
+
+    c0, t0 = time.process_time(), time.perf_counter()
+    _, err = run_sequence(tracker, seq, drop=drop)
+    n = len(seq.frames)
+    return err, (time.process_time() - c0) * 1e3 / n, (time.perf_counter() - t0) * 1e3 / n
+
+
 def _synth_rows(table: BenchTable, quick: bool) -> None:
     from vtrack.paths import shared_data_dir
     from vtrack.tracking.icp import ICPTracker
     from vtrack.tracking.slam import SLAMTracker
-    from vtrack.tracking.synth import make_sequence, run_sequence
+    from vtrack.tracking.synth import make_sequence
     from vtrack.tracking.tracker import KnownShapeTracker
 
     mesh = shared_data_dir() / "objects" / "ycb" / "006_mustard_bottle.ply"
-    n = 40 if quick else 90
+    n = 30 if quick else 90
     for occ in ("none", "heavy"):
         seq = make_sequence(mesh, n_frames=n, width=160, height=120, occlusion=occ, seed=7)
         drop_for = {"vision": ("touch",), "touch": ("vision",), "visuo-tactile": ()}
@@ -55,27 +65,23 @@ def _synth_rows(table: BenchTable, quick: bool) -> None:
             points = OPERATING_POINTS if mode == "visuo-tactile" or not quick else {"default": {}}
             for op, opts in points.items():
                 tr = KnownShapeTracker(mesh, seq.gt[0], **opts)
-                t0 = time.perf_counter()
-                _, err = run_sequence(tr, seq, drop=drop)
-                ms = (time.perf_counter() - t0) * 1e3 / n
+                err, ms, wall = _timed(tr, seq, drop)
                 table.add(method=f"known/{mode}", setting=f"synth {occ} {op}", data="synthetic", object=mesh.stem,
-                          occlusion=occ, noise=1.0, ms=ms, drift_mm=float(err.mean() * 1e3),
+                          occlusion=occ, noise=1.0, ms=ms, wall_ms=wall, drift_mm=float(err.mean() * 1e3),
                           drift_max_mm=float(err.max() * 1e3))
         for op, opts in {"icp20": {"iterations": 20}, "icp5": {"iterations": 5}, "icp50": {"iterations": 50}}.items():
             tr = ICPTracker(mesh, seq.gt[0], **opts)
-            t0 = time.perf_counter()
-            _, err = run_sequence(tr, seq, drop=("touch",))
+            err, ms, wall = _timed(tr, seq, ("touch",))
             table.add(method="icp/vision", setting=f"synth {occ} {op}", data="synthetic", object=mesh.stem,
-                      occlusion=occ, noise=1.0, ms=(time.perf_counter() - t0) * 1e3 / n,
-                      drift_mm=float(err.mean() * 1e3), drift_max_mm=float(err.max() * 1e3))
+                      occlusion=occ, noise=1.0, ms=ms, wall_ms=wall, drift_mm=float(err.mean() * 1e3),
+                      drift_max_mm=float(err.max() * 1e3))
         if not quick or occ == "none":
             for op, opts in {"refresh10": {"refresh_every": 10}, "default": {},
                              "refresh2": {"refresh_every": 2}}.items():
                 tr = SLAMTracker(seq.gt[0], **opts)
-                t0 = time.perf_counter()
-                _, err = run_sequence(tr, seq)
+                err, ms, wall = _timed(tr, seq)
                 table.add(method="slam/visuo-tactile", setting=f"synth {occ} {op}", data="synthetic",
-                          object=mesh.stem, occlusion=occ, noise=1.0, ms=(time.perf_counter() - t0) * 1e3 / n,
+                          object=mesh.stem, occlusion=occ, noise=1.0, ms=ms, wall_ms=wall,
                           drift_mm=float(err.mean() * 1e3), drift_max_mm=float(err.max() * 1e3))
 
 
@@ -119,14 +125,16 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                 for name, kw in runs:
                     m = track_session(sess, "", write=False, **kw)
                     table.add(method=name, setting=setting, data="sim", object=obj, occlusion=occ, noise=noise,
-                              ms=m["ms_per_frame_mean"], drift_mm=m["drift_mm"], add_s_mm=m["add_s_mm"],
+                              ms=m["cpu_ms_per_frame_mean"], wall_ms=m["ms_per_frame_mean"], drift_mm=m["drift_mm"],
+                              add_s_mm=m["add_s_mm"],
                               rot_drift_deg=m["rot_drift_deg"], drift_max_mm=m["drift_max_mm"], frames=m["frames"])
     # operating points on one setting
     sess = bench_session(default_scene_path(), objects[0], "heavy", 1.0, seconds)
     for op, opts in OPERATING_POINTS.items():
         m = track_session(sess, "", write=False, shape="known", **opts)
         table.add(method="known/visuo-tactile", setting=f"{objects[0][4:]} heavy n1 {op}", data="sim",
-                  object=objects[0], occlusion="heavy", noise=1.0, ms=m["ms_per_frame_mean"], drift_mm=m["drift_mm"],
+                  object=objects[0], occlusion="heavy", noise=1.0, ms=m["cpu_ms_per_frame_mean"],
+                  wall_ms=m["ms_per_frame_mean"], drift_mm=m["drift_mm"],
                   add_s_mm=m["add_s_mm"], rot_drift_deg=m["rot_drift_deg"], drift_max_mm=m["drift_max_mm"],
                   frames=m["frames"])
 
@@ -146,8 +154,9 @@ def run(quick: bool = False) -> BenchTable:
     if sim_ok and not quick:
         _session_rows(table, quick)
     table.notes += [
-        f"{'quick' if quick else 'full'} run, {time.perf_counter() - t0:.0f} s wall; single thread; machine shared "
-        "with other jobs, so ms are noisy.",
+        f"{'quick' if quick else 'full'} run, {time.perf_counter() - t0:.0f} s wall; single thread. `ms` = CPU time "
+        "per frame of this process (point extraction + tracker step); `wall_ms` = wall time, inflated when the "
+        "machine is shared with other jobs.",
         "drift_mm = mean position error of the object centre (mm); initialised from the first GT pose.",
         "synthetic = ray-cast depth + surface contact patches of fixed fingertips (vtrack.tracking.synth); "
         "sim = vtrack.sim sessions of the default scene (Allegro + 4 DIGIT, GT tactile height maps).",

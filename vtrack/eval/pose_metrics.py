@@ -41,11 +41,11 @@ def sample_model_points(vertices: np.ndarray, faces: np.ndarray, n: int = 1000, 
     return a[idx] + u[:, None] * (b[idx] - a[idx]) + v[:, None] * (c[idx] - a[idx])
 
 
-def symmetry_axis(points: np.ndarray) -> np.ndarray:
+def symmetry_axis(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Unit symmetry axis (object frame) of a rotationally symmetric point set: the principal
-    axis whose second moment differs most from the other two."""
+    axis whose second moment differs most from the other two (``weights``: e.g. triangle areas)."""
     P = np.asarray(points, dtype=np.float64)
-    C = np.cov((P - P.mean(0)).T)
+    C = np.cov((P - np.average(P, axis=0, weights=weights)).T, aweights=weights)
     lam, U = np.linalg.eigh(C)
     gaps = [abs(lam[0] - lam[1]) + abs(lam[0] - lam[2]), abs(lam[1] - lam[0]) + abs(lam[1] - lam[2]),
             abs(lam[2] - lam[0]) + abs(lam[2] - lam[1])]
@@ -59,7 +59,7 @@ def add_s(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray) -> np.n
     """ADD-S (m) per frame for (N, 4, 4) pose arrays."""
     from scipy.spatial import cKDTree
 
-    T_est, T_gt = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
+    T_est, T_gt = _pair(T_est, T_gt)
     P = np.asarray(model_points, dtype=np.float64)
     tree = cKDTree(P)
     out = np.empty(len(T_est))
@@ -73,7 +73,7 @@ def add_s(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray) -> np.n
 
 def add(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray) -> np.ndarray:
     """ADD (m) per frame."""
-    T_est, T_gt = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
+    T_est, T_gt = _pair(T_est, T_gt)
     P = np.asarray(model_points, dtype=np.float64)
     return np.linalg.norm(se3.transform_points(T_est, P) - se3.transform_points(T_gt, P), axis=-1).mean(-1)
 
@@ -85,14 +85,29 @@ def _poses(T: np.ndarray, name: str) -> np.ndarray:
     return T
 
 
+def mesh_symmetry_axis(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Symmetry axis of a mesh from its area-weighted triangle centroids (deterministic)."""
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    return symmetry_axis((a + b + c) / 3.0, area)
+
+
+def _pair(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    A, B = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
+    if len(A) != len(B):
+        raise InputError("estimate and ground truth lengths differ", field="T_est", expected=len(B), got=len(A))
+    return A, B
+
+
 def trajectory_errors(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray,
-                      symmetric: bool = False, centre: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                      symmetric: bool = False, centre: np.ndarray | None = None,
+                      axis: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per-frame errors: ``pos`` (centre, m), ``origin`` (m), ``rot`` (rad, symmetry-aware if
-    ``symmetric``), ``rot_full`` (rad), ``add_s`` and ``add`` (m)."""
-    T_est, T_gt = _poses(T_est, "T_est"), _poses(T_gt, "T_gt")
-    if len(T_est) != len(T_gt):
-        raise InputError("estimate and ground truth lengths differ", field="T_est", expected=len(T_gt),
-                         got=len(T_est))
+    ``symmetric``, about ``axis`` or the PCA axis of the model points), ``rot_full`` (rad),
+    ``add_s`` and ``add`` (m)."""
+    T_est, T_gt = _pair(T_est, T_gt)
     P = np.asarray(model_points, dtype=np.float64)
     c = 0.5 * (P.min(0) + P.max(0)) if centre is None else np.asarray(centre, dtype=np.float64)
     ce = se3.transform_points(T_est, c[None])[:, 0]
@@ -100,7 +115,7 @@ def trajectory_errors(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndar
     origin, rot_full = se3.pose_error(T_est, T_gt)
     rot = rot_full
     if symmetric:
-        ax = symmetry_axis(P)
+        ax = symmetry_axis(P) if axis is None else np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
         a_e = T_est[:, :3, :3] @ ax
         a_g = T_gt[:, :3, :3] @ ax
         rot = np.arccos(np.clip(np.sum(a_e * a_g, axis=1), -1.0, 1.0))

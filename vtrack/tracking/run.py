@@ -141,7 +141,12 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     }
     errors = None
     if frames.gt is not None:
-        from vtrack.eval.pose_metrics import sample_model_points, summarize, trajectory_errors
+        from vtrack.eval.pose_metrics import (
+            mesh_symmetry_axis,
+            sample_model_points,
+            summarize,
+            trajectory_errors,
+        )
         from vtrack.tracking.sdf_grid import load_mesh_arrays
 
         if mesh is None:
@@ -149,7 +154,7 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
         V, F = load_mesh_arrays(mesh)
         pts = sample_model_points(V, F, 1000, seed=0)
         errors = trajectory_errors(est, frames.gt, pts, symmetric=bool(frames.scene.object.symmetric),
-                                   centre=0.5 * (V.min(0) + V.max(0)))
+                                   centre=0.5 * (V.min(0) + V.max(0)), axis=mesh_symmetry_axis(V, F))
         metrics.update(summarize(errors))
         metrics["symmetric"] = bool(frames.scene.object.symmetric)
     if hasattr(tracker, "map_metrics"):

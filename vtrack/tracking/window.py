@@ -54,8 +54,8 @@ class TrackerOptions:
     converge_rot: float = 2e-4      #: ... and this (rad)
     robust: str = "huber"           #: huber | cauchy
     sigma_vision: float = 0.002     #: depth point-to-surface noise, m
-    sigma_touch: float = 0.0005     #: contact point-to-surface noise, m
-    sigma_normal: float = 0.25      #: contact normal disagreement (unit vectors)
+    sigma_touch: float = 0.001      #: contact point-to-surface noise, m (patch edges are ~0.3 mm off)
+    sigma_normal: float = 1.0       #: contact normal disagreement (unit vectors); weak on purpose
     sigma_free: float = 0.001       #: non-penetration, m
     free_margin: float = 0.0005     #: free gel points must stay this far outside, m
     kernel_vision: float = 1.5      #: robust kernel width in sigmas
@@ -69,7 +69,7 @@ class TrackerOptions:
     max_vision_points: int = 300
     max_touch_points: int = 120
     max_free_points: int = 48
-    degeneracy_ratio: float = 2e-3
+    degeneracy_ratio: float = 1e-5  #: relative floor of the spectrum (absolute floor: one vision point)
     object_radius: float = 0.05     #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
