@@ -1,15 +1,13 @@
-"""Fixtures for the batch tests: three small sessions and the task to run over them.
+"""Fixtures for the batch tests: small generated sessions and the task to run over them.
 
-When the simulator and the reconstruction are installed (``vtrack.sim.fixtures``,
-``vtrack.fusion.reconstruct``) the tests run the real batch reconstruction on three generated
-sessions; until then they use the batch engine's own deterministic ``stats`` task on synthetic
-sessions, which exercises exactly the same engine code paths.
+When the reconstruction is installed (``vtrack.fusion.reconstruct``) the local-vs-Ray test runs the
+real batch reconstruction on three generated sessions; otherwise it uses the batch engine's own
+deterministic ``stats`` task, which exercises exactly the same engine code paths.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,22 +43,14 @@ def synthetic_sessions(tmp_path_factory) -> list[Path]:
 
 
 @pytest.fixture(scope="session")
-def real_case(tmp_path_factory) -> BatchCase | None:
-    """Three generated sessions + the real reconstruction, or None while they are not installed."""
-    if not (_have("vtrack.sim.fixtures") and _have("vtrack.fusion.reconstruct")):
+def real_case(synthetic_sessions) -> BatchCase | None:
+    """The real batch reconstruction (TSDF, vision; no screenshot) on three sessions, or None while
+    ``vtrack.fusion.reconstruct`` is not installed. The sessions are the synthetic ones: the
+    simulator's sessions take tens of seconds each to generate on 2 busy cores."""
+    if not _have("vtrack.fusion.reconstruct"):
         return None
-    try:
-        from vtrack.sim.fixtures import tiny_session_path
-    except ImportError:
-        return None
-    root = tmp_path_factory.mktemp("batch_real")
-    sessions = []
-    for seed in range(3):
-        src = Path(tiny_session_path(seed=seed))
-        dst = root / f"gen_{seed}"
-        shutil.copytree(src, dst)
-        sessions.append(dst)
-    return BatchCase("reconstruct", sessions, {})
+    return BatchCase("reconstruct", synthetic_sessions[:3],
+                     {"method": "tsdf", "modalities": ["vision"], "screenshot": False})
 
 
 @pytest.fixture(scope="session")
@@ -69,4 +59,5 @@ def three_case(real_case, synthetic_sessions) -> BatchCase:
     if real_case is not None:
         return real_case
     return BatchCase("stats", synthetic_sessions[:3], {})
+
 

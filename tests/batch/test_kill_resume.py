@@ -15,16 +15,20 @@ from vtrack.batch.results import RESULT_MANIFEST
 from vtrack.batch.stats import session_stats
 
 
-def _children(pid: int) -> list[int]:
-    out = []
+def _descendants(pid: int) -> list[int]:
+    """Children, grandchildren, ... (pool workers may hang below a fork server)."""
+    parent = {}
     for p in Path("/proc").iterdir():
         if p.name.isdigit():
             try:
-                ppid = int((p / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                parent[int(p.name)] = int((p / "stat").read_text().rsplit(")", 1)[1].split()[1])
             except (OSError, IndexError, ValueError):
                 continue
-            if ppid == pid:
-                out.append(int(p.name))
+    out, frontier = [], [pid]
+    while frontier:
+        kids = [c for c, pp in parent.items() if pp in frontier]
+        out += kids
+        frontier = kids
     return out
 
 
@@ -51,17 +55,17 @@ def test_killed_driver_resumes_without_loss_or_duplicates(synthetic_sessions, tm
     t0 = time.monotonic()
     workers: set[int] = set()
     while time.monotonic() - t0 < 60:
-        workers.update(_children(proc.pid))
+        workers.update(_descendants(proc.pid))
         if out.exists() and len(_committed(out)) >= 2:
             break
         assert proc.poll() is None, proc.stderr.read().decode()
         time.sleep(0.05)
-    workers.update(_children(proc.pid))
+    workers.update(_descendants(proc.pid))
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     done_before = _committed(out)
     assert 2 <= len(done_before) < len(synthetic_sessions), "the kill must land mid-batch"
-    # The pool workers die with the driver (PR_SET_PDEATHSIG): nothing keeps writing.
+    # The pool workers die with the driver (PR_SET_PDEATHSIG, fork server exit): nothing keeps writing.
     deadline = time.monotonic() + 10
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:
         time.sleep(0.1)

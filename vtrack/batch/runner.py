@@ -88,6 +88,7 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
               = "local", workers: int | None = None, address: str | None = None, retries: int = 2,
               params: dict[str, Any] | None = None, chunk_frames: int | None = None, force: bool = False,
               threads: int = 1, timeout_s: float | None = None, warm_up: bool = True,
+              pin_cpus: bool | None = None,
               on_event: Callable[[Event], None] | None = None,
               fault_plan: str | Path | dict | None = None) -> dict[str, Any]:
     """Run ``task`` over sessions; see the module docstring for the guarantees.
@@ -106,6 +107,9 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
         threads: BLAS/OpenMP/torch threads per task.
         timeout_s: per-attempt time limit; an attempt over it is killed and counts as a failure.
         warm_up: import the task in every worker before timing starts.
+        pin_cpus: pin each running task to its own ``threads`` CPUs (default: on, except for an
+            existing Ray cluster given by ``address``, whose nodes this driver cannot see). Makes
+            thread-pool back-ends that ignore ``OMP_NUM_THREADS`` (Open3D/TBB) deterministic.
         on_event: callback for progress (``{"type": "start"|"done"|"retry"|"end", ...}``).
         fault_plan: testing hook (see :func:`load_fault_plan`).
 
@@ -153,7 +157,10 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
                 eng.start(jobs[0]["target"] if warm_up else None)
             t_ready = time.perf_counter()
             run_info.update(eng.describe())
-            _loop(eng, todo, records, retries, timeout_s, emit, out_root, run_info, stats)
+            if pin_cpus is None:
+                pin_cpus = not (getattr(eng, "address", None))
+            run_info["pin_cpus"] = bool(pin_cpus)
+            _loop(eng, todo, records, retries, timeout_s, emit, out_root, run_info, stats, bool(pin_cpus))
             t_end = time.perf_counter()
         finally:
             eng.close()
@@ -190,8 +197,9 @@ def _record(job: dict[str, Any], status: str, attempts: int, man: dict[str, Any]
 
 def _loop(eng: Any, todo: collections.deque, records: dict[str, dict[str, Any]], retries: int,
           timeout_s: float | None, emit: Callable[[Event], None], out_root: Path, run_info: dict[str, Any],
-          stats: dict[str, int]) -> None:
-    inflight: dict[Any, tuple[dict[str, Any], float]] = {}
+          stats: dict[str, int], pin_cpus: bool) -> None:
+    inflight: dict[Any, tuple[dict[str, Any], float, int]] = {}
+    free_slots = set(range(eng.capacity))
     attempts: dict[str, int] = collections.Counter()
     errors: dict[str, list[str]] = collections.defaultdict(list)
     timed_out: set[Any] = set()
@@ -201,10 +209,15 @@ def _loop(eng: Any, todo: collections.deque, records: dict[str, dict[str, Any]],
             job = todo.popleft()
             attempts[job["key"]] += 1
             stats["attempts"] += 1
-            job = {**job, "attempt": attempts[job["key"]]}
-            inflight[eng.submit(job)] = (job, time.monotonic())
+            # A CPU slot per task in flight: the worker pins itself to it (see worker.pin_to_slot).
+            slot = min(free_slots) if free_slots else -1
+            free_slots.discard(slot)
+            job = {**job, "attempt": attempts[job["key"]], "cpu_slot": slot if pin_cpus else None}
+            inflight[eng.submit(job)] = (job, time.monotonic(), slot)
         for token, outcome in eng.poll(0.25):
-            job, _t = inflight.pop(token)
+            job, _t, slot = inflight.pop(token)
+            if slot >= 0:
+                free_slots.add(slot)
             key = job["key"]
             if outcome.get("status") == "ok":
                 records[key] = _record(job, "ok", attempts[key], outcome=outcome, errors=errors.get(key))
@@ -225,7 +238,7 @@ def _loop(eng: Any, todo: collections.deque, records: dict[str, dict[str, Any]],
                 emit({"type": "done", "record": records[key]})
         if timeout_s:
             now = time.monotonic()
-            for token, (_job, t0) in inflight.items():
+            for token, (_job, t0, _slot) in inflight.items():
                 if token not in timed_out and now - t0 > timeout_s:
                     timed_out.add(token)
                     eng.cancel(token)

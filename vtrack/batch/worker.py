@@ -23,18 +23,45 @@ THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUM
               "VECLIB_MAXIMUM_THREADS")
 
 
+#: CPUs this process may use before any pinning (pinning narrows the mask of a reused worker).
+_ALL_CPUS: list[int] = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+
+
+def pin_to_slot(slot: int, threads: int) -> list[int]:
+    """Restrict every thread of this process to ``threads`` CPUs chosen by the job's slot.
+
+    Why: some back-ends ignore ``OMP_NUM_THREADS`` (Open3D's CPU hash map runs on TBB, which sizes
+    itself from the affinity mask) and are then not bit-reproducible run to run; pinning makes a
+    task single-threaded (for ``threads=1``) and deterministic, and keeps concurrent tasks on
+    different cores. Returns the CPUs used ([] where affinity is not supported).
+    """
+    if not _ALL_CPUS or slot < 0:
+        return []
+    n = len(_ALL_CPUS)
+    cpus = sorted({_ALL_CPUS[(slot * threads + k) % n] for k in range(max(1, threads))})
+    tids = [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except OSError:
+            pass
+    return cpus
+
+
 def thread_env(threads: int) -> dict[str, str]:
     return {k: str(max(1, int(threads))) for k in THREAD_ENV}
 
 
-def init_local_worker(threads: int, parent_pid: int) -> None:
+def init_local_worker(threads: int, driver_pid: int) -> None:
     """Initializer of local pool workers: thread caps, and die with the driver.
 
-    ``PR_SET_PDEATHSIG`` (Linux) makes the kernel SIGKILL the worker when the driver dies, so a
+    ``PR_SET_PDEATHSIG`` (Linux) makes the kernel SIGKILL the worker when its parent dies (the
+    driver with "spawn", the fork server with "forkserver", which exits with the driver), so a
     killed batch leaves no orphan that could keep writing into the output folder.
     """
     os.environ.update(thread_env(threads))
     if sys.platform.startswith("linux"):
+        ppid = os.getppid()
         try:
             import ctypes
 
@@ -42,8 +69,27 @@ def init_local_worker(threads: int, parent_pid: int) -> None:
             libc.prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG = 1
         except OSError:
             pass
-        if os.getppid() != parent_pid:  # the driver died before prctl took effect
+        try:
+            os.kill(driver_pid, 0)
+        except ProcessLookupError:
+            os._exit(1)  # the driver died before we got here
+        if os.getppid() != ppid:  # the parent died before prctl took effect
             os._exit(1)
+    # Belt and braces (and the only guard with "forkserver", whose server outlives the driver):
+    # exit as soon as the driver process is gone.
+    import threading
+
+    def _watch() -> None:
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(driver_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except PermissionError:
+                pass
+
+    threading.Thread(target=_watch, name="vtrack-batch-driver-watch", daemon=True).start()
 
 
 def _apply_threads(threads: int) -> None:
@@ -98,6 +144,8 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
     tmp = out_root / f"{results.TMP_PREFIX}{job['key']}-{uuid.uuid4().hex[:8]}"
     try:
         _apply_threads(job.get("threads", 1))
+        if job.get("cpu_slot") is not None:
+            out["cpus"] = pin_to_slot(int(job["cpu_slot"]), int(job.get("threads", 1)))
         _inject_fault(job, "start")
         fn = resolve(job["target"])
         tmp.mkdir(parents=True)

@@ -78,14 +78,14 @@ class _Progress:
 
 def _run(task: str, sessions: list[Path], out: Path, engine: str, address: str | None, workers: int | None,
          retries: int, chunk_frames: int | None, force: bool, threads: int, timeout: float | None,
-         params: dict[str, Any]) -> None:
+         params: dict[str, Any], pin_cpus: bool | None = None) -> None:
     from vtrack.batch.runner import run_batch
     from vtrack_apps.output import print_table
 
     progress = _Progress(f"batch {task}")
     report = run_batch(task, sessions, out, engine=engine, workers=workers, address=address, retries=retries,
                        params=params, chunk_frames=chunk_frames, force=force, threads=threads, timeout_s=timeout,
-                       on_event=progress)
+                       pin_cpus=pin_cpus, on_event=progress)
     rows = [{"key": r["key"], "status": r["status"], "attempts": r["attempts"],
              "seconds": r.get("seconds") or 0.0, "error": (r.get("error") or "")[:80]} for r in report["results"]]
     print_table(f"batch {task} -> {report['run']['out']}", rows)
@@ -112,13 +112,16 @@ def _make_command(batch_app: typer.Typer, task: str) -> None:
         force: bool = typer.Option(False, "--force", help="recompute results that are already complete"),
         threads: int = typer.Option(1, "--task-threads", help="BLAS/OpenMP/torch threads per task"),
         timeout: float = typer.Option(None, "--timeout", help="per-attempt time limit, s"),
+        pin_cpus: bool = typer.Option(None, "--pin-cpus/--no-pin-cpus",
+                                      help="pin each task to its own CPUs (default: on unless --address)"),
         modalities: str = typer.Option(None, "--modalities", help="comma list: vision,touch (task option)"),
         option: list[str] = typer.Option(None, "--option", "-o", help="task option KEY=VALUE (JSON values ok)"),
     ) -> None:
         params = _parse_options(option)
         if modalities:
             params["modalities"] = [m.strip() for m in modalities.split(",") if m.strip()]
-        _run(task, sessions, out, engine, address, workers, retries, chunk_frames, force, threads, timeout, params)
+        _run(task, sessions, out, engine, address, workers, retries, chunk_frames, force, threads, timeout, params,
+             pin_cpus)
 
 
 def register(app: typer.Typer) -> None:
