@@ -49,3 +49,20 @@ def test_bad_inputs():
         render_tactile_image(np.zeros(5), 0.1, np.zeros((5, 5, 3), np.uint8))
     with pytest.raises(InputError):
         render_tactile_image(np.zeros((5, 5)), 0.0, np.zeros((5, 5, 3), np.uint8))
+
+
+def test_render_with_calibration_path_is_cached(tmp_path):
+    from vtrack.tactile import render
+    from vtrack.tactile.calibration import lambertian_calibration
+
+    bg = np.full((60, 80, 3), 120, np.uint8)
+    p = lambertian_calibration(bg, 0.1).save(tmp_path / "c.npz")
+    h = _sphere(60, 80, 20.0, 5.0)
+    a = render_tactile_image(h, 0.1, bg, calib=p)
+    b = render_tactile_image(h, 0.1, bg, calib=str(p))
+    assert np.array_equal(a, b) and len(render._CALIB_CACHE) >= 1
+    # the calibration's inverse table of the Lambertian model reproduces the analytic Lambertian render
+    c = render_tactile_image(h, 0.1, bg)
+    assert np.abs(a.astype(int) - c).mean() < 2.0
+    with pytest.raises(InputError, match="not found"):
+        render_tactile_image(h, 0.1, bg, calib=tmp_path / "missing.npz")

@@ -42,6 +42,24 @@ def lambert_colour_delta(gx: np.ndarray, gy: np.ndarray, *, gain: float = 110.0,
     return gain * (n @ L.T - L[:, 2])
 
 
+_CALIB_CACHE: dict[tuple[str, float], Any] = {}
+
+
+def _load_calibration(path: Path) -> Any:
+    """Load a calibration once per (path, mtime): the simulator passes the path for every frame."""
+    from vtrack.tactile.calibration import Calibration
+
+    try:
+        key = (str(path.resolve()), path.stat().st_mtime)
+    except OSError:
+        return Calibration.load(path)  # raises the clear "not found" error
+    if key not in _CALIB_CACHE:
+        if len(_CALIB_CACHE) > 8:
+            _CALIB_CACHE.clear()
+        _CALIB_CACHE[key] = Calibration.load(path)
+    return _CALIB_CACHE[key]
+
+
 def _as_bgr(background_bgr: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     import cv2
 
@@ -94,9 +112,7 @@ def render_tactile_image(height_mm: np.ndarray, mm_per_px: float, background_bgr
         gx = gy = np.zeros_like(h)
     if calib is not None:
         if isinstance(calib, (str, Path)):
-            from vtrack.tactile.calibration import Calibration
-
-            calib = Calibration.load(calib)
+            calib = _load_calibration(Path(calib))
         delta = calib.colour_delta(gx, gy)
     else:
         delta = lambert_colour_delta(gx, gy, gain=gain, elevation_deg=elevation_deg)
