@@ -157,3 +157,23 @@ def test_scalar_colors_constant_and_nonfinite():
     assert np.all(out[0] == out[1]) and np.all(out[2] == C.NEUTRAL_RGB) and np.all(out[3] == C.NEUTRAL_RGB)
     ramp = C.scalar_colors(np.linspace(0, 1, 5))
     assert len({tuple(r) for r in ramp}) == 5
+
+
+def test_hand_mesh_cache_roundtrip_and_corruption(view_fixture):
+    import pytest as _pytest
+
+    from vtrack.viz.data import _hand_cache_path
+
+    if not view_fixture["hand"]:
+        _pytest.skip("shared Allegro URDF not available")
+    d1 = ViewData(view_fixture["session"])
+    p = _hand_cache_path(d1.hand.urdf_path)
+    assert p is not None and p.exists()
+    d2 = ViewData(view_fixture["session"])  # from the cache
+    assert list(d1.link_meshes) == list(d2.link_meshes)
+    for link in d1.link_meshes:
+        for (V1, F1), (V2, F2) in zip(d1.link_meshes[link], d2.link_meshes[link], strict=True):
+            assert np.array_equal(V1, V2) and np.array_equal(F1, F2)
+    p.write_bytes(b"garbage")
+    d3 = ViewData(view_fixture["session"])  # corrupt cache: rebuilt, same meshes
+    assert sum(len(v) for v in d3.link_meshes.values()) == sum(len(v) for v in d1.link_meshes.values())

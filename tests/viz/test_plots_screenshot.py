@@ -65,9 +65,12 @@ def test_cli_screenshot_and_bad_path(view_fixture, tmp_path):
     r = subprocess.run([str(vtrack), "view", str(tmp_path / "nope")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2
     assert "path does not exist" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run([str(vtrack), "view", str(tmp_path), "--screenshot", str(out), "--size", "big"],
-                       capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "--size" in r.stderr and "Traceback" not in r.stderr
+    from vtrack.viz.screenshot import parse_size
+
+    assert parse_size("640x480") == (640, 480)
+    for bad in ("big", "10x10", "640x"):
+        with pytest.raises(InputError, match="--size"):
+            parse_size(bad)
 
 
 def test_plots(view_fixture, tmp_path):

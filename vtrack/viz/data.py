@@ -412,6 +412,58 @@ def _hstack(images: list[np.ndarray], gap: int = 3) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate(parts, axis=1))
 
 
+def _hand_cache_path(urdf: Path) -> Path | None:
+    """Cache file of a hand's link-frame visual meshes, keyed by the URDF folder's file stats (a changed
+    URDF or mesh file gives a new key). Loading STL meshes costs ~1 s; the cache ~20 ms."""
+    import hashlib
+
+    from vtrack.paths import cache_dir
+
+    try:
+        root = Path(urdf).resolve().parent
+        stats = sorted((str(p.relative_to(root)), p.stat().st_mtime_ns, p.stat().st_size)
+                       for p in root.rglob("*") if p.is_file())
+    except OSError:
+        return None
+    key = hashlib.sha1(json.dumps([str(Path(urdf).resolve()), stats]).encode()).hexdigest()[:16]
+    return cache_dir() / "viz" / f"hand-{key}.npz"
+
+
+def _load_hand_cache(urdf: Path) -> dict[str, list[tuple[np.ndarray, np.ndarray]]] | None:
+    p = _hand_cache_path(urdf)
+    if p is None or not p.exists():
+        return None
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            links = [str(x) for x in z["links"]]
+            out: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+            for k, link in enumerate(links):
+                out.setdefault(link, []).append((z[f"v{k}"], z[f"f{k}"]))
+            return out
+    except Exception:  # corrupt / partial cache file: rebuild
+        return None
+
+
+def _save_hand_cache(urdf: Path, meshes: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> None:
+    p = _hand_cache_path(urdf)
+    if p is None:
+        return
+    arrays: dict[str, np.ndarray] = {}
+    links = []
+    for link, items in meshes.items():
+        for V, F in items:
+            k = len(links)
+            links.append(link)
+            arrays[f"v{k}"], arrays[f"f{k}"] = V, F
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_name(p.name + f".{threading.get_ident()}.tmp.npz")
+        np.savez(tmp, links=np.array(links), **arrays)
+        tmp.replace(p)
+    except OSError:
+        pass  # a read-only cache only costs speed
+
+
 class ViewData:
     """A session and/or results, loaded for display; geometry static, the rest per frame.
 
@@ -532,22 +584,29 @@ class ViewData:
 
         try:
             hand = HandKinematics.from_scene(self.scene)
-            names = self.joints.attrs.get("joint_names")
-            q0 = hand.reorder(self.joints["q"][0][None], names)
-            links = hand.hand_mesh_links()
-            meshes = hand.hand_meshes(q0[0])
-            T0 = hand.link_poses(q0)
+            cached = _load_hand_cache(hand.urdf_path)
+            if cached is not None:
+                self._link_meshes = cached
+            else:
+                names = self.joints.attrs.get("joint_names")
+                q0 = hand.reorder(self.joints["q"][0][None], names)
+                links = hand.hand_mesh_links()
+                meshes = hand.hand_meshes(q0[0])
+                T0 = hand.link_poses(q0)
+                # Meshes back into their link frames, so each frame only moves link nodes.
+                for link, (V, F) in zip(links, meshes, strict=True):
+                    Tinv = np.linalg.inv(T0[link][0])
+                    self._link_meshes.setdefault(link, []).append(
+                        ((V @ Tinv[:3, :3].T + Tinv[:3, 3]).astype(np.float32), F.astype(np.int32)))
+                _save_hand_cache(hand.urdf_path, self._link_meshes)
         except InputError as e:
             self.notes.append(f"hand not shown: {e}")
+            self._link_meshes = {}
             return
         except Exception as e:  # missing mesh files, bad URDF contents
             self.notes.append(f"hand not shown ({type(e).__name__}: {e})")
+            self._link_meshes = {}
             return
-        # Meshes back into their link frames, so each frame only moves link nodes.
-        for link, (V, F) in zip(links, meshes, strict=True):
-            Tinv = np.linalg.inv(T0[link][0])
-            self._link_meshes.setdefault(link, []).append(
-                ((V @ Tinv[:3, :3].T + Tinv[:3, 3]).astype(np.float32), F.astype(np.int32)))
         self.hand = hand
 
     def _timeline(self) -> np.ndarray:

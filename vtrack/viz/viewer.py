@@ -54,9 +54,10 @@ def wxyz_position_batch(Ts: np.ndarray) -> np.ndarray:
     return np.concatenate([q[:, 3:], q[:, :3]], axis=1)
 
 
-def default_view(data: ViewData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def default_view(data: ViewData, bounds: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A camera ``(position, look_at, up)`` that frames the content from the front-right, above."""
-    lo, hi = data.bounds()
+    lo, hi = data.bounds() if bounds is None else bounds
     centre = 0.5 * (lo + hi)
     radius = max(float(np.linalg.norm(hi - lo)) * 0.5, 0.03)
     d = np.array([1.0, -0.8, 0.7])
@@ -76,11 +77,15 @@ class _CloudBins:
         self.shown = [0] * n_bins
         self.handles = []
         cols = self._colors(mode)
+        # Half precision halves what the browser downloads and parses; its step is <= 2 mm within 4 m
+        # of the origin (0.03 mm for object-frame clouds), far below the point size.
+        extent = float(np.abs(cloud.points).max()) if n else 0.0
+        self.precision = "float16" if extent < 4.0 else "float32"
         for k in range(n_bins):
             a, b = self.edges[k], self.edges[k + 1]
             self.handles.append(scene.add_point_cloud(
                 f"{parent}/cloud/bin{k:03d}", cloud.points[a:b], cols[a:b], point_size=point_size,
-                point_shape="rounded", precision="float32"))
+                point_shape="rounded", precision=self.precision))
             self.shown[k] = b - a
 
     def _colors(self, mode: str) -> np.ndarray:
@@ -164,7 +169,7 @@ class Viewer:
         self._playing = threading.Event()
         self._build_scene()
         self._build_gui()
-        pos, look, up = default_view(data)
+        pos, look, up = default_view(data, self._bounds)
         cam = self.server.initial_camera
         cam.position = tuple(pos)
         cam.look_at = tuple(look)
@@ -213,6 +218,7 @@ class Viewer:
         if d.gt_mesh is not None:
             self.gt_mesh = sc.add_mesh_simple("/object_gt/mesh", d.gt_mesh[0], d.gt_mesh[1], color=GT_MESH_RGB,
                                               opacity=0.35, visible=d.mesh is None and d.cloud is None)
+        self._bounds = d.bounds()
         self.point_size = self._default_point_size()
         self.bins = None
         if d.cloud is not None:
@@ -248,7 +254,7 @@ class Viewer:
         return self.server.scene.add_line_segments(name, segs, rgb, thickness=0.0015)
 
     def _default_point_size(self) -> float:
-        lo, hi = self.data.bounds()
+        lo, hi = self._bounds
         return float(np.clip(np.linalg.norm(hi - lo) / 250.0, 0.0005, 0.01))
 
     # -- GUI -----------------------------------------------------------------------------------
