@@ -62,6 +62,12 @@ def test_gui_controls(viewer):
     viewer.pose_dd.value = "gt"
     viewer.wait_idle(20)
     assert np.allclose(viewer.obj_node.position, d.frame(0, with_images=False).T_world_object_gt[:3, 3])
+    viewer.cb["camera images"].value = False
+    assert viewer.cam_frusta["cam0"].image is None
+    viewer.cb["camera images"].value = True
+    viewer.slider.value = 1
+    viewer.wait_idle(20)
+    assert viewer.cam_frusta["cam0"].image.shape == (48, 64, 3)
     viewer.cb["hand"].value = False
     assert all(not h.visible for h in viewer.hand_nodes.values())
     viewer.cb["hand"].value = True

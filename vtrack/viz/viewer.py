@@ -335,6 +335,8 @@ class Viewer:
                 h.visible = c["sensor frames"]
             for h in self.cam_frusta.values():
                 h.visible = c["cameras"]
+                if not c["camera images"] and h.image is not None:
+                    h.image = None
             for h in self.traj.values():
                 if h is not None:
                     h.visible = c["trajectories"]
