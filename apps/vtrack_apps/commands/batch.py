@@ -130,3 +130,30 @@ def register(app: typer.Typer) -> None:
     app.add_typer(batch_app, name="batch")
     for task in _HELP:
         _make_command(batch_app, task)
+
+    @batch_app.command("scaling")
+    def scaling(
+        sessions: list[Path] = typer.Argument(..., help="session folders, or folders holding sessions"),
+        task: str = typer.Option("reconstruct", "--task", help="reconstruct | track | bench | stats"),
+        engine: str = typer.Option("ray", "--engine", help="local | ray"),
+        workers: str = typer.Option("1,2", "--workers", help="comma list of worker counts"),
+        repeats: int = typer.Option(3, "--repeats", help="runs per worker count (interleaved)"),
+        option: list[str] = typer.Option(None, "--option", "-o", help="task option KEY=VALUE"),
+        json_out: Path = typer.Option(None, "--json", help="write all runs as JSON"),
+    ) -> None:
+        """Measure throughput (tasks/min) for each worker count; prints the speed-up."""
+        from vtrack.batch.scaling import measure_scaling
+        from vtrack_apps.output import print_table, write_json
+
+        counts = [int(w) for w in workers.split(",") if w.strip()]
+        res = measure_scaling(task, sessions, engine=engine, workers=counts, repeats=repeats,
+                              params=_parse_options(option))
+        print_table(f"batch scaling: {task} on {engine}", [
+            {k: r[k] for k in ("workers", "repeat", "tasks", "wall_seconds", "tasks_per_min",
+                               "loadavg_1min_before")} for r in res["runs"]])
+        for n, s in res["summary"].items():
+            typer.echo(f"[scaling] {n} worker(s): median {s['tasks_per_min_median']} tasks/min "
+                       f"(speed-up {res['speedup_median'][n]:.2f}x)" if res["speedup_median"][n] else
+                       f"[scaling] {n} worker(s): no successful run")
+        if json_out:
+            write_json(json_out, res)
