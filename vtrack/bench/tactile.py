@@ -81,13 +81,28 @@ def _row(table: BenchTable, ps, calib, test, method: str, setting: str, downsamp
     t = time_call(run, warmup=2, repeat=repeat)
     cpu = (time.process_time() - c0) * 1e3 / (t["n_timed"] + 2)
     H, W = ps.shape
-    table.add(method=method, setting=setting, resolution=f"{W}x{H}", downsample=downsample, solver=solver,
+    table.add(method=method, setting=f"{setting} {W}x{H} ds{downsample}", resolution=f"{W}x{H}",
+              downsample=downsample, solver=solver,
               ms=t["ms_median"], ms_min=t["ms_min"], cpu_ms=cpu, fps_cpu=1000.0 / max(cpu, 1e-9),
               ms_height=float(np.median(stages["height"])), ms_contact=float(np.median(stages["contact"])),
               ms_points=float(np.median(stages["points"])),
               normal_err_deg=res["normal_err_deg_median"], radius_abs_err_pct=res["radius_abs_err_pct_median"],
               radius_err_pct=res["radius_err_pct_median"], shape_rmse_um=res["shape_rmse_um_median"],
               n_test=res["n_presses"])
+
+
+def notes(quick: bool, n_test: int) -> list[str]:
+    return [
+        "Real GelSight ball presses (Taxim, 0.0295 mm/px, 2.00 mm ball); calibrations trained on 36 presses, "
+        f"errors on the {n_test} held-out presses (hold-out `{HOLDOUT}`); 320x240 rows use the same presses "
+        "downscaled x2 (calibration reused: colour/normalised-position features are resolution independent).",
+        "`ms` = median wall time of `TactilePipeline.process` (image -> slopes -> Poisson height -> contact mask "
+        "-> sensor-frame points), 1 thread (torch, OpenCV, scipy.fft). `cpu_ms` = process CPU time per frame: "
+        "the machine is shared with other jobs, so wall times are noisy; CPU time is the steadier number and is "
+        "the Pareto/plot axis; `ms_min` = fastest wall time; `fps_cpu` = 1000 / `cpu_ms`.",
+        "`dsN` = slopes and Poisson at 1/N of the image resolution (height upsampled back).",
+        "Command: `vtrack bench tactile" + (" --quick`" if quick else "`"),
+    ]
 
 
 def run(quick: bool = False) -> BenchTable:
@@ -122,23 +137,13 @@ def run(quick: bool = False) -> BenchTable:
         for scale, ds in points:
             s = sets[scale]
             test = [p for p in s.presses if p.index in {q.index for q in test_full}][:n_test]
-            _row(table, s, calib, test, method, f"{setting} ds{ds}", ds, "dct", repeat)
+            _row(table, s, calib, test, method, setting, ds, "dct", repeat)
     # Poisson solvers on one operating point (MLP h32 or the quick MLP, 320x240 images, full working res)
     method, setting, opts = calibs[-1] if quick else ("mlp", "h32", TrainOptions(mlp_hidden=32))
     calib = cached_calibration(ps, method, HOLDOUT, opts)
     s = sets[2]
     test = [p for p in s.presses if p.index in {q.index for q in test_full}][:n_test]
     for solver in ("fft", "lsq"):
-        _row(table, s, calib, test, f"{method}+{solver}", f"{setting} ds1", 1, solver, repeat)
-    table.notes += [
-        "Real GelSight ball presses (Taxim, 0.0295 mm/px, 2.00 mm ball); calibrations trained on 36 presses, "
-        f"errors on the {n_test} held-out presses (hold-out `{HOLDOUT}`); 320x240 rows use the same presses "
-        "downscaled x2 (calibration reused: colour/normalised-position features are resolution independent).",
-        "`ms` = median wall time of `TactilePipeline.process` (image -> slopes -> Poisson height -> contact mask "
-        "-> sensor-frame points), 1 thread (torch, OpenCV, scipy.fft). `cpu_ms` = process CPU time per frame: "
-        "the machine is shared with other jobs, so wall times are noisy; CPU time is the steadier number and is "
-        "the Pareto/plot axis; `ms_min` = fastest wall time; `fps_cpu` = 1000 / `cpu_ms`.",
-        "`dsN` = slopes and Poisson at 1/N of the image resolution (height upsampled back).",
-        "Command: `vtrack bench tactile" + (" --quick`" if quick else "`"),
-    ]
+        _row(table, s, calib, test, f"{method}+{solver}", setting, 1, solver, repeat)
+    table.notes += notes(quick, n_test)
     return table
