@@ -176,3 +176,18 @@ def make_consumer(kind: str, session: str | Path, **opts: Any) -> Consumer:
     if kind == "reconstruct":
         return ReconstructConsumer(session, **opts)
     raise InputError("unknown live consumer", field="--consumer", expected="track|reconstruct|null", got=kind)
+
+
+def replay_streams(session: str | Path, consumers: list[Consumer]) -> list[str]:
+    """Streams a replay must emit for these consumers: each consumer's ``streams()``, plus the
+    default live streams (cameras, tactile images, joints) when a consumer takes everything."""
+    from vtrack.io.session import open_session
+
+    r = open_session(session)
+    out: set[str] = set()
+    for c in consumers:
+        if hasattr(c, "streams"):
+            out |= set(c.streams())
+        else:
+            out |= {k for k in r.streams if k.startswith(("camera/", "tactile/")) or k == "joints"}
+    return sorted(k for k in out if k in r and r[k].n)

@@ -110,8 +110,9 @@ class _Worker(threading.Thread):
 class LivePipeline:
     """Connect a source to consumers and run until the source ends (or :meth:`stop`)."""
 
-    def __init__(self, source: Any, consumers: list[Consumer]) -> None:
+    def __init__(self, source: Any, consumers: list[Consumer], switch_interval_s: float = 0.001) -> None:
         self.source = source
+        self.switch_interval_s = switch_interval_s
         self.workers = [_Worker(c) for c in consumers]
 
     def _emit(self, ev: FrameEvent) -> None:
@@ -124,6 +125,12 @@ class LivePipeline:
 
     def run(self) -> dict[str, Any]:
         """Run to the end; returns per-consumer statistics and results plus the source's."""
+        import sys
+
+        # Short GIL slices: the replay reader and emitter make many short calls and must not wait
+        # a full default 5 ms slice behind a consumer's Python-heavy step.
+        old_switch = sys.getswitchinterval()
+        sys.setswitchinterval(self.switch_interval_s)
         for w in self.workers:
             w.start()
         t0 = time.perf_counter()
@@ -132,21 +139,23 @@ class LivePipeline:
         except KeyboardInterrupt:
             self.source.stop()
             src_stats = self.source.stats
+        finally:
+            sys.setswitchinterval(old_switch)
         t_src = time.perf_counter() - t0
         for w in self.workers:
             w.close()
         for w in self.workers:
             w.join()
         wall = time.perf_counter() - t0
+        active = src_stats.active_s or t_src
         out: dict[str, Any] = {
-            "wall_s": round(wall, 3), "source_s": round(t_src, 3),
+            "wall_s": round(wall, 3), "source_s": round(t_src, 3), "active_s": round(active, 3),
             "source": {"emitted": dict(src_stats.emitted), "skipped_late": dict(src_stats.skipped_late),
-                       "max_lag_ms": round(src_stats.max_lag_s * 1e3, 2),
-                       "emitted_rate_hz": {k: round(v / max(t_src, 1e-9), 2) for k, v in src_stats.emitted.items()}},
+                       "max_lag_ms": round(src_stats.max_lag_s * 1e3, 2), "emitted_rate_hz": src_stats.rates_hz()},
             "consumers": {},
         }
         for w in self.workers:
-            res = w.stats.summary(t_src)
+            res = w.stats.summary(active)
             res["result"] = w.consumer.finish()
             if w.error is not None:
                 res["first_error"] = f"{type(w.error).__name__}: {w.error}"

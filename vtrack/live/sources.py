@@ -38,6 +38,20 @@ class SourceStats:
     skipped_late: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
     max_lag_s: float = 0.0
+    first_wall: float | None = None
+    last_wall: float | None = None
+
+    @property
+    def active_s(self) -> float:
+        """Wall time from the first to the last emitted frame, s."""
+        if self.first_wall is None or self.last_wall is None:
+            return 0.0
+        return self.last_wall - self.first_wall
+
+    def rates_hz(self) -> dict[str, float]:
+        """Emitted frames per second of active replay, per stream."""
+        span = self.active_s
+        return {k: round((v - 1) / span, 2) if span > 0 and v > 1 else 0.0 for k, v in self.emitted.items()}
 
 
 class SessionReplaySource:
@@ -161,6 +175,9 @@ class SessionReplaySource:
                 t = float(self.reader[name].t[i]) + rep * self.period
                 emit(FrameEvent(name, t, i, data, now))
                 st.emitted[name] = st.emitted.get(name, 0) + 1
+                if st.first_wall is None:
+                    st.first_wall = now
+                st.last_wall = now
                 if self._stop.is_set():
                     break
         finally:
