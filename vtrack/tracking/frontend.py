@@ -205,7 +205,7 @@ class SessionFrames:
                 P, N = _lift_contact(np.asarray(h), cm, mmpp, self.touch_stride)
                 tp.append(se3.transform_points(T_ws, P))
                 tn.append(-se3.rotate_vectors(T_ws, N))
-            else:
+            elif not cm.any():  # a sensor with 1-2 contact pixels is neither reliable contact nor free
                 H, W = np.shape(h)
                 rows, cols = np.meshgrid(np.linspace(0, H - 1, 5), np.linspace(0, W - 1, 4), indexing="ij")
                 xy = pixel_grid_to_sensor_xy(rows.ravel(), cols.ravel(), W, H, mmpp)

@@ -121,6 +121,8 @@ class SLAMTracker(WindowTracker):
         self.trunc, self.extent, self.grid_voxel = float(trunc), float(extent), float(grid_voxel)
         self.refresh_every, self.map_points, self.train_ms = int(refresh_every), int(map_points), float(train_ms)
         self.mapper = mapper
+        import open3d  # noqa: F401  (normal estimation; imported now so the first frame is not charged for it)
+
         self.map = SurfelMap(map_voxel)
         self.neural = None
         grid = SDFGrid(np.full((2, 2, 2), trunc, np.float32), np.zeros(3), 1.0)

@@ -57,7 +57,7 @@ class TrackerOptions:
     sigma_touch: float = 0.001      #: contact point-to-surface noise, m (patch edges are ~0.3 mm off)
     sigma_normal: float = 1.0       #: contact normal disagreement (unit vectors); weak on purpose
     sigma_free: float = 0.001       #: non-penetration, m
-    free_margin: float = 0.0005     #: free gel points must stay this far outside, m
+    free_margin: float = 0.0        #: free gel points must stay this far outside, m
     kernel_vision: float = 1.5      #: robust kernel width in sigmas
     kernel_touch: float = 2.0
     sigma_motion_trans: float = 0.0015   #: constant-velocity deviation per nominal frame, m
