@@ -92,3 +92,28 @@ def test_live_tracking_and_reconstruction_on_replay(tmp_path):
     rc = res["consumers"]["reconstruct"]
     assert "first_error" not in rc, rc.get("first_error")
     assert rc["result"]["integrated"] >= 5 and rc["result"]["mesh_vertices"] > 50
+
+
+def test_recorder_feeds_live_consumers_while_writing(tmp_path):
+    """A recorder's on_frame hook -> QueueSource -> consumers, while the session is being written."""
+    pytest.importorskip("depthai")
+    import threading
+
+    from vtrack.io.recorders.oakd import OakConfig, record_oak_simulated
+    from vtrack.live.consumers import NullConsumer
+    from vtrack.live.sources import QueueSource
+
+    src = QueueSource()
+    pipe = LivePipeline(src, [NullConsumer()])
+    out: dict = {}
+    th = threading.Thread(target=lambda: out.update(pipe.run()))
+    th.start()
+    try:
+        stats = record_oak_simulated(tmp_path / "s", OakConfig(width=64, height=40), n_frames=15, status=False,
+                                     on_frame=src.push)
+    finally:
+        src.close()
+        th.join(30)
+    null = out["consumers"]["null"]
+    assert out["source"]["emitted"]["camera/oak"] == stats.written["camera/oak"] == 15
+    assert null["processed_total"] + null["dropped_total"] == 15

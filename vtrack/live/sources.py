@@ -194,3 +194,48 @@ class SessionReplaySource:
         th = threading.Thread(target=self.run, args=(emit,), daemon=True, name="replay-source")
         th.start()
         return th
+
+
+class QueueSource:
+    """Frames pushed by a running recorder (``push`` from its ``on_frame`` hook), emitted as they
+    arrive; the recorder is the clock. A full queue drops the new frame (counted in
+    ``skipped_late``) so that the recorder is never slowed down by its live consumers.
+    ``close()`` ends the stream after the queued frames."""
+
+    def __init__(self, maxsize: int = 64) -> None:
+        import queue
+
+        self.q: queue.Queue = queue.Queue(maxsize=maxsize)
+        self.stats = SourceStats()
+        self._stop = threading.Event()
+
+    def push(self, stream: str, t: float, data: dict[str, np.ndarray]) -> None:
+        import queue
+
+        try:
+            self.q.put_nowait(FrameEvent(stream, float(t), -1, data, time.perf_counter()))
+        except queue.Full:
+            self.stats.skipped_late[stream] = self.stats.skipped_late.get(stream, 0) + 1
+
+    def close(self) -> None:
+        self.q.put(None)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.close()
+
+    def run(self, emit: Callable[[FrameEvent], None]) -> SourceStats:
+        st = self.stats
+        wall0 = time.perf_counter()
+        while True:
+            ev = self.q.get()
+            if ev is None or self._stop.is_set():
+                break
+            ev.wall = time.perf_counter()
+            emit(ev)
+            st.emitted[ev.stream] = st.emitted.get(ev.stream, 0) + 1
+            if st.first_wall is None:
+                st.first_wall = ev.wall
+            st.last_wall = ev.wall
+        st.seconds = time.perf_counter() - wall0
+        return st

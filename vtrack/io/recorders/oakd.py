@@ -196,13 +196,15 @@ def oak_scene(cfg: OakConfig, calib: dict[str, Any], base: dict | None = None) -
 
 def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, stop: StopFlag,
                        is_running: Any = None, max_frames: int | None = None, status: StatusLine | None = None,
-                       stats: RecordingStats | None = None, idle_timeout_s: float = 5.0) -> RecordingStats:
+                       stats: RecordingStats | None = None, idle_timeout_s: float = 5.0,
+                       on_frame: Any = None) -> RecordingStats:
     """Host loop: pull synchronised colour/depth groups (and IMU) and append them to ``writer``.
 
     Stops when ``stop`` is set, ``max_frames`` frames were written, or ``is_running()`` turns false
     (after draining what is queued), or nothing arrived for ``idle_timeout_s`` (a stalled or
     unplugged device). Frames whose device timestamp does not increase are dropped and counted;
-    sequence-number gaps are counted as frames dropped upstream.
+    sequence-number gaps are counted as frames dropped upstream. ``on_frame(stream, t, fields)`` is
+    called after each written frame (e.g. :meth:`vtrack.live.sources.QueueSource.push`).
     """
     stats = stats or RecordingStats()
     cam_stream, imu_stream = f"camera/{cfg.name}", f"imu/{cfg.name}"
@@ -226,6 +228,8 @@ def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, s
                 writer.append(cam_stream, t, rgb=rgb, depth=depth)
                 last_t = t
                 stats.add(cam_stream)
+                if on_frame is not None:
+                    on_frame(cam_stream, t, {"rgb": rgb, "depth": depth})
         if q_imu is not None and cfg.imu:
             msg = q_imu.tryGet()
             while msg is not None:
@@ -341,7 +345,7 @@ def make_synthetic_source(pipeline: Any, cfg: OakConfig, n_frames: int, realtime
 
 def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_frames: int = 60,
                          flush_every: int = 10, overwrite: bool = False, scene: dict | None = None,
-                         status: bool = True, realtime: bool = True) -> RecordingStats:
+                         status: bool = True, realtime: bool = True, on_frame: Any = None) -> RecordingStats:
     """Record ``n_frames`` synthetic frames through a host-only depthai pipeline (no device):
     ``dai.Pipeline(False)`` + :func:`make_synthetic_source` + the same Sync node, queues and host loop
     as :func:`record_oak`."""
@@ -368,7 +372,7 @@ def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_fra
         try:
             with StopFlag() as stop:
                 stats = record_from_queues(queues, w, cfg, stop=stop, is_running=pipeline.isRunning,
-                                           max_frames=n_frames, status=line)
+                                           max_frames=n_frames, status=line, on_frame=on_frame)
         finally:
             pipeline.stop()
             pipeline.wait()
@@ -379,7 +383,7 @@ def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_fra
 
 def record_oak(out: str | Path, cfg: OakConfig | None = None, *, seconds: float | None = None,
                max_frames: int | None = None, flush_every: int = 10, overwrite: bool = False,
-               scene: dict | None = None, status: bool = True) -> RecordingStats:
+               scene: dict | None = None, status: bool = True, on_frame: Any = None) -> RecordingStats:
     """Record from a connected OAK-D until Ctrl-C, ``seconds`` or ``max_frames``.
 
     Raises:
@@ -410,7 +414,7 @@ def record_oak(out: str | Path, cfg: OakConfig | None = None, *, seconds: float 
             pipeline.start()
             with StopFlag(seconds) as stop:
                 stats = record_from_queues(queues, w, cfg, stop=stop, is_running=pipeline.isRunning,
-                                           max_frames=max_frames, status=line)
+                                           max_frames=max_frames, status=line, on_frame=on_frame)
             line.close()
             w.set_info(stop_reason=stop.reason or "device stopped", stats=stats.to_dict())
         pipeline.stop()

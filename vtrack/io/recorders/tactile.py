@@ -201,7 +201,7 @@ def tactile_scene(cams: list[TactileCamera], shapes: dict[str, tuple[int, int]],
 def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointSource | None = None,
                    seconds: float | None = None, max_frames: int | None = None, flush_every: int = 10,
                    overwrite: bool = False, scene: dict | None = None, realtime: bool = True,
-                   status: bool = True, joint_poll_hz: float = 200.0) -> RecordingStats:
+                   status: bool = True, joint_poll_hz: float = 200.0, on_frame: Any = None) -> RecordingStats:
     """Record tactile cameras (+ joint states) until Ctrl-C, ``seconds``, ``max_frames`` per
     camera, or every source ended (video files).
 
@@ -212,6 +212,7 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
         flush_every: commit every this many frames per stream (the crash-safety granularity).
         scene: base scene dict (hand, object, ...); tactile entries are added for the cameras.
         realtime: pace video-file sources at their frame rate (devices are always real time).
+        on_frame: ``on_frame(stream, t, fields)`` after each written frame (feeds a live pipeline).
     """
     from vtrack.io.importers.scene_build import write_scene_yaml
     from vtrack.io.session import SessionWriter
@@ -278,6 +279,8 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
                             last_t[r.cam.name] = t
                             latest_t = max(latest_t, t)
                             stats.add(key)
+                            if on_frame is not None:
+                                on_frame(key, t, {"image": frame})
                     now = latest_t if media_clock else time.time()
                     if joints is not None and now >= next_poll:
                         next_poll = now + 1.0 / joint_poll_hz
