@@ -389,14 +389,16 @@ class FrameState:
     n_cloud: int
 
 
-def _resize(img: np.ndarray, longest: int) -> np.ndarray:
+def _resize(img: np.ndarray, longest: int, nearest: bool = False) -> np.ndarray:
+    """Shrink so the longest side is ``longest`` px (never enlarges)."""
     import cv2
 
     h, w = img.shape[:2]
     s = longest / max(h, w)
     if s >= 1.0:
         return img
-    return cv2.resize(img, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
+    return cv2.resize(img, (max(1, round(w * s)), max(1, round(h * s))),
+                      interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
 
 
 def _hstack(images: list[np.ndarray], gap: int = 3) -> np.ndarray:
@@ -769,10 +771,14 @@ class ViewData:
             if g in self.session and self.session[g].n:
                 gs = self.session[g]
                 j = int(gs.index_at(t)[0])
+                # Shrink first, colour after: colouring the full-resolution map cost ~8 ms per sensor.
                 if "height_mm" in gs.fields:
-                    parts.append(_resize(colorize_height(gs["height_mm"][j], self.height_vmax_mm), PANEL_IMAGE_PX))
+                    h = np.asarray(gs["height_mm"][j], np.float32)
+                    h = _resize(np.where(np.isfinite(h), h, np.float32(np.nan)), PANEL_IMAGE_PX)
+                    parts.append(colorize_height(h, self.height_vmax_mm))
                 if "contact" in gs.fields:
-                    parts.append(_resize(mask_image(gs["contact"][j]), PANEL_IMAGE_PX))
+                    parts.append(mask_image(_resize(np.asarray(gs["contact"][j], np.uint8), PANEL_IMAGE_PX,
+                                                    nearest=True)))
             if parts:
                 out[name] = _hstack(parts)
         return out
