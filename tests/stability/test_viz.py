@@ -134,3 +134,4 @@ def test_decimation_budget_edge_cases():
     assert len(decimate_indices(np.ones(7, np.int64), 1)) == 1
     idx = decimate_indices(np.r_[np.ones(3, np.int64), np.zeros(1000, np.int64)], 10)
     assert len(idx) == 10 and set(range(3)) <= set(idx.tolist())
+

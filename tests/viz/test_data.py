@@ -177,3 +177,19 @@ def test_hand_mesh_cache_roundtrip_and_corruption(view_fixture):
     p.write_bytes(b"garbage")
     d3 = ViewData(view_fixture["session"])  # corrupt cache: rebuilt, same meshes
     assert sum(len(v) for v in d3.link_meshes.values()) == sum(len(v) for v in d1.link_meshes.values())
+
+
+def test_cloud_times_outside_session_span(view_fixture, tmp_path):
+    import shutil
+
+    from vtrack.io.export import read_ply_points, write_ply_points
+    from vtrack.viz.data import ViewData
+
+    rec = tmp_path / "rec2"
+    shutil.copytree(view_fixture["reconstruction"], rec)
+    d = read_ply_points(rec / "cloud.ply")
+    P = np.stack([d.pop("x"), d.pop("y"), d.pop("z")], axis=1)
+    d["t"] = d["t"] + 1000.0  # another time base than the session (which starts at 0 s)
+    write_ply_points(rec / "cloud.ply", P, scalars=d)
+    v = ViewData(rec)
+    assert not v.cloud.has_time and any("outside the session" in n for n in v.notes)

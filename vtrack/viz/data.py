@@ -555,6 +555,11 @@ class ViewData:
         if self.scene is not None and self.scene.sim is not None:
             self.height_vmax_mm = float(max(self.scene.sim.penetration_mm[1], 0.1)) * 1.25
         self.times = self._timeline()
+        if self.cloud is not None and self.cloud.has_time and (
+                self.cloud.t[0] > self.times[-1] + 1e-6 or self.cloud.t[-1] < self.times[0] - 1e-6):
+            # Point times in another time base than the session: "up to the current time" is meaningless.
+            self.notes.append("cloud point times lie outside the session's time span; showing the whole cloud")
+            self.cloud.has_time = False
         # Side-panel images per frame, JPEG-compressed (~100 KB per frame instead of ~1 MB raw): with
         # them cached, scrubbing and playback cost no zarr reads (3-6 ms each, ~13 per frame).
         # Least recently used frames are dropped beyond ``image_cache_bytes``.
