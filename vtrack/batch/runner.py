@@ -173,7 +173,13 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
             "ok": ran, "failed": sum(1 for r in records.values() if r["status"] == "failed"),
             "attempts": stats["attempts"], "crashes": stats["crashes"],
             "tasks_per_min": round(60.0 * ran / wall, 3) if wall > 0 and ran else None,
+            # CPU the tasks actually got / (wall x workers): < 1 means the workers waited for cores.
+            "task_cpu_seconds": round(sum(r.get("cpu_seconds") or 0.0 for r in records.values()
+                                          if r["status"] == "ok"), 3),
         })
+        n_workers = run_info.get("workers") or 1
+        run_info["cpu_utilisation"] = (round(run_info["task_cpu_seconds"] / (wall * n_workers), 3)
+                                       if wall > 0 and ran else None)
         ordered = [records[k] for k in keys]
         paths = results.write_summary(out_root, ordered, run_info)
         emit({"type": "end", "run": run_info})
@@ -184,7 +190,8 @@ def _record(job: dict[str, Any], status: str, attempts: int, man: dict[str, Any]
             outcome: dict[str, Any] | None = None, errors: list[str] | None = None) -> dict[str, Any]:
     src = man or outcome or {}
     rec = {"key": job["key"], "session": job["session"], "chunk": job["chunk"], "status": status,
-           "attempts": attempts, "seconds": src.get("seconds"), "host": src.get("host", ""),
+           "attempts": attempts, "seconds": src.get("seconds"), "cpu_seconds": src.get("cpu_seconds"),
+           "host": src.get("host", ""),
            "metrics": src.get("metrics"), "result_dir": str(Path(job["out_root"]) / job["key"])}
     if errors:
         rec["error"] = errors[-1]

@@ -131,13 +131,15 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
     Returns:
         outcome dict: ``key``, ``status`` ("ok" | "error"), ``retryable``, ``error``, ``traceback``,
         ``metrics``, ``nonfinite`` (metric keys that were NaN/Inf, stored as null), ``seconds``
-        (task wall time), ``host``, ``pid``, ``attempt``, ``commit``.
+        (task wall time), ``cpu_seconds`` (CPU time of the worker process during the task),
+        ``host``, ``pid``, ``attempt``, ``commit``.
     """
     from vtrack.batch import results
     from vtrack.batch.tasks import resolve
     from vtrack.errors import VtrackError
 
     t0 = time.perf_counter()
+    c0 = time.process_time()
     out = {"key": job["key"], "attempt": job.get("attempt", 1), "host": platform.node(), "pid": os.getpid(),
            "started_unix": time.time()}
     out_root = Path(job["out_root"])
@@ -158,13 +160,15 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
         bad: list[str] = []
         metrics = results.sanitize_metrics(metrics, bad=bad)
         seconds = time.perf_counter() - t0
+        cpu_seconds = time.process_time() - c0
         results.write_manifest(tmp, job, metrics, {
             "attempt": out["attempt"], "host": out["host"], "pid": out["pid"], "seconds": seconds,
+            "cpu_seconds": cpu_seconds,
             "nonfinite": bad, "finished_unix": time.time(), "vtrack_version": _version(),
         })
         _inject_fault(job, "before_commit")
         out["commit"] = results.commit(tmp, out_root / job["key"], job)
-        out.update(status="ok", metrics=metrics, nonfinite=bad, seconds=seconds)
+        out.update(status="ok", metrics=metrics, nonfinite=bad, seconds=seconds, cpu_seconds=cpu_seconds)
     except Exception as e:
         # Bad input is deterministic: retrying it would only fail again.
         retryable = not (isinstance(e, VtrackError) and isinstance(e, ValueError))

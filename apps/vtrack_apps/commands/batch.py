@@ -140,6 +140,7 @@ def register(app: typer.Typer) -> None:
         repeats: int = typer.Option(3, "--repeats", help="runs per worker count (interleaved)"),
         option: list[str] = typer.Option(None, "--option", "-o", help="task option KEY=VALUE"),
         json_out: Path = typer.Option(None, "--json", help="write all runs as JSON"),
+        pin_cpus: bool = typer.Option(None, "--pin-cpus/--no-pin-cpus", help="pin tasks to CPUs (default on)"),
     ) -> None:
         """Measure throughput (tasks/min) for each worker count; prints the speed-up."""
         from vtrack.batch.scaling import measure_scaling
@@ -147,10 +148,10 @@ def register(app: typer.Typer) -> None:
 
         counts = [int(w) for w in workers.split(",") if w.strip()]
         res = measure_scaling(task, sessions, engine=engine, workers=counts, repeats=repeats,
-                              params=_parse_options(option))
+                              params=_parse_options(option), pin_cpus=pin_cpus)
         print_table(f"batch scaling: {task} on {engine}", [
             {k: r[k] for k in ("workers", "repeat", "tasks", "wall_seconds", "tasks_per_min",
-                               "loadavg_1min_before")} for r in res["runs"]])
+                               "cpu_utilisation", "loadavg_1min_before")} for r in res["runs"]])
         for n, s in res["summary"].items():
             typer.echo(f"[scaling] {n} worker(s): median {s['tasks_per_min_median']} tasks/min "
                        f"(speed-up {res['speedup_median'][n]:.2f}x)" if res["speedup_median"][n] else
