@@ -183,3 +183,16 @@ def test_cli_errors_are_one_line(tmp_path):
                         "--calib", str(tmp_path / "c.npz")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert "press-set folder not found" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_first_frame_in_contact_is_recovered():
+    """Without a background the first frame is the reference; if it was a press, the next flat frame resets it."""
+    bg = _bg()
+    h = sphere_height(H, W, 80, 60, 40, 6, S)
+    press = render_tactile_image(h, S, bg)
+    p = TactilePipeline(None, mm_per_px=S)
+    assert not p.process(press).in_contact  # nothing to compare with yet
+    f = p.process(bg)  # gel released: would look like a dent out of the gel
+    assert not f.in_contact and np.abs(f.height_mm).max() < 0.05
+    f2 = p.process(press)
+    assert f2.in_contact and f2.stats.max_depth_mm == pytest.approx(h.max(), rel=0.15)

@@ -119,6 +119,7 @@ class TactilePipeline:
         self._bg_full: np.ndarray | None = None
         self._bg_work: np.ndarray | None = None
         self._shifted: tuple | None = None
+        self._bg_from_frame = False  # background taken from a frame (may itself have been in contact)
         self._model: Calibration | None = None
         self.noise_mm = float(calib.info.get("height_noise_mm", 0.0)) if calib is not None else 0.0
         bg = background if background is not None else (calib.background if calib is not None else None)
@@ -204,6 +205,7 @@ class TactilePipeline:
         self._bg_full = bg
         self._bg_work = self._to_work(bg)
         self._shifted = None
+        self._bg_from_frame = False  # callers that derive it from a live frame set this afterwards
         wh = self._bg_work.shape[:2]
         if self.calib is None:
             self._model = lambertian_calibration(self._bg_work, self.mm_per_px * self.downsample)
@@ -229,6 +231,7 @@ class TactilePipeline:
         img = self._check(image_bgr)
         if self._bg_full is None:
             self.set_background(img)  # first frame is the reference: assumed out of contact
+            self._bg_from_frame = True
         work = self._to_work(img)
         model = self._model
         bg = self._bg_work
@@ -300,6 +303,11 @@ class TactilePipeline:
             return self.for_sensor(image_bgr).process(image)
         t0 = time.perf_counter()
         img, hw, gate, quality, drift = self._height_work(image_bgr)
+        if self._bg_from_frame and hw.size and self._background_was_pressed(hw):
+            # The reference frame was itself in contact: this frame is the flat gel (a pure "negative press").
+            self.set_background(img)
+            self._bg_from_frame = True
+            img, hw, gate, quality, drift = self._height_work(img)
         t1 = time.perf_counter()
         s_work = self.mm_per_px * self.downsample
         mask_w = contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, rel=self.contact_rel,
@@ -325,6 +333,12 @@ class TactilePipeline:
             frame.force = self.force_model.predict_frame(frame)
         frame.timings_ms["total"] = (time.perf_counter() - t0) * 1e3
         return frame
+
+    def _background_was_pressed(self, hw: np.ndarray) -> bool:
+        """A frame-derived background that contained a press shows up as a dent *out of* the gel."""
+        tau = max(self.contact_threshold_mm, 3.0 * self.noise_mm, 0.05)
+        lo, hi = float(hw.min()), float(hw.max())
+        return lo < -3.0 * tau and hi < 0.5 * abs(lo)
 
     @staticmethod
     def contact_points(height_mm: np.ndarray, mask: np.ndarray, mm_per_px: float, stride: int = 1
