@@ -54,6 +54,61 @@ class SourceStats:
         return {k: round((v - 1) / span, 2) if span > 0 and v > 1 else 0.0 for k, v in self.emitted.items()}
 
 
+#: bytes per block read: small frames are read several at a time (one zarr call per field per block:
+#: the per-call overhead, ~1 ms, would otherwise dominate), large ones one by one (a big block read
+#: would stall the emitter and make every other stream late)
+BLOCK_BYTES = 1 << 20
+
+
+def _block_frames(stream: Any) -> int:
+    per = sum(int(np.prod(f.shape[1:], dtype=np.int64)) * f.dtype.itemsize for f in stream.fields.values())
+    return int(max(1, min(64, BLOCK_BYTES // max(per, 1))))
+
+
+def _decode_loop(reader: Any, streams: list[str], items: list, put: Callable, wall0: Callable[[], float],
+                 cfg: tuple[float, float, float], stop: Any) -> None:
+    """Decode frames in schedule order and ``put`` them; skip (put ``data=None``) frames already too
+    late when reached. Ends with ``put(None)``."""
+    period, speed, max_lag_s = cfg
+    cache: dict[str, tuple[int, dict[str, np.ndarray]]] = {}
+    try:
+        for item in items:
+            if stop.is_set():
+                break
+            rep, rel, k, i = item
+            name = streams[k]
+            due = wall0() + (rel + rep * period) / speed
+            if time.monotonic() - due > max_lag_s:
+                put((item, None))
+                continue
+            i0, block = cache.get(name, (-1, {}))
+            s = reader[name]
+            if not (0 <= i - i0 < len(next(iter(block.values()), ()))):
+                B = _block_frames(s)
+                i0 = i
+                block = {f: s.fields[f][i:i + B] for f in s.fields}
+                cache[name] = (i0, block)
+            put((item, {f: np.ascontiguousarray(v[i - i0]) for f, v in block.items()}))
+    finally:
+        put(None)
+
+
+def _reader_process(path: str, streams: list[str], items: list, q: Any, stop: Any, wall0_v: Any,
+                    cfg: tuple[float, float, float]) -> None:
+    """Child-process reader: decoding runs outside the consumers' process (no GIL contention)."""
+    try:
+        from vtrack.io.session import open_session
+
+        reader = open_session(path)
+    except Exception as e:
+        q.put(f"{type(e).__name__}: {e}")
+        return
+    q.put("ready")
+    while wall0_v.value == 0.0 and not stop.is_set():
+        time.sleep(0.001)
+    _decode_loop(reader, streams, items, q.put, lambda: wall0_v.value, cfg, stop)
+
+
 class SessionReplaySource:
     """Replay a session's streams at real-time rate.
 
@@ -65,10 +120,13 @@ class SessionReplaySource:
         seconds: replay only the first seconds.
         loop: number of passes over the session (for longer runs of short sessions).
         prefetch: max frames decoded ahead of their due time.
+        reader: ``thread`` (decode in a thread) or ``process`` (decode in a child process: no GIL
+            contention with heavy consumers; costs a process start and a copy per frame).
     """
 
     def __init__(self, session: Any, streams: Sequence[str] | None = None, speed: float = 1.0,
-                 max_lag_s: float = 0.05, seconds: float | None = None, loop: int = 1, prefetch: int = 64) -> None:
+                 max_lag_s: float = 0.05, seconds: float | None = None, loop: int = 1, prefetch: int = 64,
+                 reader: str = "thread") -> None:
         from vtrack.io.session import SessionReader, open_session
 
         self.reader = session if isinstance(session, SessionReader) else open_session(Path(session))
@@ -100,6 +158,9 @@ class SessionReplaySource:
         self.loop = max(1, int(loop))
         self.prefetch = max(1, int(prefetch))
         self.preroll_s = 0.25
+        if reader not in ("thread", "process"):
+            raise InputError("unknown replay reader", field="reader", expected="thread|process", got=reader)
+        self.reader_kind = reader
         self.stats = SourceStats()
         self._stop = threading.Event()
 
@@ -110,84 +171,83 @@ class SessionReplaySource:
     def stop(self) -> None:
         self._stop.set()
 
-    #: frames per block read, by stream kind (one zarr call per field per block: the per-call
-    #: overhead, ~1 ms, would otherwise dominate small frames)
-    BLOCK = {"camera": 2, "tactile": 8, "other": 64}
-
-    def _reader_loop(self, items: list, out: Any, wall0: float) -> None:
-        """Decode frames in schedule order into ``out`` (bounded queue); skip ones already too late."""
-        cache: dict[str, tuple[int, dict[str, np.ndarray]]] = {}
-        try:
-            for item in items:
-                if self._stop.is_set():
-                    break
-                rep, rel, k, i = item
-                name = self.streams[k]
-                due = wall0 + (rel + rep * self.period) / self.speed
-                if time.perf_counter() - due > self.max_lag_s:
-                    out.put((item, None))  # late before it was even read: skip without decoding
-                    continue
-                i0, block = cache.get(name, (-1, {}))
-                s = self.reader[name]
-                if not (0 <= i - i0 < len(next(iter(block.values()), ()))):
-                    B = self.BLOCK.get(name.split("/", 1)[0], self.BLOCK["other"])
-                    i0 = i
-                    block = {f: s.fields[f][i:i + B] for f in s.fields}
-                    cache[name] = (i0, block)
-                out.put((item, {f: v[i - i0] for f, v in block.items()}))
-        finally:
-            out.put(None)
-
     def run(self, emit: Callable[[FrameEvent], None]) -> SourceStats:
         """Replay (blocking) until done or :meth:`stop`.
 
-        A reader thread decodes frames ahead of their due time (block reads, bounded queue of
-        ``prefetch`` frames); this thread emits each frame when due. A frame that is late by more
-        than ``max_lag_s`` is skipped (not decoded if it is already late when its turn to be read
-        comes) and counted in ``skipped_late``.
+        A reader (thread, or a child process with ``reader="process"``) decodes frames ahead of
+        their due time (block reads, bounded queue of ``prefetch`` frames); this thread emits each
+        frame when due. A frame late by more than ``max_lag_s`` is skipped (not even decoded if it is
+        already late when the reader reaches it) and counted in ``skipped_late``.
         """
         import queue
 
         st = self.stats
-        # Pre-roll: the clock starts a little later so the reader has frames decoded in advance.
-        wall0 = time.perf_counter() + self.preroll_s
         items = [(rep, float(rel), int(k), int(i)) for rep in range(self.loop) for rel, k, i in self.schedule]
-        q: queue.Queue = queue.Queue(maxsize=self.prefetch)
-        th = threading.Thread(target=self._reader_loop, args=(items, q, wall0), daemon=True, name="replay-read")
-        th.start()
+        cfg = (self.period, self.speed, self.max_lag_s)
+        proc = None
+        if self.reader_kind == "process":
+            import multiprocessing as mp
+
+            ctx = mp.get_context("spawn")  # no fork: the parent has threads (zarr's event loop)
+            q: Any = ctx.Queue(maxsize=self.prefetch)
+            stop_evt: Any = ctx.Event()
+            wall0_v = ctx.Value("d", 0.0)
+            proc = ctx.Process(target=_reader_process, args=(str(self.reader.path), self.streams, items, q, stop_evt,
+                                                              wall0_v, cfg), daemon=True, name="replay-read")
+            proc.start()
+            first = q.get(timeout=120)
+            if first != "ready":
+                raise InputError(f"replay reader process failed: {first}", path=self.reader.path)
+            wall0 = time.monotonic() + self.preroll_s
+            wall0_v.value = wall0
+        else:
+            q = queue.Queue(maxsize=self.prefetch)
+            stop_evt = self._stop
+            wall0 = time.monotonic() + self.preroll_s  # pre-roll: let the reader get ahead
+            th = threading.Thread(target=_decode_loop, daemon=True, name="replay-read",
+                                  args=(self.reader, self.streams, items, q.put, lambda: wall0, cfg, stop_evt))
+            th.start()
         try:
             while True:
                 got = q.get()
                 if got is None:
                     break
+                if isinstance(got, str):  # error text from the reader process
+                    raise InputError(f"replay reader failed: {got}", path=self.reader.path)
                 (rep, rel, k, i), data = got
                 name = self.streams[k]
                 due = wall0 + (rel + rep * self.period) / self.speed
-                now = time.perf_counter()
+                now = time.monotonic()
                 if data is not None and due > now:
                     time.sleep(due - now)
-                    now = time.perf_counter()
+                    now = time.monotonic()
                 lag = now - due
                 if data is None or lag > self.max_lag_s:
                     st.skipped_late[name] = st.skipped_late.get(name, 0) + 1
                     continue
                 st.max_lag_s = max(st.max_lag_s, lag)
                 t = float(self.reader[name].t[i]) + rep * self.period
-                emit(FrameEvent(name, t, i, data, now))
+                wall = time.perf_counter()
+                emit(FrameEvent(name, t, i, data, wall))
                 st.emitted[name] = st.emitted.get(name, 0) + 1
                 if st.first_wall is None:
-                    st.first_wall = now
-                st.last_wall = now
+                    st.first_wall = wall
+                st.last_wall = wall
                 if self._stop.is_set():
                     break
         finally:
             self._stop.set()
-            while th.is_alive():  # unblock the reader if it waits on a full queue
+            stop_evt.set()
+            deadline = time.monotonic() + 5.0
+            alive = (lambda: proc.is_alive()) if proc is not None else (lambda: th.is_alive())
+            while alive() and time.monotonic() < deadline:  # unblock a reader waiting on a full queue
                 try:
-                    q.get_nowait()
-                except queue.Empty:
-                    time.sleep(0.001)
-        st.seconds = time.perf_counter() - wall0
+                    q.get(timeout=0.01)
+                except Exception:
+                    pass
+            if proc is not None and proc.is_alive():
+                proc.kill()
+        st.seconds = time.monotonic() - wall0 + self.preroll_s
         return st
 
     def start(self, emit: Callable[[FrameEvent], None]) -> threading.Thread:
