@@ -242,8 +242,7 @@ def _touch_observations(reader, names: list[str], info: dict, tactile_source: st
             if src == "gt":
                 h, contact, prob = fr["height_mm"], fr["contact"], None
             else:
-                h, prob = _pipeline_height(pipeline, sname, fr["image"])
-                contact = None
+                h, contact, prob = _pipeline_height(pipeline, sname, fr["image"])
             c = from_tactile(h, contact, mm_per_px, T_ws[j], t=float(times[j]), sensor_id=sid, stride=stride,
                              contact_threshold_mm=thr, contact_probability=prob)
             if len(c) == 0:
@@ -257,28 +256,25 @@ def _touch_observations(reader, names: list[str], info: dict, tactile_source: st
     return out
 
 
-def _pipeline_height(pipeline: Any, sensor: str, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """Height map (mm) and optional contact probability from the tactile pipeline.
+def _pipeline_height(pipeline: Any, sensor: str, image: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Height map (mm), contact mask and optional contact probability from the tactile pipeline.
 
-    Accepts the pipeline's result as an array, a dict or an object with ``height_mm`` (and
-    optionally ``contact_prob`` / ``contact``), so fusion does not depend on its exact return type.
+    Uses ``TactilePipeline.process(sensor, image)`` (a ``TactileFrame`` with ``height_mm`` and
+    ``contact``); frames whose ``quality`` is not "ok" count as no contact. Arrays and dicts with the
+    same keys are accepted too, so fusion does not hinge on the exact return type.
     """
-    for name in ("process", "estimate", "__call__"):
-        fn = getattr(pipeline, name, None)
-        if fn is None:
-            continue
-        try:
-            r = fn(sensor, image)
-        except TypeError:
-            r = fn(image)
-        break
-    else:  # pragma: no cover - depends on the other engineer's API
-        raise InputError("tactile pipeline has no process/estimate method", field="tactile_source")
+    fn = getattr(pipeline, "process", None) or pipeline
+    try:
+        r = fn(sensor, image)
+    except TypeError:
+        r = fn(image)
     if isinstance(r, np.ndarray):
-        return r, None
+        return np.asarray(r, np.float64), None, None
     get = r.get if isinstance(r, dict) else (lambda k, d=None: getattr(r, k, d))
-    h = get("height_mm")
+    h = np.asarray(get("height_mm"), np.float64)
+    if get("quality", "ok") != "ok":
+        return np.zeros_like(h), np.zeros(h.shape, bool), None
+    c = get("contact", None)
     p = get("contact_prob", None)
-    if p is None:
-        p = get("contact", None)
-    return np.asarray(h, np.float64), None if p is None else np.asarray(p, np.float32)
+    return h, None if c is None else np.asarray(c, bool), None if p is None else np.asarray(p, np.float32)
