@@ -118,14 +118,3 @@ def test_recorder_feeds_live_consumers_while_writing(tmp_path):
     assert out["source"]["emitted"]["camera/oak"] == stats.written["camera/oak"] == 15
     assert null["processed_total"] + null["dropped_total"] == 15
 
-
-def test_process_reader_replays_the_same_frames(live_session):
-    from vtrack.live.consumers import NullConsumer
-
-    src = SessionReplaySource(live_session, streams=["joints", "tactile/digit_index"], reader="process", speed=2.0)
-    res = LivePipeline(src, [NullConsumer()]).run()
-    so = res["source"]
-    assert so["emitted"].get("joints", 0) + so["skipped_late"].get("joints", 0) == 60
-    assert so["emitted"]["joints"] >= 30
-    with pytest.raises(InputError, match="reader"):
-        SessionReplaySource(live_session, reader="fiber")

@@ -124,3 +124,21 @@ def test_replay_of_single_frame_and_empty_streams(tmp_path):
     assert set(so["emitted"]) <= {"joints"}
     with pytest.raises(InputError, match="nothing to replay"):
         SessionReplaySource(tmp_path / "s", streams=["tactile/empty"])
+
+
+def test_process_reader_replays_the_same_frames(tmp_path):
+    from fixtures_io import write_live_session
+
+    from vtrack.live.pipeline import LivePipeline
+    from vtrack.live.sources import SessionReplaySource
+
+    live_session = write_live_session(tmp_path / "s", seconds=1.0, cam_hw=(48, 64), tac_hw=(32, 24))
+    from vtrack.live.consumers import NullConsumer
+
+    src = SessionReplaySource(live_session, streams=["joints", "tactile/digit_index"], reader="process", speed=2.0)
+    res = LivePipeline(src, [NullConsumer()]).run()
+    so = res["source"]
+    assert so["emitted"].get("joints", 0) + so["skipped_late"].get("joints", 0) == 60
+    assert so["emitted"]["joints"] >= 30
+    with pytest.raises(InputError, match="reader"):
+        SessionReplaySource(live_session, reader="fiber")
