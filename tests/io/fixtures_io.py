@@ -267,3 +267,44 @@ def video_frame(i: int, size=(320, 240)) -> np.ndarray:
     import cv2
 
     return cv2.resize(tactile_image(i % 200, 40, 30), size, interpolation=cv2.INTER_NEAREST)
+
+
+def write_sphere_session(path: Path, seconds: float = 1.0, hw=(60, 80), radius: float = 0.03,
+                         speed: float = 0.01, hz: float = 30.0) -> Path:
+    """A session of a sphere (``assets/object.ply``) moving along world x at ``speed`` m/s, seen by
+    one camera at the world origin looking along +z (depth rendered exactly, with mask), plus the
+    ground-truth ``gt/object_pose``."""
+    import trimesh
+
+    from vtrack.io.importers.scene_build import camera_entry, finalize_scene
+    from vtrack.io.session import SessionWriter
+    from vtrack.io.streams import camera_stream, pose_stream
+    from vtrack.scene.load import scene_from_dict
+
+    H, W = hw
+    K = np.array([[60.0, 0, (W - 1) / 2], [0, 60.0, (H - 1) / 2], [0, 0, 1]])
+    sd = finalize_scene({"name": "sphere", "object": {"name": "sphere"},
+                         "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, hz)]})
+    sc = scene_from_dict(sd, check_files=False)
+    v, u = np.mgrid[0:H, 0:W]
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, dtype=float)], -1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    mesh_file = path.parent / f"{path.name}_sphere.ply"
+    trimesh.creation.icosphere(subdivisions=3, radius=radius).export(mesh_file)
+    with SessionWriter(path, sd, overwrite=True, flush_every=16) as w:
+        w.add_asset(mesh_file, "object.ply", role="object_mesh")
+        w.add_stream("camera/cam0", camera_stream(sc.camera_by_name("cam0"), with_mask=True))
+        w.add_stream("gt/object_pose", pose_stream(rate_hz=hz))
+        for i in range(int(round(seconds * hz))):
+            t = i / hz
+            c = np.array([-0.01 + speed * t, 0.0, 0.3])
+            b = rays @ c
+            disc = b**2 - (c @ c - radius**2)
+            hit = disc > 0
+            z = np.where(hit, (b - np.sqrt(np.maximum(disc, 0))) * rays[..., 2], 0.0)
+            depth = np.rint(z * 1000).astype(np.uint16)
+            T = np.eye(4)
+            T[:3, 3] = c
+            w.append("camera/cam0", t, rgb=np.zeros((H, W, 3), np.uint8), depth=depth, mask=hit.astype(np.uint8))
+            w.append("gt/object_pose", t, T_world_object=T)
+    return path
