@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -79,26 +80,36 @@ def _full(table: BenchTable, seconds: float) -> None:
     from vtrack.sim.fixtures import tiny_session_path
 
     ycb = shared_data_dir() / "objects" / "ycb"
-    cases = [("005_tomato_soup_can", occ, None) for occ in ("none", "medium", "heavy")]
-    cases += [(name, "none", ycb / f"{name}.ply") for name in ("010_potted_meat_can", "006_mustard_bottle")]
-    for name, occ, mesh in cases:
-        path = tiny_session_path(occlusion=occ, seconds=seconds, object=mesh)
+    cases = [("005_tomato_soup_can", occ, None, None) for occ in ("none", "medium", "heavy")]
+    cases += [(name, "none", ycb / f"{name}.ply", None) for name in ("010_potted_meat_can", "006_mustard_bottle")]
+    env = os.environ.get("VTRACK_BENCH_FUSION_CASES")
+    if env:
+        # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session)
+        cases = []
+        for item in env.split(";"):
+            name, occ, sess = (item.split("|") + ["", ""])[:3]
+            cases.append((name, occ, ycb / f"{name}.ply" if name != "005_tomato_soup_can" else None,
+                          Path(sess) if sess else None))
+    for name, occ, mesh, sess in cases:
+        path = sess or tiny_session_path(occlusion=occ, seconds=seconds, object=mesh)
         t0 = time.perf_counter()
         so = load_observations(path, ("vision", "touch"), vision_frame_step=2, touch_frame_step=2)
         load_s = time.perf_counter() - t0
         Vg, Fg = load_mesh(path / "assets" / "object.ply")
         short = name.split("_", 1)[1]
+        main = name == "005_tomato_soup_can"
         for mods in MODS:
             _run(table, so.observations, Vg, Fg, method="tsdf", mods=mods, setting="voxel=2mm", object_name=short,
                  occlusion=occ, load_s=load_s, voxel_size=0.002)
-            _run(table, so.observations, Vg, Fg, method="neural_sdf", mods=mods, setting="iters=600",
-                 object_name=short, occlusion=occ, load_s=load_s, n_iters=600)
+            if main or mods != "touch":  # touch-only neural SDF only for the main object (time)
+                _run(table, so.observations, Vg, Fg, method="neural_sdf", mods=mods, setting="iters=600",
+                     object_name=short, occlusion=occ, load_s=load_s, n_iters=600)
         if name == "005_tomato_soup_can" and occ == "none":
             for vs in (0.0015, 0.003):
                 _run(table, so.observations, Vg, Fg, method="tsdf", mods="vision+touch",
                      setting=f"voxel={vs * 1e3:g}mm", object_name=short, occlusion=occ, load_s=load_s,
                      voxel_size=vs)
-            for it in (200, 1200):
+            for it in (300,):
                 _run(table, so.observations, Vg, Fg, method="neural_sdf", mods="vision+touch", setting=f"iters={it}",
                      object_name=short, occlusion=occ, load_s=load_s, n_iters=it)
             _run(table, so.observations, Vg, Fg, method="neural_sdf", mods="vision+touch", setting="online 25ms",
@@ -119,8 +130,9 @@ def run(quick: bool = False) -> BenchTable:
                            "views on a 60 deg arc, 30 touch patches on the unseen side.")
     else:
         _full(table, seconds)
-        table.notes.append(f"full mode: simulator sessions of {seconds:g} s (default scene, known object poses, "
-                           "GT tactile height maps, every 2nd camera/tactile frame).")
+        table.notes.append("full mode: simulator sessions of the default scene (known object poses, GT tactile "
+                           "height maps, every 2nd camera/tactile frame); cases: "
+                           + (os.environ.get("VTRACK_BENCH_FUSION_CASES") or f"default sweep, {seconds:g} s"))
     table.notes.append("ms = reconstruction ms per frame (camera and tactile frames); s_session includes loading "
                        "and meshing. Timings on a shared 2-core machine (other jobs running): noisy.")
     table.notes.append("Command: `vtrack bench fusion" + (" --quick`" if quick else "`"))
