@@ -25,7 +25,7 @@ from vtrack.io.session import open_session  # noqa: E402
 pytestmark = pytest.mark.stability
 
 
-@pytest.mark.parametrize("delay", [0.05, 1.2, 2.0])
+@pytest.mark.parametrize("delay", [0.05, 1.5])
 def test_sigkill_at_any_moment_leaves_an_openable_or_absent_session(tmp_path, delay):
     """Killed before the writer exists -> no session (clear error); killed later -> every committed
     frame readable and exact."""
