@@ -74,11 +74,21 @@ def test_from_scene_default():
     p.set_background(bg)
     f = p.process(render_tactile_image(h, spec.mm_per_px, bg))
     assert f.stats.max_depth_mm == pytest.approx(h.max(), rel=0.15)
-    # multi-sensor dispatch: process(sensor_name, image); the other sensor's first frame is its background
+    # multi-sensor dispatch: process(sensor_name, image). A synthetic scene (``sim`` section, no background
+    # file) uses the simulator's background, so a session that starts in contact still works.
     other = scene.tactile[1].name
-    assert not p.process(other, bg).in_contact
-    f2 = p.process(other, render_tactile_image(h, spec.mm_per_px, bg))
+    bg2 = p.for_sensor(other).background
+    assert bg2 is not None and bg2.shape == (spec.height, spec.width, 3)
+    try:
+        from vtrack.sim.generate import _load_background
+
+        assert np.array_equal(bg2, _load_background(scene.tactile[1]))
+    except ImportError:
+        pass
+    assert not p.process(other, bg2).in_contact
+    f2 = p.process(other, render_tactile_image(h, spec.mm_per_px, bg2))
     assert f2.stats.max_depth_mm == pytest.approx(h.max(), rel=0.15)
+    assert f2.stats.centroid_px == pytest.approx((spec.width / 2, spec.height / 2), abs=2.0)
     with pytest.raises(InputError):
         TactilePipeline.from_scene(scene, sensor_name="nope")
 

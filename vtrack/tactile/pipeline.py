@@ -64,6 +64,20 @@ class TactileFrame:
         return self.stats.area_px > 0
 
 
+def _sim_background(spec: Any) -> np.ndarray | None:
+    """The no-contact frame the simulator renders this sensor on (scenes with a ``sim`` section), so a
+    synthetic session whose first frame is already in contact still has the right reference. None when the
+    simulator is not available (the first frame is used then)."""
+    try:
+        from vtrack.sim.generate import _load_background  # the simulator's own choice of background
+    except (ImportError, AttributeError):
+        return None
+    try:
+        return np.asarray(_load_background(spec), np.uint8)
+    except Exception:  # noqa: BLE001 - any failure falls back to the first-frame background
+        return None
+
+
 class TactilePipeline:
     """Image -> height -> contact -> points for one vision-based tactile sensor.
 
@@ -151,17 +165,20 @@ class TactilePipeline:
         if sensor_name is not None and sensor_name not in {t.name for t in specs}:
             raise InputError("unknown tactile sensor", field="sensor_name",
                              expected=" | ".join(t.name for t in specs), got=sensor_name)
-        built = {t.name: cls._from_spec(t, **options) for t in specs}
+        built = {t.name: cls._from_spec(t, synthetic=scene.sim is not None, **options) for t in specs}
         main = built[sensor_name or specs[0].name]
         main.sensors = built
         return main
 
     @classmethod
-    def _from_spec(cls, spec: Any, **options: Any) -> TactilePipeline:
+    def _from_spec(cls, spec: Any, synthetic: bool = False, **options: Any) -> TactilePipeline:
         from vtrack.tactile.pressset import read_bgr
 
         bg = read_bgr(spec.background) if spec.background is not None else None
+        if bg is None and spec.calibration is None and synthetic and "background" not in options:
+            bg = _sim_background(spec)
         opts = {"contact_threshold_mm": spec.contact_threshold_mm, **options}
+        bg = opts.pop("background", bg)
         return cls(spec.calibration, mm_per_px=spec.mm_per_px, background=bg,
                    image_shape=(spec.height, spec.width), sensor_name=spec.name, **opts)
 
