@@ -58,6 +58,7 @@ class TrackerOptions:
     sigma_normal: float = 1.0       #: contact normal disagreement (unit vectors); weak on purpose
     sigma_free: float = 0.001       #: non-penetration, m
     free_margin: float = 0.0        #: free gel points must stay this far outside, m
+    free_gate: float = 0.003        #: ignore free gel points predicted deeper than this inside, m
     kernel_vision: float = 1.5      #: robust kernel width in sigmas
     kernel_touch: float = 2.0
     sigma_motion_trans: float = 0.0015   #: constant-velocity deviation per nominal frame, m
@@ -285,7 +286,13 @@ class WindowTracker:
 
     # -- internals ----------------------------------------------------------------------------
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
-        """Drop vision points far from the predicted surface (hand, background, flying pixels)."""
+        """Drop vision points far from the predicted surface (hand, background, flying pixels) and
+        gel points of "free" sensors that would be deep inside the object (such a sensor is not free:
+        its contact was missed, e.g. beyond the gel's range; pushing the object out would be wrong)."""
+        F = fr.free_points
+        if F is not None and len(F):
+            d, _ = self.sdf.query(se3.transform_points(_inv(T_pred), F), with_grad=False)
+            fr.free_points = F[d > -self.opts.free_gate]
         V = fr.vision_points
         if V is None or len(V) == 0 or self.opts.gate <= 0:
             return fr
