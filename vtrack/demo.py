@@ -70,6 +70,16 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
 
         shape = "slam" if scene.pipeline.tracking == "slam" else "known"
         summary["stages"]["track"] = track_session(session_dir, out / "tracking", shape=shape)
+    produced = any(k in summary["stages"] for k in ("generate", "reconstruct", "track"))
+    if produced and _available("vtrack.viz.screenshot"):
+        from vtrack.viz.screenshot import render_result
+
+        has_result = any((out / d / "result.json").exists() for d in ("reconstruction", "tracking"))
+        target = out if has_result else session_dir
+        try:
+            summary["stages"]["screenshot"] = {"path": str(render_result(target, out / "overview.png"))}
+        except Exception as e:  # a rendering problem must not lose the results already written
+            summary["stages"]["screenshot"] = {"error": f"{type(e).__name__}: {e}"}
     summary["seconds_total"] = time.perf_counter() - t0
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     return summary
