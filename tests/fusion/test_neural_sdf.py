@@ -59,15 +59,16 @@ def test_online_step_respects_budget(soup_obs):
 
     obs, V, F = soup_obs
     r = NeuralSDFReconstructor(bounds=NeuralSDFReconstructor.bounds_from_points(obs[0].points), seed=1)
-    times = []
+    cpu_ms = []
     for o in obs[:8]:
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         r.integrate_observation(o)
         n = r.step(time_budget_ms=30.0)
-        times.append((time.perf_counter() - t0) * 1e3)
+        cpu_ms.append((time.process_time() - t0) * 1e3)
         assert n >= 1
-    # loose bound: the machine is shared; the budget itself is checked by the benchmark
-    assert np.mean(times) < 200
+    # CPU time (wall time depends on what else runs on the shared machine); loose bound, the
+    # 30 ms target is measured by `vtrack reconstruct --online` / the benchmark
+    assert np.mean(cpu_ms) < 150
     assert r.iterations >= 8 and np.isfinite(r.last_loss["total"])
 
 
@@ -78,8 +79,8 @@ def test_neural_sdf_path_never_imports_open3d():
             "P = rng.normal(size=(2000, 3)); P /= np.linalg.norm(P, axis=1, keepdims=True)\n"
             "r = NeuralSDFReconstructor(bounds=[[-0.1]*3, [0.1]*3], batch=256)\n"
             "r.integrate(P * 0.05, P, 0)\n"
-            "r.step(30)\n"
-            "v, f = r.extract_mesh(cell_mm=5)\n"
+            "r.step(10)\n"
+            "v, f = r.extract_mesh(cell_mm=8)\n"
             "assert len(f) > 0\n"
             "assert 'open3d' not in sys.modules, 'open3d imported'\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
