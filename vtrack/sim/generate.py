@@ -35,10 +35,11 @@ from vtrack.errors import InputError
 
 #: Direction from the object (grasp) centre to the first camera, hand-base frame, per occlusion
 #: level. Chosen from a sweep of 72 view directions on the default scene (soup can, 5 poses over
-#: 5 s, camera at 0.45 m); mean visible fraction of the object: none 0.95 (side/below, beside the
-#: fingers), medium 0.54 (above the curled fingers), heavy 0.19 (behind the palm, through the gaps).
+#: 5 s, camera at 0.45 m); mean visible fraction of the object: none 0.78 (front-side, below the
+#: fingers: sees the can's side and one end), medium 0.54 (above the curled fingers), heavy 0.19
+#: (behind the palm, through the gaps between the fingers).
 OCCLUSION_VIEWS: dict[str, tuple[float, float, float]] = {
-    "none": (0.43, 0.75, -0.5),
+    "none": (0.75, 0.43, -0.5),
     "medium": (0.5, 0.0, 0.87),
     "heavy": (-1.0, 0.0, 0.0),
 }
@@ -280,8 +281,13 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
         from vtrack.sim.grasp import gel_heights
 
         calib_cache: dict[str, Any] = {}
+        controlled: dict[str, list[int]] = {}
+        touching: dict[str, float] = {}
         for s, spec in specs.items():
             t_tac = _times(sim.seconds, spec.rate_hz)
+            # Frames where the planner held the finger at its target depth (not re-grasping/lifted).
+            near = np.clip(np.searchsorted(t_joint, t_tac), 0, len(t_joint) - 1)
+            controlled[s] = plan.in_contact_phase[s][near].astype(int).tolist()
             T_wo = plan.object_pose_at(t_tac)
             T_ws = hk.sensor_poses(plan.q_at(t_tac))[s]
             heights = gel_heights(obj_rc, se3.invert(T_wo) @ T_ws, spec.width, spec.height, spec.mm_per_px,
@@ -292,6 +298,7 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
                 calib = calib_cache.setdefault(str(spec.calibration), str(spec.calibration))
             writer.add_stream(f"tactile/{s}", tactile_stream(spec))
             writer.add_stream(f"gt/tactile/{s}", tactile_gt_stream(spec))
+            touching[s] = float((heights.reshape(len(heights), -1).max(1) > spec.contact_threshold_mm).mean())
             for i, t in enumerate(t_tac):
                 h = heights[i]
                 img = _render_tactile(h, spec, bg, calib, rng_tac, sim.tactile_noise)
@@ -335,7 +342,9 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
         _log(progress, f"cameras {time.perf_counter() - t0:.2f} s")
 
         contact_frac = {s: float(plan.in_contact_phase[s].mean()) for s in hk.sensor_names}
-        writer.set_info(contact_fraction=contact_frac, generate_seconds=time.perf_counter() - t_start)
+        writer.set_info(contact_fraction=contact_frac, touching_fraction=touching, contact_controlled=controlled,
+                        penetration_mm=list(sim.penetration_mm),
+                        generate_seconds=time.perf_counter() - t_start)
     except BaseException:
         writer.flush()
         raise

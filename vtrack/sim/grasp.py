@@ -35,6 +35,7 @@ ALLEGRO_OPEN = np.array([0.0, 0.2, 0.2, 0.2, 0.0, 0.2, 0.2, 0.2, 0.0, 0.2, 0.2, 
 ALLEGRO_CLOSED = np.array([0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 1.35, 0.4, 0.6, 1.7])
 
 FINE_STRIDE_MM = 0.5  # grid of the indentation checks (thin features such as can rims are ~1 mm)
+MAX_CLOSING_RATE = 1.2  # synergy units per second (~1.7 rad/s per joint): no finger jumps
 LIFT_S = 0.12  # how far (in synergy units) a gaiting finger opens
 
 
@@ -64,6 +65,20 @@ class GraspPlan:
         return np.stack([np.interp(t, self.times, self.q[:, j]) for j in range(self.q.shape[1])], axis=1)
 
 
+def lipschitz_envelope(s: np.ndarray, step: float) -> np.ndarray:
+    """Largest sequence <= ``s`` changing by at most ``step`` per sample (forward + backward pass).
+
+    When the first contact jumps to another part of the object (a rim, an edge), the finger opens
+    early and moves over smoothly instead of teleporting; it never presses deeper than planned.
+    """
+    e = np.asarray(s, dtype=np.float64).copy()
+    for i in range(1, len(e)):
+        e[i] = min(e[i], e[i - 1] + step)
+    for i in range(len(e) - 2, -1, -1):
+        e[i] = min(e[i], e[i + 1] + step)
+    return e
+
+
 def closing_synergy(hk: HandKinematics) -> tuple[np.ndarray, np.ndarray]:
     """(q_open, q_closed) (J,) rad of the hand's closing synergy (Allegro preset, else from limits)."""
     if hk.joint_names == [f"joint_{i}.0" for i in range(16)]:
@@ -88,7 +103,8 @@ def _posture(q_open: np.ndarray, q_closed: np.ndarray, cols: dict[str, list[int]
     return q
 
 
-def _max_indentation(hk, obj_rc, T_ow, q, sensor, spec, stride_mm: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def _max_indentation(hk, obj_rc, T_ow, q, sensor, spec,
+                     stride_mm: float = FINE_STRIDE_MM) -> tuple[np.ndarray, np.ndarray]:
     """Max gel indentation (mm) and contact-pixel fraction of ``sensor`` for postures ``q`` (N, J)."""
     T = hk.sensor_poses(q)[sensor]
     stride = max(1, int(round(stride_mm / spec.mm_per_px)))
@@ -325,6 +341,34 @@ def _fit_rest_pose(hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, depth
     return T
 
 
+def _tune_first_joints(hk, obj_rc, T_ow, q_open, q_closed, cols, tactile_specs, depth_mm: float,
+                       offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per finger, shift its first joint (abduction / thumb rotation) in the synergy so the gel meets
+    the object flush: the offset giving the largest contact patch at the target depth over a few
+    sample frames (a gel touching with its edge gives a thin sliver; flush gives a patch)."""
+    offsets = np.linspace(-0.3, 0.3, 7) if offsets is None else offsets
+    q_open, q_closed = q_open.copy(), q_closed.copy()
+    m = len(T_ow)
+    for s in hk.sensor_names:
+        j = cols[s][0]
+        lo = hk.lower[j] if np.isfinite(hk.lower[j]) else -np.inf
+        hi = hk.upper[j] if np.isfinite(hk.upper[j]) else np.inf
+        best, best_score = 0.0, -np.inf
+        for off in offsets:
+            qo, qc = q_open.copy(), q_closed.copy()
+            qo[j] = np.clip(qo[j] + off, lo, hi)
+            qc[j] = np.clip(qc[j] + off, lo, hi)
+            sv, ok = _close_to_depth(hk, obj_rc, T_ow, qo, qc, cols, s, tactile_specs[s], np.full(m, depth_mm),
+                                     scan=10, iters=5)
+            _, area = _max_indentation(hk, obj_rc, T_ow, _posture(qo, qc, cols, {s: sv}), s, tactile_specs[s])
+            score = float(np.where(ok, area, -1.0).mean()) - 0.02 * abs(off)  # prefer small changes
+            if score > best_score:
+                best, best_score = off, score
+        q_open[j] = np.clip(q_open[j] + best, lo, hi)
+        q_closed[j] = np.clip(q_closed[j] + best, lo, hi)
+    return q_open, q_closed
+
+
 def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tactile_specs: dict,
                times: np.ndarray, rng: np.random.Generator, align_normals: bool = False) -> GraspPlan:
     """Object trajectory and joint angles keeping every fingertip in contact (see module docstring).
@@ -345,6 +389,8 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
     axis_world = T0[:3, :3] @ np.asarray(sim.rotation_axis, dtype=np.float64)
     T_wo = object_trajectory(T0, times, axis_world, sim.rotation_speed, sim.translation_amplitude)
     T_ow = se3.invert(T_wo)
+    q_open, q_closed = _tune_first_joints(hk, obj_rc, T_ow[np.linspace(0, n - 1, min(n, 6)).astype(int)],
+                                          q_open, q_closed, cols, tactile_specs, lo + 0.5 * span)
 
     d_target, lift = {}, {}
     fingers = [s for s in names if "thumb" not in s]
@@ -362,14 +408,30 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
             lift[s] = np.where(lifting, LIFT_S * np.sin(np.pi * np.clip(u, 0, 1)) ** 2, 0.0)
 
     s_val, phase_ok, meas = {}, {}, {}
-    sub = np.arange(0, n, 6)  # full scan on a subsample, then local bisection around its interpolation
     for s in names:
-        sv_sub, ok_sub = _close_to_depth(hk, obj_rc, T_ow[sub], q_open, q_closed, cols, s, tactile_specs[s],
-                                         d_target[s][sub])
-        guess = np.interp(np.arange(n), sub, np.where(ok_sub, sv_sub, np.nan)) if ok_sub.all() else None
-        sv, ok = _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, s, tactile_specs[s], d_target[s],
-                                 guess=guess)
-        s_val[s] = np.clip(sv - lift[s], 0.0, 1.0)
+        # Full scan for every frame: the *first* contact along the closing motion (a local bracket
+        # around the previous solution may find a later, deeper branch).
+        sv, ok = _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, s, tactile_specs[s], d_target[s])
+        dt = float(np.median(np.diff(times))) if n > 1 else 1.0
+        s_env = lipschitz_envelope(sv, MAX_CLOSING_RATE * dt)
+        # Opening is not always safe: the gel's lower part can swing into the object. Where the
+        # smoothed posture would press deeper than the range, keep the planned (exact) one.
+        h_env, _ = _max_indentation(hk, obj_rc, T_ow, _posture(q_open, q_closed, cols, {s: s_env}), s,
+                                    tactile_specs[s])
+        bad = np.nonzero(h_env > hi)[0]
+        if bad.size:
+            # Move only as far towards the planned posture as needed (smallest jump in range).
+            a, b = np.zeros(bad.size), np.ones(bad.size)
+            for _ in range(8):
+                mid = 0.5 * (a + b)
+                s_try = s_env[bad] + mid * (sv[bad] - s_env[bad])
+                h_try, _ = _max_indentation(hk, obj_rc, T_ow[bad], _posture(q_open, q_closed, cols, {s: s_try}),
+                                            s, tactile_specs[s])
+                ok_try = h_try <= hi
+                b = np.where(ok_try, mid, b)
+                a = np.where(ok_try, a, mid)
+            s_env[bad] = s_env[bad] + b * (sv[bad] - s_env[bad])
+        s_val[s] = np.clip(s_env - lift[s], 0.0, 1.0)
         phase_ok[s] = ok & (lift[s] <= 0.0)
     q = _posture(q_open, q_closed, cols, s_val)
     if align_normals:
