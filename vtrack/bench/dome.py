@@ -15,7 +15,7 @@ from vtrack.bench.harness import BenchTable
 def run(quick: bool = False) -> BenchTable:
     import torch
 
-    from vtrack.dome.evaluate import template_baseline
+    from vtrack.dome.evaluate import template_baseline, time_end_to_end
     from vtrack.dome.metrics import evaluate_predictions
     from vtrack.dome.model import DomeGeometry
     from vtrack.dome.reconstruct import default_weights
@@ -45,8 +45,10 @@ def run(quick: bool = False) -> BenchTable:
             gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"][:, sub], "contact": te["contact_coarse"],
                   "force": te["force_n"], "dense_rest": geo.dense_rest[sub]}
             m = evaluate_predictions(pred, gt)
-            ms = _time(method, path, te, n_time, geo.dense_rest[sub])
-            table.add(method=method, setting=f"fine {n_dense} pts", ms=round(ms, 2), n_dense=n_dense,
+            ms, cpu_ms = time_end_to_end(method, path, te["image"][:n_time], te["pressure_kpa"][:n_time],
+                                         geo.dense_rest[sub])
+            table.add(method=method, setting=f"fine {n_dense} pts", ms=round(ms, 2), cpu_ms=round(cpu_ms, 2),
+                      n_dense=n_dense,
                       **{k: round(v, 4) for k, v in m.items() if not k.startswith("force")},
                       force_mae=round(m["force_mae"], 4), force_mae_nop=round(m["force_nop_mae"], 4))
         model.decoder.set_dense(geo.dense_rest)
@@ -55,24 +57,9 @@ def run(quick: bool = False) -> BenchTable:
         "`force_mae` uses the pressure-FiLM head, `force_mae_nop` the same head trained without pressure.",
         "ms = median wall time per frame, one frame at a time, 1 thread: image -> marker extraction -> Delaunay "
         "graph -> GNN (or image -> CNN) -> dense surface + force. The machine was shared with other jobs, "
-        "so times are noisy (upper bounds).",
+        "so wall times are noisy upper bounds; `cpu_ms` is the process CPU time per frame (what one free core needs).",
         "`template` = predicting the undeformed dome: contact regions are small, so surface metrics start high.",
         "Command: `vtrack bench dome`" + (" --quick" if quick else ""),
     ]
     return table
 
-
-def _time(method, path, te, n, dense_rest) -> float:
-    import time
-
-    from vtrack.dome.reconstruct import DomeReconstructor
-
-    rec = DomeReconstructor(method, path)
-    rec.model.decoder.set_dense(dense_rest)
-    rec._run(te["image"][0], float(te["pressure_kpa"][0]))
-    ts = []
-    for i in range(n):
-        t0 = time.perf_counter()
-        rec._run(te["image"][i], float(te["pressure_kpa"][i]))
-        ts.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(ts))

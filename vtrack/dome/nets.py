@@ -180,6 +180,11 @@ class DomeGNN(nn.Module):
         h, glob = self.encoder(batch["x"], batch["edge_index"], batch["edge_attr"], batch["batch"], B)
         hd, mask = to_dense_batch(h, batch["batch"], batch_size=B)
         pd, _ = to_dense_batch(batch["pos"], batch["batch"], batch_size=B)  # marker dirs on the rest dome
+        if hd.shape[1] < self.k:  # fewer markers than neighbours (or none): pad with masked slots
+            pad = self.k - hd.shape[1]
+            hd = torch.cat([hd, hd.new_zeros(B, pad, hd.shape[2])], 1)
+            pd = torch.cat([pd, pd.new_zeros(B, pad, 3)], 1)
+            mask = torch.cat([mask, mask.new_zeros(B, pad)], 1)
         pd = torch.where(mask.unsqueeze(-1), pd, torch.full_like(pd, 10.0))  # padding far away
         tmpl = (self.decoder.coarse_rest / self.decoder.R).expand(B, -1, 3)
         idx, dist = knn_torch(tmpl, pd, self.k)
@@ -229,14 +234,21 @@ class DomeCNN(nn.Module):
 
 
 class ForceHead(nn.Module):
-    """Force F (N, dome frame) from decoder features: patch encoder + pressure FiLM + global graph feature."""
+    """Force F (N, dome frame) from decoder features: patch encoder + pressure FiLM + global graph feature.
+
+    Per coarse point: [decoder feature, coarse displacement, contact probability, inward indentation,
+    position] -> point MLP -> mean over 16 fixed patches -> patch MLP -> FiLM by the pressure
+    ``h (1 + gamma(P)) + beta(P)`` (S19-S20). Two global indentation sums (contact-weighted and plain, the
+    Winkler "volume" proxies) are FiLM-modulated the same way, then [max, mean over patches, sums, graph
+    feature] -> MLP -> F. ``use_pressure=False`` feeds P = 0 (the "without pressure" ablation).
+    """
 
     def __init__(self, geo: DomeGeometry, hidden: int = 64, glob_dim: int = 128, n_patches: int = 16,
                  use_pressure: bool = True, dec_hidden: int = 48) -> None:
         super().__init__()
         self.use_pressure = use_pressure
         self.p_max = geo.cfg.pressure_max_kpa
-        # fixed patches: k-means-like assignment of coarse points to n_patches Fibonacci seeds
+        self.R = geo.cfg.radius_mm
         from vtrack.dome.model import fibonacci_cap, knn_np
 
         seeds = fibonacci_cap(n_patches, geo.cfg.cap_deg)
@@ -245,19 +257,25 @@ class ForceHead(nn.Module):
         onehot[assign[:, 0], np.arange(len(geo.coarse_dirs))] = 1
         onehot /= np.maximum(onehot.sum(1, keepdims=True), 1)
         self.register_buffer("pool", torch.tensor(onehot))
-        self.point = mlp(dec_hidden + 3 + 1 + 3, hidden, hidden, last_act=True)
+        self.point = mlp(dec_hidden + 3 + 1 + 1 + 3, hidden, hidden, last_act=True)
         self.patch = mlp(hidden, hidden, hidden, last_act=True)
-        self.film = mlp(1, 32, 2 * hidden)
-        self.head = mlp(2 * hidden + glob_dim, hidden, 3)
+        self.film = mlp(1, 32, 2 * hidden + 4)
+        self.head = mlp(2 * hidden + 2 + glob_dim, hidden, hidden, 3)
+        self.hidden = hidden
 
     def forward(self, out: dict[str, torch.Tensor], pressure_kpa: torch.Tensor, coarse_rest: torch.Tensor):
         B = out["hidden"].shape[0]
-        pos = (coarse_rest / 20.0).expand(B, -1, 3)
-        z = torch.cat([out["hidden"], out["disp_coarse"] / DISP_SCALE_MM, torch.sigmoid(out["contact_logit"]
-                                                                                          ).unsqueeze(-1), pos], -1)
+        nrm = coarse_rest / coarse_rest.norm(dim=-1, keepdim=True)
+        ind = torch.relu(-(out["disp_coarse"] * nrm).sum(-1, keepdim=True))  # inward indentation, mm
+        prob = torch.sigmoid(out["contact_logit"]).unsqueeze(-1)
+        z = torch.cat([out["hidden"], out["disp_coarse"] / DISP_SCALE_MM, prob, ind, (coarse_rest / self.R
+                                                                                      ).expand(B, -1, 3)], -1)
         hp = self.patch(torch.einsum("pn,bnf->bpf", self.pool, self.point(z)))  # (B, P, H)
+        sums = torch.cat([(ind * prob).sum(1), ind.sum(1)], -1) / 10.0  # (B, 2)
         p = pressure_kpa.view(B, 1) / self.p_max if self.use_pressure else torch.zeros(B, 1)
+        H = self.hidden
         gb = self.film(p)  # S19-S20: FiLM by the internal pressure
-        gamma, beta = gb.chunk(2, -1)
+        gamma, beta, g2, b2 = gb[:, :H], gb[:, H:2 * H], gb[:, 2 * H:2 * H + 2], gb[:, 2 * H + 2:]
         hp = hp * (1 + gamma.unsqueeze(1)) + beta.unsqueeze(1)
-        return self.head(torch.cat([hp.amax(1), hp.mean(1), out["glob"]], -1))
+        sums = sums * (1 + g2) + b2
+        return self.head(torch.cat([hp.amax(1), hp.mean(1), sums, out["glob"]], -1))

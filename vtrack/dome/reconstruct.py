@@ -170,8 +170,10 @@ class DomeReconstructor:
         for name, arr in (("dense", dense), ("coarse", coarse), ("force", force)):
             if not np.all(np.isfinite(arr)):  # never let NaN/Inf out silently
                 raise InputError("non-finite network output", field=name, expected="finite values")
-        ind = np.linalg.norm(self.geo.dense_rest, axis=1) - np.linalg.norm(dense, axis=1)
+        rest = self.model.decoder.dense_rest.numpy()  # may be a subset (benchmark operating points)
+        ind = np.linalg.norm(rest, axis=1) - np.linalg.norm(dense, axis=1)
+        faces = self.geo.dense_faces if len(dense) == self.cfg.n_dense else np.zeros((0, 3), np.int64)
         info = {"max_indentation_mm": float(max(0.0, ind.max())), "pressure_kpa": p,
                 "low_marker_count": bool(self.method == "gnn" and n_markers < 0.5 * self.cfg.n_markers)}
-        return DomeResult(dense, self.geo.dense_faces, coarse, prob, force.astype(np.float64), n_markers, method,
+        return DomeResult(dense, faces, coarse, prob, force.astype(np.float64), n_markers, method,
                           ms, info)

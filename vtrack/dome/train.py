@@ -21,13 +21,13 @@ from vtrack.dome.model import DomeConfig, DomeGeometry, knn_np
 
 @dataclass
 class TrainConfig:
-    n_train: int = 3000
-    n_test: int = 400
+    n_train: int = 2000
+    n_test: int = 300
     seed: int = 0
     test_seed: int = 12345
-    epochs_coarse: int = 12
-    epochs_fine: int = 10
-    epochs_force: int = 10
+    epochs_coarse: int = 8
+    epochs_fine: int = 6
+    epochs_force: int = 20
     batch: int = 32
     lr: float = 2e-3
     hidden: int = 64
@@ -202,6 +202,22 @@ def train_force(model, train: Batcher, tc: TrainConfig, use_pressure: bool, log=
     return head
 
 
+def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
+    """Retrain only the two force heads of a saved bundle (same budget for every method); re-save it."""
+    import torch
+
+    b = torch.load(path, map_location="cpu", weights_only=False)
+    tc = tc or TrainConfig(**b["train"])
+    torch.set_num_threads(tc.threads)
+    model, _, cfg, info = load_bundle(path, with_heads=False)
+    geo = DomeGeometry(cfg)
+    tr, _ = load_sets(tc, cfg)
+    btr = Batcher(b["kind"], tr, geo, f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
+    heads = {"p": train_force(model, btr, tc, True, log), "nop": train_force(model, btr, tc, False, log)}
+    save_bundle(path, b["kind"], model, heads, cfg, tc, info)
+    return info
+
+
 def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: TrainConfig, info: dict) -> None:
     """Weights in float16 (they are small; halves the shipped size) plus configs."""
     import torch
@@ -215,7 +231,7 @@ def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: 
                path)
 
 
-def load_bundle(path: Path):
+def load_bundle(path: Path, with_heads: bool = True):
     """-> (model, {"p": head, "nop": head}, DomeConfig, info) in eval mode, float32."""
     import torch
 
@@ -229,7 +245,7 @@ def load_bundle(path: Path):
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
     heads = {}
     for key, use_p in (("p", True), ("nop", False)):
-        if f"force_{key}" in b:
+        if with_heads and f"force_{key}" in b:
             h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
             h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[f"force_{key}"].items()})
             heads[key] = h.eval()

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         n_test: int = typer.Option(300, "--n-test", min=8),
         epochs_coarse: int = typer.Option(8, "--epochs-coarse", min=1),
         epochs_fine: int = typer.Option(6, "--epochs-fine", min=1),
-        epochs_force: int = typer.Option(8, "--epochs-force", min=1),
+        epochs_force: int = typer.Option(20, "--epochs-force", min=1),
         seed: int = typer.Option(0, "--seed"),
         methods: str = typer.Option("gnn,cnn", "--methods", help="comma list of gnn, cnn"),
         jobs: int = typer.Option(2, "--jobs", min=1, help="methods trained in parallel, 1 thread each"),
@@ -111,3 +111,25 @@ def register(app: typer.Typer) -> None:
         if out:
             paths = res.save(out)
             typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
+
+    @dome_app.command("tactip")
+    def tactip(
+        json_out: Path = typer.Option(None, "--json", help="write the per-set results as JSON"),
+        epochs: int = typer.Option(60, "--epochs", min=1, help="GNN pose-regressor epochs"),
+        root: Path = typer.Option(None, "--root", help="tactip_frames folder (default: shared data)"),
+    ) -> None:
+        """Real TacTip frames: marker-count stability, track continuity, depth/roll regression (80/20 split)."""
+        import json
+
+        import torch
+
+        from vtrack.dome.tactip import analyse_all
+        from vtrack_apps.output import print_table
+
+        torch.set_num_threads(1)
+        res = analyse_all(root, epochs=epochs)
+        print_table("dome tactip", res)
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            json_out.write_text(json.dumps(res, indent=1))
+            typer.echo(f"wrote {json_out}")
