@@ -55,8 +55,10 @@ class _SDFNet:
         self.tables = nn.ParameterList([
             nn.Parameter((torch.rand(((r + 1) ** 3, features), generator=g) * 2 - 1) * 1e-4) for r in self.res])
         d_in = features * len(self.res) + 3
-        self.mlp = nn.Sequential(nn.Linear(d_in, hidden), nn.Softplus(beta=100), nn.Linear(hidden, hidden),
-                                 nn.Softplus(beta=100), nn.Linear(hidden, 1))
+        with torch.random.fork_rng(devices=[]):  # seeded MLP init, global RNG left untouched
+            torch.manual_seed(seed)
+            self.mlp = nn.Sequential(nn.Linear(d_in, hidden), nn.Softplus(beta=100), nn.Linear(hidden, hidden),
+                                     nn.Softplus(beta=100), nn.Linear(hidden, 1))
         with torch.no_grad():
             self.mlp[-1].weight.mul_(0.01)
             self.mlp[-1].bias.zero_()
