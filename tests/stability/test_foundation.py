@@ -102,3 +102,17 @@ def test_empty_stream_and_single_frame_sampling(tmp_path: Path) -> None:
     assert np.allclose(T, np.eye(4))
     with pytest.raises(InputError, match="finite"):
         r["gt/object_pose"].sample("T_world_object", [np.nan])
+
+
+def test_depth_encoding_marks_out_of_range_as_missing() -> None:
+    from vtrack.io.streams import encode_depth
+
+    d = np.array([[0.0005, 0.0015, 1.2344, 65.535], [65.6, np.nan, -np.inf, -0.2]])
+    out = encode_depth(d, 0.001)
+    # Round to nearest mm; beyond the uint16 range and invalid values become 0 ("no measurement").
+    assert out.dtype == np.uint16
+    assert out.tolist() == [[0, 2, 1234, 65535], [0, 0, 0, 0]]
+    raw = np.array([[1, 2]], np.uint16)
+    assert encode_depth(raw) is raw
+    with pytest.raises(InputError, match="depth"):
+        encode_depth(np.array([["a"]]))

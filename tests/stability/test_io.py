@@ -60,7 +60,8 @@ def _img(enc, h, w, data, step, big=0):
 
 
 def test_ros_image_decoding_edge_cases():
-    from vtrack.io.importers.ros_messages import decode_image, depth_to_u16_mm
+    from vtrack.io.importers.ros_messages import decode_image
+    from vtrack.io.streams import encode_depth
 
     d = np.arange(12, dtype=">u2").reshape(3, 4)  # big-endian 16UC1
     out = decode_image(_img("16UC1", 3, 4, d.tobytes(), 8, big=1), "sensor_msgs/msg/Image", "t")
@@ -70,7 +71,7 @@ def test_ros_image_decoding_edge_cases():
     out = decode_image(_img("rgb8", 2, 2, padded.tobytes(), 8), "sensor_msgs/Image", "t")
     np.testing.assert_array_equal(out[1, 1], [3, 4, 5])
     f = np.array([[0.5, np.nan], [np.inf, -1.0]], np.float32)
-    out = depth_to_u16_mm(decode_image(_img("32FC1", 2, 2, f.tobytes(), 8), "sensor_msgs/msg/Image", "t"))
+    out = encode_depth(decode_image(_img("32FC1", 2, 2, f.tobytes(), 8), "sensor_msgs/msg/Image", "t"))
     np.testing.assert_array_equal(out, [[500, 0], [0, 0]])
     with pytest.raises(InputError, match="truncated"):
         decode_image(_img("rgb8", 4, 4, b"\x00" * 10, 12), "sensor_msgs/msg/Image", "bag:/cam")

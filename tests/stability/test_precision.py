@@ -200,14 +200,13 @@ def _depths(n=4000, seed=2):
 def test_depth_uint16_mm_quantisation_roundtrip_within_half_mm():
     """Importers (feelsight float32 path, ROS 32FC1) quantise metres to uint16 mm; camera converts back."""
     from vtrack.geometry.camera import PinholeCamera
-    from vtrack.io.importers.feelsight import _depth_to_u16
-    from vtrack.io.importers.ros_messages import depth_to_u16_mm
+    from vtrack.io.streams import encode_depth
 
     d = _depths()
     cam = PinholeCamera(fx=500.0, fy=500.0, cx=40.0, cy=25.0, width=80, height=50)
     img = d.reshape(50, 80)
-    for name, q in (("feelsight float32", _depth_to_u16(img.astype(np.float32), 0.001)),
-                    ("ros 32FC1", depth_to_u16_mm(img.astype(np.float32)))):
+    for name, q in (("float32 metres", encode_depth(img.astype(np.float32), 0.001)),
+                    ("float64 metres", encode_depth(img.astype(np.float64), 0.001))):
         assert q.dtype == np.uint16
         back = cam.depth_to_meters(q, 0.001)
         err = float(np.abs(back - img).max())

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vtrack.errors import InputError
 from vtrack.io.session import FieldSpec, StreamSpec
 
 
@@ -73,3 +74,24 @@ def pose_stream(field: str = "T_world_object", rate_hz: float | None = None, fra
 
 def scalar_stream(field: str, units: str = "", kind: str = "scalar", rate_hz: float | None = None) -> StreamSpec:
     return StreamSpec(kind=kind, rate_hz=rate_hz, fields={field: FieldSpec((), "float32", units)})
+
+
+def encode_depth(depth: np.ndarray, depth_scale: float = 0.001) -> np.ndarray:
+    """Depth image -> uint16 in units of ``depth_scale`` metres (0.001 = mm), rounding to nearest.
+
+    Float input is metres; uint16 input is passed through (already in sensor units). Invalid pixels
+    (NaN, Inf, <= 0) and depths beyond the uint16 range become 0, the "no measurement" value: a
+    saturated 65535 would look like a valid far reading.
+    """
+    d = np.asarray(depth)
+    if d.dtype == np.uint16:
+        return d
+    if d.dtype.kind in "ui":
+        d = d.astype(np.float64) * depth_scale
+    if d.dtype.kind != "f":
+        raise InputError("depth must be float metres or uint16 sensor units", field="depth",
+                         expected="float32/float64 or uint16", got=str(d.dtype))
+    with np.errstate(invalid="ignore", over="ignore"):
+        units = np.rint(d.astype(np.float64) / depth_scale)
+        valid = np.isfinite(units) & (units > 0) & (units <= 65535)
+    return np.where(valid, units, 0).astype(np.uint16)

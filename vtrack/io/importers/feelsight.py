@@ -38,6 +38,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.io.importers.report import ImportReport
+from vtrack.io.streams import encode_depth
 
 FINGERS = ("index", "middle", "ring", "thumb")
 ALLEGRO_JOINTS = [f"joint_{i}.0" for i in range(16)]
@@ -189,17 +190,6 @@ class DepthFrames:
             raise InputError(f"depth archive ends at frame {i}", path=self.path, expected=f"{len(self)} frames")
         self._next = i + 1
         return np.frombuffer(buf, self.dtype).reshape(self.shape[1:])
-
-
-def _depth_to_u16(d: np.ndarray, depth_scale: float) -> np.ndarray:
-    """Depth frame -> uint16 in ``depth_scale`` m units; invalid (NaN/Inf/<=0) -> 0."""
-    if d.dtype.kind == "f":
-        m = np.asarray(d, np.float32) * np.float32(1.0 / depth_scale)  # float32: half the memory traffic
-        m[~np.isfinite(m)] = 0.0
-        np.clip(m, 0.0, 65535.0, out=m)
-        np.rint(m, out=m)
-        return m.astype(np.uint16)
-    return np.clip(d, 0, 65535).astype(np.uint16)
 
 
 def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = False, flush_every: int = 256,
@@ -413,7 +403,7 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
             for cname, (depth, scale, with_mask) in cam_specs.items():
                 c = cams[cname]
                 rgb = cv2.cvtColor(_imread(c["image"][i], 1), cv2.COLOR_BGR2RGB)
-                d = _depth_to_u16(depth[i], scale)
+                d = encode_depth(depth[i], scale)
                 vals = {"rgb": rgb, "depth": d}
                 if with_mask:
                     vals["mask"] = (_imread(c["seg"][i], 0) > 127).astype(np.uint8)

@@ -28,6 +28,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.io.importers.report import ImportReport
+from vtrack.io.streams import encode_depth
 
 IMAGE_TYPES = {"sensor_msgs/msg/Image", "sensor_msgs/Image"}
 COMPRESSED_TYPES = {"sensor_msgs/msg/CompressedImage", "sensor_msgs/CompressedImage"}
@@ -141,16 +142,6 @@ def decode_image(msg: Any, msgtype: str, where: str) -> np.ndarray:
     elif enc == "bgra8":
         arr = arr[..., 2::-1]
     return np.ascontiguousarray(arr)
-
-
-def depth_to_u16_mm(d: np.ndarray) -> np.ndarray:
-    """Depth image (uint16 mm or float32 m) -> uint16 mm with invalid pixels 0."""
-    if d.dtype == np.uint16:
-        return d
-    if d.dtype.kind == "f":
-        mm = np.where(np.isfinite(d) & (d > 0), d * 1000.0, 0.0)
-        return np.clip(np.rint(mm), 0, 65535).astype(np.uint16)
-    raise InputError("depth image must be 16UC1 (mm) or 32FC1 (m)", got=str(d.dtype))
 
 
 class _Cam:
@@ -276,7 +267,7 @@ class RosSessionBuilder:
             if img.ndim != 2:
                 self.report.skip(f"topic {topic}: depth image with channels")
                 return
-            cam.depth.append((t, depth_to_u16_mm(img)))
+            cam.depth.append((t, encode_depth(img, 0.001)))
         else:
             if img.ndim == 2:
                 img = np.repeat(img[..., None], 3, axis=2)
