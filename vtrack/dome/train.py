@@ -32,6 +32,8 @@ class TrainConfig:
     lr: float = 2e-3
     hidden: int = 64
     threads: int = 1
+    gnn_k: int = 4  # markers interpolated per coarse template point
+    gnn_layers: int = 3  # GINE layers
 
 
 def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple[dict, dict]:
@@ -41,11 +43,11 @@ def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple
             make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress))
 
 
-def build_model(kind: str, geo: DomeGeometry, hidden: int = 64):
+def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 8, gnn_layers: int = 4):
     from vtrack.dome.nets import DomeCNN, DomeGNN
 
     if kind == "gnn":
-        return DomeGNN(geo, hidden)
+        return DomeGNN(geo, hidden, gnn_layers, gnn_k)
     if kind == "cnn":
         return DomeCNN(geo, hidden)
     raise ValueError(f"unknown model kind {kind!r} (gnn | cnn)")
@@ -120,7 +122,7 @@ def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
     import torch
 
     torch.manual_seed(tc.seed)
-    model = build_model(kind, train.geo, tc.hidden)
+    model = build_model(kind, train.geo, tc.hidden, tc.gnn_k, tc.gnn_layers)
     nbr = _dense_graph(train.geo)
     rng = np.random.default_rng(tc.seed)
     n = len(train)
@@ -241,7 +243,8 @@ def load_bundle(path: Path, with_heads: bool = True):
     cfg = DomeConfig(**b["cfg"])
     geo = DomeGeometry(cfg)
     hidden = b["train"]["hidden"]
-    model = build_model(b["kind"], geo, hidden)
+    # bundles written before these options existed used 4 markers and 3 layers
+    model = build_model(b["kind"], geo, hidden, b["train"].get("gnn_k", 4), b["train"].get("gnn_layers", 3))
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
     heads = {}
     for key, use_p in (("p", True), ("nop", False)):
