@@ -19,7 +19,7 @@ from vtrack.errors import InputError
 METHODS = ("neural_sdf", "tsdf")
 
 #: per-method default options (overridable through ``**opts``)
-NEURAL_DEFAULTS: dict[str, Any] = {"n_iters": 600}
+NEURAL_DEFAULTS: dict[str, Any] = {"n_iters": 400}
 
 
 def _parse_modalities(modalities: Any) -> tuple[str, ...]:
