@@ -281,6 +281,11 @@ def _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px,
         t = hit["t"]
         # probe_mm > 0 reports surfaces up to probe_mm *outside* the gel as negative heights.
         h = np.where(np.isfinite(t), (thk - t) * 1000.0, -np.inf)  # z_hit = -thk + t
+        # A first hit on a back face (normal along the ray) means the ray started inside the object:
+        # the gel is buried, i.e. fully indented. Without this a finger stepping past the thin
+        # surface shell between two scan levels reads "no contact" and closes through the object.
+        inside = np.isfinite(t) & (np.einsum("...i,...i->...", hit["normal"], d) > 0)
+        h = np.where(inside, thickness_mm, h)
         out[i0:i0 + chunk] = np.clip(h, -probe_mm, thickness_mm).reshape(len(T), len(rows), len(cols))
     return out
 
