@@ -43,7 +43,7 @@ def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple
             make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress))
 
 
-def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 8, gnn_layers: int = 4):
+def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 4, gnn_layers: int = 3):
     from vtrack.dome.nets import DomeCNN, DomeGNN
 
     if kind == "gnn":
