@@ -64,12 +64,14 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
         from vtrack.fusion.reconstruct import reconstruct_session
 
         summary["stages"]["reconstruct"] = reconstruct_session(session_dir, out / "reconstruction",
-                                                               method=scene.pipeline.reconstruction)
+                                                               method=scene.pipeline.reconstruction,
+                                                               modalities=tuple(scene.effective_modalities))
     if session_dir is not None and scene.pipeline.tracking != "off" and _available("vtrack.tracking.run"):
         from vtrack.tracking.run import track_session
 
         shape = "slam" if scene.pipeline.tracking == "slam" else "known"
-        summary["stages"]["track"] = track_session(session_dir, out / "tracking", shape=shape)
+        summary["stages"]["track"] = track_session(session_dir, out / "tracking", shape=shape,
+                                                   modalities=tuple(scene.effective_modalities))
     produced = any(k in summary["stages"] for k in ("generate", "reconstruct", "track"))
     if produced and _available("vtrack.viz.screenshot"):
         from vtrack.viz.screenshot import render_result

@@ -2,40 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
-import numpy as np
+from vtrack.io.jsonio import to_jsonable, write_json
+
+__all__ = ["print_table", "progress", "report", "to_jsonable", "write_json"]
 
 T = TypeVar("T")
-
-
-def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays and paths for ``json.dump``; non-finite floats become None."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def write_json(path: str | Path, data: Any) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(to_jsonable(data), indent=2))
-    tmp.replace(path)
-    return path
 
 
 def print_table(title: str, rows: dict[str, Any] | list[dict[str, Any]]) -> None:

@@ -222,3 +222,17 @@ def test_lipschitz_envelope():
     e = lipschitz_envelope(s, 0.1)
     np.testing.assert_allclose(e, [0.4, 0.3, 0.2, 0.2, 0.3, 0.4, 0.5, 0.6])
     assert np.all(e <= s) and np.abs(np.diff(e)).max() <= 0.1 + 1e-12
+
+
+def test_inside_out_mesh_is_loaded_with_outward_winding(tmp_path) -> None:
+    """The gel ray caster reads back-face hits as a buried gel, so the loader must fix inverted meshes."""
+    import trimesh
+
+    from vtrack.sim.objects import load_object_mesh
+
+    box = trimesh.creation.box((0.04, 0.05, 0.06))
+    box.invert()
+    assert box.volume < 0
+    box.export(tmp_path / "inside_out.ply")
+    m = load_object_mesh(tmp_path / "inside_out.ply")
+    assert trimesh.Trimesh(m.vertices, m.faces, process=False).volume > 0

@@ -149,8 +149,8 @@ class UnifiedCloud:
         colors = np.where(self.modality[:, None] == TOUCH, [[230, 60, 40]], [[60, 120, 220]]).astype(np.uint8)
         return write_ply_points(path, self.xyz, normals=self.normal, colors=colors, scalars={
             "modality": self.modality.astype(np.int32), "sensor_id": self.sensor_id.astype(np.int32),
-            "t": self.t.astype(np.float32), "confidence": self.confidence,
-            "tactile_value": self.tactile_value})
+            "t": self.t.astype(np.float64), "confidence": self.confidence.astype(np.float32),
+            "tactile_value": self.tactile_value.astype(np.float32)})
 
 
 # -- builders -----------------------------------------------------------------------------------

@@ -7,7 +7,6 @@ frame) when it exists.
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.io.jsonio import write_json
 
 METHODS = ("neural_sdf", "tsdf")
 
@@ -167,28 +167,11 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
             metrics["screenshot"] = "screenshot.png"
         except Exception as e:  # no display / VTK problem must not lose the reconstruction
             metrics["screenshot_error"] = f"{type(e).__name__}: {e}"
-    _write_json(out / "metrics.json", metrics)
-    _write_json(out / "result.json", {"kind": "reconstruction", "session": str(reader.path), "method": method,
+    write_json(out / "metrics.json", metrics)
+    write_json(out / "result.json", {"kind": "reconstruction", "session": str(reader.path), "method": method,
                                       "modalities": list(mods), "mesh": "mesh.ply", "cloud": "cloud.ply",
                                       "metrics": "metrics.json"})
     return metrics
-
-
-def _write_json(path: Path, data: Any) -> None:
-    def conv(o: Any) -> Any:
-        if isinstance(o, dict):
-            return {str(k): conv(v) for k, v in o.items()}
-        if isinstance(o, (list, tuple)):
-            return [conv(v) for v in o]
-        if isinstance(o, np.generic):
-            o = o.item()
-        if isinstance(o, float) and not np.isfinite(o):
-            return None
-        return o
-
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(conv(data), indent=2))
-    tmp.replace(path)
 
 
 def _write_empty_mesh(path: Path) -> None:

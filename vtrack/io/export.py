@@ -18,8 +18,9 @@ def write_ply_points(path: str | Path, points: np.ndarray, *, colors: np.ndarray
         points: (N, 3) metres.
         colors: optional (N, 3) uint8 RGB (or floats in [0, 1]).
         normals: optional (N, 3).
-        scalars: optional extra per-point fields (e.g. ``modality``, ``confidence``), written as float32
-            or int32 properties that Open3D/MeshLab/CloudCompare keep.
+        scalars: optional extra per-point fields (e.g. ``modality``, ``confidence``), written as int32
+            (integer/bool), double (float64) or float (other floats) properties that Open3D/MeshLab/
+            CloudCompare keep.
     """
     P = as_points(points)
     n = len(P)
@@ -38,12 +39,14 @@ def write_ply_points(path: str | Path, points: np.ndarray, *, colors: np.ndarray
         if len(v) != n:
             raise InputError("scalar field length differs from the number of points", field=name,
                              expected=str(n), got=len(v))
-        cols.append((name, "i4" if v.dtype.kind in "uib" else "f4", v))
+        # float64 stays double: e.g. epoch timestamps need it (float32 steps are 128 s apart there).
+        kind = "i4" if v.dtype.kind in "uib" else ("f8" if v.dtype == np.float64 else "f4")
+        cols.append((name, kind, v))
     dtype = np.dtype([(c, "<" + t) for c, t, _ in cols])
     arr = np.empty(n, dtype=dtype)
     for c, _, v in cols:
         arr[c] = v
-    ply_type = {"f4": "float", "u1": "uchar", "i4": "int"}
+    ply_type = {"f4": "float", "f8": "double", "u1": "uchar", "i4": "int"}
     header = ["ply", "format binary_little_endian 1.0", "comment vtrack point cloud (metres)", f"element vertex {n}"]
     header += [f"property {ply_type[t]} {c}" for c, t, _ in cols]
     header.append("end_header")

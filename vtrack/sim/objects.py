@@ -55,6 +55,12 @@ def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
                          field="object.mesh") from None
     if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
         raise InputError("object mesh has no triangles", path=path, field="object.mesh")
+    # Outward winding matters: the gel ray caster reads a back-face hit as "gel buried in the object".
+    if m.is_watertight:
+        if m.volume < 0:
+            m.invert()
+    else:
+        trimesh.repair.fix_normals(m)
     v = np.asarray(m.vertices, dtype=np.float64) * float(scale)
     if not np.all(np.isfinite(v)):
         raise InputError("object mesh has non-finite vertices", path=path, field="object.mesh")

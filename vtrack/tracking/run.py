@@ -17,7 +17,6 @@ ground truth, the scene's ``object.T_world_object``.
 from __future__ import annotations
 
 import csv
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry import se3
+from vtrack.io.jsonio import write_json
 
 SHAPES = ("known", "slam")
 METHODS = ("ours", "icp")
@@ -184,10 +184,10 @@ def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
                 row += [*[f"{v:.7f}" for v in gt[i, :3, 3]], *[f"{v:.7f}" for v in qg[i]]]
             row += [status[i], f"{ms[i]:.3f}"]
             w.writerow(row)
-    (out / "metrics.json").write_text(json.dumps(_jsonable(metrics), indent=2))
-    (out / "result.json").write_text(json.dumps({"kind": "tracking", "session": str(frames.path.resolve()),
-                                                 "mode": metrics["mode"], "modalities": metrics["modalities"],
-                                                 "files": ["poses.csv", "metrics.json", "error.png"]}, indent=2))
+    write_json(out / "metrics.json", metrics)
+    write_json(out / "result.json", {"kind": "tracking", "session": str(frames.path.resolve()),
+                                     "mode": metrics["mode"], "modalities": metrics["modalities"],
+                                     "files": ["poses.csv", "metrics.json", "error.png"]})
     if errors is not None:
         lost = np.array([s in ("lost",) for s in status])
         plot_errors(frames.times, errors, out / "error.png",
@@ -195,13 +195,3 @@ def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
                           f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics['add_s_mm']:.2f} mm", lost=lost)
 
 
-def _jsonable(o: Any) -> Any:
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not np.isfinite(o):
-        return None
-    return o
