@@ -29,8 +29,14 @@ def _available(module: str) -> bool:
 
 
 def scene_digest(scene) -> str:
-    """Short hash of a scene's content (cache key for generated sessions)."""
-    return hashlib.sha1(json.dumps(scene.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
+    """Short hash of a scene's content and of the generator's code (cache key for generated sessions):
+    a changed simulator must not silently reuse sessions it would no longer produce."""
+    h = hashlib.sha1(json.dumps(scene.to_dict(), sort_keys=True).encode())
+    root = Path(__file__).resolve().parent
+    for sub in ("sim", "kinematics", "tactile"):
+        for f in sorted((root / sub).glob("*.py")):
+            h.update(f.read_bytes())
+    return h.hexdigest()[:12]
 
 
 def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "results/demo",
