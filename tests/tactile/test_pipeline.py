@@ -114,3 +114,18 @@ def test_solvers_in_pipeline(solver):
     assert np.abs(f.height_mm[h == 0]).max() < 0.1 * h.max()
     with pytest.raises(InputError):
         TactilePipeline(None, mm_per_px=S, solver="bogus")
+
+
+def test_auto_downsample_follows_the_benchmark_operating_points():
+    """The default working resolution is picked from the image size (Pareto front of `vtrack bench tactile`)."""
+    from vtrack.tactile.pipeline import auto_downsample
+
+    assert auto_downsample((120, 160)) == 1
+    assert auto_downsample((240, 320)) == 2 and auto_downsample((320, 240)) == 2  # GelSight Mini, DIGIT
+    assert auto_downsample((480, 640)) == 4
+    bg = np.full((240, 320, 3), 120, np.uint8)
+    pipe = TactilePipeline(None, mm_per_px=0.06, background=bg)
+    assert pipe.downsample == 2
+    assert TactilePipeline(None, mm_per_px=0.06, background=bg, downsample=1).downsample == 1
+    with pytest.raises(InputError, match="downsample"):
+        TactilePipeline(None, mm_per_px=0.06, background=bg, downsample="fast")

@@ -78,6 +78,16 @@ def _sim_background(spec: Any) -> np.ndarray | None:
         return None
 
 
+def auto_downsample(shape_hw: tuple[int, int]) -> int:
+    """Working-resolution factor chosen from the tactile benchmark's Pareto front (see TactilePipeline)."""
+    pixels = int(shape_hw[0]) * int(shape_hw[1])
+    if pixels >= 640 * 480:
+        return 4
+    if pixels >= 320 * 240:
+        return 2
+    return 1
+
+
 class TactilePipeline:
     """Image -> height -> contact -> points for one vision-based tactile sensor.
 
@@ -87,7 +97,11 @@ class TactilePipeline:
         mm_per_px: pixel pitch (default: the calibration's).
         background: no-contact BGR frame (default: the calibration's; with neither, the first frame).
         solver: ``dct`` (default), ``fft`` or ``lsq`` (masked sparse LSQ on the colour-change region).
-        downsample: working-resolution factor for slopes + Poisson (1 = full resolution).
+        downsample: working-resolution factor for slopes + Poisson (1 = full resolution); outputs are
+            resized back to full resolution. ``"auto"`` (default) picks the operating point on the Pareto
+            front of ``vtrack bench tactile`` (docs/benchmarks/tactile.md) from the image size: 1 below
+            320x240 pixels, 2 from 320x240 (~3 ms/frame, normal error within 0.3 deg of full resolution),
+            4 from 640x480 (full resolution there costs 5x the time for no accuracy gain).
         contact_threshold_mm: minimum indentation counted as contact (noise-aware floor, see contact.py).
         contact_rel: also require ``h > contact_rel * max(h)`` (rejects the deformed skirt around a contact).
         point_stride: keep every n-th contact pixel (in working pixels) as a point.
@@ -103,7 +117,7 @@ class TactilePipeline:
 
     def __init__(self, calib: Calibration | str | Path | None = None, *, mm_per_px: float | None = None,
                  background: np.ndarray | None = None, image_shape: tuple[int, int] | None = None,
-                 solver: str = "dct", downsample: int = 1, contact_threshold_mm: float = 0.05,
+                 solver: str = "dct", downsample: int | str = "auto", contact_threshold_mm: float = 0.05,
                  contact_rel: float = 0.15,
                  point_stride: int = 1, markers: bool = False, slip: bool = False, force_model: Any = None,
                  drift_compensation: bool = True, drift_max_spread: float = 6.0, gate_k: float = 2.0,
@@ -113,8 +127,11 @@ class TactilePipeline:
             calib = Calibration.load(calib)
         if solver not in ("dct", "fft", "lsq"):
             raise InputError("unknown Poisson solver", field="solver", expected="dct | fft | lsq", got=solver)
-        if int(downsample) < 1:
-            raise InputError("downsample must be >= 1", field="downsample", got=downsample)
+        self._auto_downsample = downsample == "auto"
+        if self._auto_downsample:
+            downsample = 1  # resolved from the image size in set_background
+        elif not isinstance(downsample, (int, np.integer)) or int(downsample) < 1:
+            raise InputError("downsample must be an integer >= 1 or 'auto'", field="downsample", got=downsample)
         self.sensor_name = sensor_name
         self.calib = calib
         self.mm_per_px = float(mm_per_px if mm_per_px is not None else (calib.mm_per_px if calib else 0.0))
@@ -217,6 +234,8 @@ class TactilePipeline:
     def set_background(self, background: np.ndarray) -> None:
         """Set the no-contact reference frame (e.g. re-taken when the lighting drifts)."""
         bg = self._check(background, "background")
+        if self._auto_downsample:
+            self.downsample = auto_downsample(bg.shape[:2])
         if self.image_shape is None:
             self.image_shape = bg.shape[:2]
         self._bg_full = bg
