@@ -95,18 +95,13 @@ class BenchTable:
 
     def pareto_mask(self) -> np.ndarray:
         """Rows not dominated in (time, error): nothing else is both faster and better."""
+        from vtrack.viz.plots import pareto_front
+
         if not self.rows:
             return np.zeros(0, dtype=bool)
-        t = np.array([float(r.get(self.time_key, np.nan)) for r in self.rows])
-        e = np.array([float(r.get(self.error_key, np.nan)) for r in self.rows])
-        if self.higher_is_better:
-            e = -e
-        ok = np.isfinite(t) & np.isfinite(e)
-        mask = np.zeros(len(t), dtype=bool)
-        for i in np.nonzero(ok)[0]:
-            dominated = ok & (t <= t[i]) & (e <= e[i]) & ((t < t[i]) | (e < e[i]))
-            mask[i] = not dominated.any()
-        return mask
+        t = [float(r.get(self.time_key, np.nan)) for r in self.rows]
+        e = [float(r.get(self.error_key, np.nan)) for r in self.rows]
+        return pareto_front(t, e, self.higher_is_better)
 
 
 def _fmt(v: Any) -> str:
@@ -158,37 +153,12 @@ def write_results(table: BenchTable, out_dir: Path | None = None, columns: list[
 
 
 def plot_pareto(table: BenchTable, path: Path) -> None:
-    """Scatter of error against time per method, Pareto front highlighted (log-x)."""
-    import matplotlib
+    """Scatter of error against time per method, Pareto front highlighted (shared with the viewer's plots)."""
+    from vtrack.viz.plots import plot_speed_vs_error
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=110)
-    methods = list(dict.fromkeys(str(r.get("method", "")) for r in table.rows))
-    t = np.array([float(r.get(table.time_key, np.nan)) for r in table.rows])
-    e = np.array([float(r.get(table.error_key, np.nan)) for r in table.rows])
-    for m in methods:
-        idx = [i for i, r in enumerate(table.rows) if str(r.get("method", "")) == m]
-        ax.scatter(t[idx], e[idx], label=m, s=36)
-        for i in idx:
-            s = table.rows[i].get("setting", "")
-            if s != "":
-                ax.annotate(str(s), (t[i], e[i]), fontsize=6, alpha=0.7, xytext=(3, 3), textcoords="offset points")
-    mask = table.pareto_mask()
-    if mask.any():
-        order = np.argsort(t[mask])
-        ax.plot(t[mask][order], e[mask][order], "k--", lw=1, alpha=0.6, label="Pareto front")
-    if np.all(t[np.isfinite(t)] > 0) and np.isfinite(t).any():
-        ax.set_xscale("log")
-    ax.set_xlabel(f"{table.time_key} (lower is faster)")
-    ax.set_ylabel(f"{table.error_key} ({'higher' if table.higher_is_better else 'lower'} is better)")
-    ax.set_title(f"{table.stage}: speed against error")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    if table.rows:
+        plot_speed_vs_error(path, table.rows, time_key=table.time_key, error_key=table.error_key,
+                            higher_is_better=table.higher_is_better, title=f"{table.stage}: speed against error")
 
 
 def _update_index(out_dir: Path) -> None:
