@@ -40,9 +40,12 @@ class ICPTracker:
 
         self._o3d = o3d
         V, F = load_mesh_arrays(mesh)
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
-        m.compute_triangle_normals()
-        self.model = m.sample_points_uniformly(n_model, use_triangle_normal=True)
+        from vtrack.eval.reconstruction import sample_surface
+
+        # Seeded sampling: Open3D's sample_points_uniformly uses an unseeded RNG (irreproducible runs).
+        P, N = sample_surface(V, F, n_model, seed=0)
+        self.model = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+        self.model.normals = o3d.utility.Vector3dVector(N)
         self.max_corr, self.iterations, self.max_points = max_corr, iterations, max_points
         self.T = np.asarray(T_init, dtype=np.float64).copy()
         self.velocity = np.zeros(6)

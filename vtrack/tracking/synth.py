@@ -36,21 +36,6 @@ class SynthSequence:
 _OCCLUSION_KEEP = {"none": 1.0, "medium": 0.5, "heavy": 0.15}
 
 
-def _sample_surface(V: np.ndarray, F: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` points uniformly by area on a triangle mesh, with their triangles' unit normals."""
-    tri = np.asarray(V, np.float64)[np.asarray(F)]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area = 0.5 * np.linalg.norm(cross, axis=1)
-    idx = rng.choice(len(F), n, p=area / area.sum())
-    u, v = rng.random((2, n))
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    t = tri[idx]
-    P = t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0])
-    N = cross[idx] / np.maximum(2.0 * area[idx, None], 1e-300)
-    return P, N
-
-
 def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: float = 0.6,
                   axis=(0.3, 0.2, 1.0), trans_amp: float = 0.006, occlusion: str = "none",
                   depth_noise: float = 0.001, touch_noise: float = 0.0002, n_fingers: int = 3,
@@ -74,7 +59,9 @@ def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: f
     scene.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(F.astype(np.uint32)))
     # Dense surface samples with normals for contact patches, drawn from the sequence's own seeded
     # generator (Open3D's sampler uses an unseeded global RNG: sequences differed between processes).
-    S, SN = _sample_surface(V, F, 20000, np.random.default_rng([seed, 1]))
+    from vtrack.eval.reconstruction import sample_surface
+
+    S, SN = sample_surface(V, F, 20000, seed=seed + 1)
 
     ax = np.asarray(axis, float)
     ax /= np.linalg.norm(ax)
