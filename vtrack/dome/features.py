@@ -1,7 +1,8 @@
 """Image -> network inputs: marker-graph tensors (GNN) and normalised image pairs (CNN), plus caching.
 
-The GNN node input is the S5 descriptor plus the displacement (units of half the image size) from the
-nearest marker of the sensor's reference (no-contact) frame; marker positions are back-projected onto the
+The GNN node input is the S5 descriptor plus reference-relative features from the one-to-one match of
+each marker to the sensor's reference (no-contact) frame: displacement (units of the rest-marker spacing),
+area and radius change, matched flag; marker positions are back-projected onto the
 rest dome (unit directions) so the decoder can carry their features to the template.
 """
 
@@ -12,22 +13,79 @@ from pathlib import Path
 
 import numpy as np
 
-from vtrack.dome.markers import EDGE_DIM, build_graph, extract_markers
-from vtrack.dome.model import DomeGeometry, knn_np
+from vtrack.dome.markers import EDGE_DIM, NODE_DIM, MarkerSet, build_graph, extract_markers
+from vtrack.dome.model import DomeGeometry
+
+FEATURE_VERSION = 2  # bump when the node features change: it salts the graph cache key
+REL_DIM = 5  # reference-relative node features appended to the S5 descriptor
 
 
-def graph_arrays(image: np.ndarray, ref_centers: np.ndarray, geo: DomeGeometry) -> dict[str, np.ndarray]:
-    """Marker graph of one image as arrays: x (n, 10), edge_index (2, m), edge_attr (m, 5), pos (n, 3)."""
+def match_reference(ms: MarkerSet, ref: MarkerSet, half: float) -> np.ndarray:
+    """Reference-relative node features (n, 5) float32: ``[dx, dy, d_area, d_r, matched]``.
+
+    Each detected marker is matched one-to-one to a rest marker of the no-contact reference frame
+    (Hungarian assignment on pixel distance, ``scipy.optimize.linear_sum_assignment``), gated at 0.75
+    of the median rest-marker spacing so a vanished/merged marker does not steal a far partner. ``dx, dy``
+    is the image displacement from the partner in units of the median rest-marker spacing (a fixed
+normalisation of the image coordinates, ~8 px at 160 px for the simulated dome); unmatched markers take
+    their nearest rest marker for ``dx, dy`` and get ``matched = 0``. ``d_area`` is the area change in
+    units of the median rest area; ``d_r`` the change of equivalent radius sqrt(area/pi) in units of the
+    median rest radius (both 0 when unmatched, or when the reference has no areas).
+    """
+    from scipy.optimize import linear_sum_assignment
+    from scipy.spatial import cKDTree
+
+    n, m = len(ms), len(ref)
+    out = np.zeros((n, REL_DIM), np.float32)
+    if n == 0 or m == 0:
+        return out
+    d = np.linalg.norm(ms.centers[:, None, :] - ref.centers[None, :, :], axis=-1)
+    if m >= 2:
+        nn_d, _ = cKDTree(ref.centers).query(ref.centers, k=2)
+        spacing = max(float(np.median(nn_d[:, 1])), 1e-6)
+        gate = 0.75 * spacing
+    else:
+        spacing, gate = half, np.inf
+    big = 1e6
+    rows, cols = linear_sum_assignment(np.where(d <= gate, d, big))
+    keep = d[rows, cols] <= gate
+    partner = d.argmin(1)
+    matched = np.zeros(n, bool)
+    partner[rows[keep]] = cols[keep]
+    matched[rows[keep]] = True
+    # in rest-marker spacings, not half-image units: displacements are 1-3 px, i.e. ~0.01-0.04 of half
+    # the image, too small next to the O(1) S5 fields for the input MLP to pick up within the budget
+    out[:, :2] = (ms.centers - ref.centers[partner]) / spacing
+    ra = np.asarray(ref.areas, np.float64)
+    if len(ra) == m and np.all(np.isfinite(ra)) and float(np.median(ra)) > 0:
+        med = float(np.median(ra))
+        da = (ms.areas - ra[partner]) / med
+        dr = (np.sqrt(ms.areas) - np.sqrt(ra[partner])) / np.sqrt(med)
+        out[:, 2] = np.where(matched, da, 0.0)
+        out[:, 3] = np.where(matched, dr, 0.0)
+    out[:, 4] = matched
+    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+
+
+def _as_reference(ref: MarkerSet | np.ndarray) -> MarkerSet:
+    """Accept a reference MarkerSet, or bare rest centres (n, 2) px (then area changes are 0)."""
+    if isinstance(ref, MarkerSet):
+        return ref
+    c = np.asarray(ref, np.float64).reshape(-1, 2)
+    return MarkerSet(c, np.full(len(c), np.nan), np.zeros((len(c), 2)), np.zeros(len(c)), (0, 0))
+
+
+def graph_arrays(image: np.ndarray, ref: MarkerSet | np.ndarray, geo: DomeGeometry) -> dict[str, np.ndarray]:
+    """Marker graph of one image as arrays: x (n, 13), edge_index (2, m), edge_attr (m, 5), pos (n, 3).
+
+    ``ref`` is the reference (no-contact) frame's markers (``reference_markers``) or its bare centres.
+    """
     ms = extract_markers(image)
     g = build_graph(ms)
     n = len(ms)
     half = geo.cfg.image_size / 2.0
-    if n and len(ref_centers):
-        idx, _ = knn_np(ms.centers, ref_centers, 1)
-        dref = (ms.centers - ref_centers[idx[:, 0]]) / half
-    else:
-        dref = np.zeros((n, 2))
-    x = np.concatenate([g.x, dref.astype(np.float32)], 1) if n else np.zeros((0, 10), np.float32)
+    rel = match_reference(ms, _as_reference(ref), half)
+    x = np.concatenate([g.x, rel], 1) if n else np.zeros((0, NODE_DIM + REL_DIM), np.float32)
     pos = geo.backproject_to_dome(ms.centers) if n else np.zeros((0, 3))
     pos = pos / np.maximum(np.linalg.norm(pos, axis=1, keepdims=True), 1e-9)
     return {"x": x.astype(np.float32), "edge_index": g.edge_index, "edge_attr": g.edge_attr,
@@ -38,18 +96,23 @@ def reference_centers(ref_image: np.ndarray) -> np.ndarray:
     return extract_markers(ref_image).centers
 
 
+def reference_markers(ref_image: np.ndarray) -> MarkerSet:
+    """Markers of the sensor's no-contact reference frame (rest positions and sizes)."""
+    return extract_markers(ref_image)
+
+
 def prepare_graphs(data: dict, geo: DomeGeometry, cache_key: str | None = None) -> dict[str, np.ndarray]:
     """Ragged marker graphs of every image in ``data`` (cached next to the dataset when ``cache_key``)."""
     from vtrack.paths import cache_dir
 
     path: Path | None = None
     if cache_key:
-        h = hashlib.sha1(cache_key.encode()).hexdigest()[:12]
+        h = hashlib.sha1(f"{cache_key}-f{FEATURE_VERSION}".encode()).hexdigest()[:12]
         path = cache_dir() / "dome" / f"graphs_{h}.npz"
         if path.exists():
             with np.load(path) as z:
                 return {k: z[k] for k in z.files}
-    ref = reference_centers(data["reference_image"])
+    ref = reference_markers(data["reference_image"])
     xs, eis, eas, ps, no, eo = [], [], [], [], [0], [0]
     for img in data["image"]:
         a = graph_arrays(img, ref, geo)

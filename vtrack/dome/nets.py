@@ -25,7 +25,7 @@ from vtrack.dome.markers import EDGE_DIM, NODE_DIM
 from vtrack.dome.model import DomeGeometry
 
 DISP_SCALE_MM = 2.0
-NODE_IN = NODE_DIM + 2  # S5 descriptor + displacement to the nearest reference marker
+NODE_IN = NODE_DIM + 5  # S5 descriptor + [dx, dy, d_area, d_r, matched] vs the reference marker
 
 
 def mlp(*dims: int, last_act: bool = False) -> nn.Sequential:

@@ -72,7 +72,7 @@ class DomeReconstructor:
                  reference: np.ndarray | str | Path | None = None) -> None:
         import torch
 
-        from vtrack.dome.features import reference_centers
+        from vtrack.dome.features import reference_markers
         from vtrack.dome.model import DomeGeometry
         from vtrack.dome.simulate import DomeSimulator
         from vtrack.dome.train import load_bundle
@@ -93,7 +93,7 @@ class DomeReconstructor:
         from vtrack.dome.markers import check_image
 
         self.reference = check_image(ref)
-        self.ref_centers = reference_centers(self.reference)
+        self.ref_markers = reference_markers(self.reference)
         self._torch = torch
 
     @classmethod
@@ -155,7 +155,7 @@ class DomeReconstructor:
         n_markers, method = 0, "image"
         with torch.no_grad():
             if self.method == "gnn":
-                g = graph_arrays(img, self.ref_centers, self.geo)
+                g = graph_arrays(img, self.ref_markers, self.geo)
                 n_markers, method = len(g["x"]), g["method"]
                 out = self.model(collate_graphs([g]))
             else:
