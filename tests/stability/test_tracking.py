@@ -30,6 +30,7 @@ def grid(mesh):
 
 @pytest.fixture(scope="module")
 def seq(mesh):
+    # seed 3 (not the tracking tests' seed 1): docs/tracking.md quotes this sequence's bad-start outcome.
     return make_sequence(mesh, n_frames=40, width=120, height=90, seed=3)
 
 

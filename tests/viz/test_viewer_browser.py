@@ -36,6 +36,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+
+def _terminate(proc: subprocess.Popen) -> None:
+    """Stop a child process: terminate, then kill if it does not exit within 10 s."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
 class _Server:
     """`vtrack view PATH --port N` in a subprocess; stderr collected line by line."""
 
@@ -65,13 +76,7 @@ class _Server:
         return False
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        _terminate(self.proc)
 
 
 class _DevTools:
@@ -153,13 +158,7 @@ class _DevTools:
             return img, time.monotonic() - t0
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
+        _terminate(self.proc)
 
 
 def _near(img: np.ndarray, rgb, tol: int) -> int:

@@ -50,9 +50,18 @@ def register(app: typer.Typer) -> None:
         kw = {"hand_urdf": None} if no_hand else {}
         _finish(import_feelsight(src, out, overwrite=force, max_frames=max_frames, object_mesh=mesh, **kw), json_out)
 
-    @imp.command("rosbag")
-    def rosbag(
-        src: Path = typer.Argument(..., help="ROS 1 .bag file or ROS 2 bag folder"),
+    _register_ros_import(imp, "rosbag", "ROS 1 .bag file or ROS 2 bag folder",
+                         "Import a ROS 1/2 bag (Image, CompressedImage, CameraInfo, JointState, tf).",
+                         "vtrack.io.importers.rosbag", "import_rosbag")
+    _register_ros_import(imp, "mcap", "MCAP file", "Import an MCAP file (ROS 2 CDR or ROS 1 messages).",
+                         "vtrack.io.importers.mcap_import", "import_mcap")
+
+
+def _register_ros_import(imp: typer.Typer, name: str, src_help: str, doc: str, module: str, func: str) -> None:
+    """One ``vtrack import <name>`` command for a ROS-message importer (same options for bags and MCAP)."""
+
+    def command(
+        src: Path = typer.Argument(..., help=src_help),
         out: Path = typer.Option(..., "--out", help="session directory to write"),
         map_: list[str] = typer.Option(None, "--map", help="TOPIC=ROLE override (repeatable)"),
         world_frame: str = typer.Option("world", "--world-frame", help="tf frame of the world"),
@@ -62,28 +71,12 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
         json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
     ) -> None:
-        """Import a ROS 1/2 bag (Image, CompressedImage, CameraInfo, JointState, tf)."""
-        from vtrack.io.importers.rosbag import import_rosbag
+        import importlib
 
-        _finish(import_rosbag(src, out, topic_map=_topic_map(map_), overwrite=force, world_frame=world_frame,
-                              object_frame=object_frame, pair_tolerance_s=tolerance_ms / 1000.0,
-                              tactile_type=tactile_type), json_out)
+        importer = getattr(importlib.import_module(module), func)
+        _finish(importer(src, out, topic_map=_topic_map(map_), overwrite=force, world_frame=world_frame,
+                         object_frame=object_frame, pair_tolerance_s=tolerance_ms / 1000.0,
+                         tactile_type=tactile_type), json_out)
 
-    @imp.command("mcap")
-    def mcap(
-        src: Path = typer.Argument(..., help="MCAP file"),
-        out: Path = typer.Option(..., "--out", help="session directory to write"),
-        map_: list[str] = typer.Option(None, "--map", help="TOPIC=ROLE override (repeatable)"),
-        world_frame: str = typer.Option("world", "--world-frame", help="tf frame of the world"),
-        object_frame: str = typer.Option("object", "--object-frame", help="tf child frame of the object"),
-        tolerance_ms: float = typer.Option(20.0, "--pair-tolerance-ms", help="colour/depth pairing tolerance"),
-        tactile_type: str = typer.Option(None, "--tactile-type", help="digit|gelsight_mini|gelsight"),
-        force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
-        json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
-    ) -> None:
-        """Import an MCAP file (ROS 2 CDR or ROS 1 messages)."""
-        from vtrack.io.importers.mcap_import import import_mcap
-
-        _finish(import_mcap(src, out, topic_map=_topic_map(map_), overwrite=force, world_frame=world_frame,
-                            object_frame=object_frame, pair_tolerance_s=tolerance_ms / 1000.0,
-                            tactile_type=tactile_type), json_out)
+    command.__doc__ = doc
+    imp.command(name)(command)
