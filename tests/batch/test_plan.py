@@ -70,3 +70,24 @@ def test_registry():
     assert is_available("stats")
     assert not is_available("no.such.module:fn")
     assert chunk_params(resolve(TASKS["stats"])) == ["time_range", "frames"]
+
+
+@pytest.mark.parametrize("task,params,expect", [
+    ("reconstruct", {"method": "tsdf", "screenshot": False}, {"open3d", "trimesh", "yourdfpy", "vtrack.fusion.tsdf"}),
+    ("track", {"shape": "known"}, {"open3d", "vtrack.tracking.tracker", "vtrack.tracking.frontend"}),
+    ("bench", {"reconstruction": {"method": "tsdf"}}, {"open3d", "vtrack.fusion.tsdf", "vtrack.tracking.tracker"}),
+])
+def test_warm_up_imports_what_the_task_uses(task, params, expect):
+    """Batch workers warm a task before timing: its module's ``warm_up(**params)`` hook must import the heavy
+    dependencies the task loads lazily (else each worker's first task pays ~2 s of imports)."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import json, sys; from vtrack.batch.worker import warm_up; from vtrack.batch.tasks import target_of; "
+            f"warm_up(target_of({task!r}), json.loads({json.dumps(json.dumps(params))})); "
+            "print(json.dumps(sorted(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    loaded = set(json.loads(out.stdout.strip().splitlines()[-1]))
+    assert expect <= loaded, expect - loaded
+    assert "torch" not in loaded  # TSDF / known-shape tracking must not pull in torch

@@ -30,6 +30,22 @@ def _call(task: str, session_dir: str, out_dir: Path, options: dict[str, Any]) -
     return {**metrics, "seconds": time.perf_counter() - t0, "available": True}
 
 
+def warm_up(stages: list[str] | None = None, reconstruction: dict[str, Any] | None = None,
+            tracking: dict[str, Any] | None = None, **shared: Any) -> None:
+    """Run the warm-up hooks of the stages :func:`bench_session` will call (batch workers, before timing)."""
+    import sys
+
+    own = {"reconstruction": reconstruction or {}, "tracking": tracking or {}}
+    for stage in stages or STAGES:
+        task = STAGES.get(stage)
+        if task is None or not is_available(task):
+            continue
+        fn = resolve(TASKS[task])
+        hook = getattr(sys.modules.get(fn.__module__), "warm_up", None)
+        if callable(hook):
+            hook(**{**shared, **own[stage]})
+
+
 def bench_session(session_dir: str, out_dir: str, *, stages: list[str] | None = None,
                   reconstruction: dict[str, Any] | None = None, tracking: dict[str, Any] | None = None,
                   **shared: Any) -> dict[str, Any]:

@@ -106,7 +106,8 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
         force: recompute even complete results.
         threads: BLAS/OpenMP/torch threads per task.
         timeout_s: per-attempt time limit; an attempt over it is killed and counts as a failure.
-        warm_up: import the task in every worker before timing starts.
+        warm_up: import the task (and run its module's ``warm_up(**params)`` hook) in every worker
+            before timing starts.
         pin_cpus: pin each running task to its own ``threads`` CPUs (default: on, except for an
             existing Ray cluster given by ``address``, whose nodes this driver cannot see). Makes
             thread-pool back-ends that ignore ``OMP_NUM_THREADS`` (Open3D/TBB) deterministic.
@@ -152,14 +153,14 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
         eng = make_engine(engine, workers, address, threads) if isinstance(engine, str) else engine
         stats = {"attempts": 0, "crashes": 0}
         try:
-            t_start = time.perf_counter()
-            if todo:
-                eng.start(jobs[0]["target"] if warm_up else None)
-            t_ready = time.perf_counter()
-            run_info.update(eng.describe())
             if pin_cpus is None:
                 pin_cpus = not (getattr(eng, "address", None))
             run_info["pin_cpus"] = bool(pin_cpus)
+            t_start = time.perf_counter()
+            if todo:
+                eng.start(jobs[0]["target"] if warm_up else None, params or {}, bool(pin_cpus))
+            t_ready = time.perf_counter()
+            run_info.update(eng.describe())
             _loop(eng, todo, records, retries, timeout_s, emit, out_root, run_info, stats, bool(pin_cpus))
             t_end = time.perf_counter()
         finally:

@@ -174,6 +174,20 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
     return metrics
 
 
+def warm_up(method: str = "neural_sdf", screenshot: bool = True, **_: Any) -> None:
+    """Import what :func:`reconstruct_session` will use (batch workers call this before timing starts)."""
+    import importlib
+
+    mods = ["vtrack.fusion.observations", "vtrack.io.session", "vtrack.io.export", "vtrack.eval.reconstruction",
+            "vtrack.kinematics.hand", "vtrack.scene.load", "vtrack.tactile.pipeline", "scipy.spatial", "trimesh",
+            "yourdfpy", "zarr"]
+    mods += ["vtrack.fusion.tsdf", "open3d"] if method == "tsdf" else ["vtrack.fusion.neural_sdf", "torch"]
+    if screenshot:
+        mods.append("pyvista")
+    for m in mods:
+        importlib.import_module(m)
+
+
 def _write_empty_mesh(path: Path) -> None:
     path.write_text("ply\nformat ascii 1.0\ncomment vtrack: empty reconstruction\nelement vertex 0\n"
                     "property float x\nproperty float y\nproperty float z\nelement face 0\n"

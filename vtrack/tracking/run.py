@@ -69,6 +69,22 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
     raise InputError("unknown shape mode", field="shape", expected="known|slam", got=shape)
 
 
+def warm_up(shape: str = "known", method: str = "ours", write: bool = True, **_: Any) -> None:
+    """Import what :func:`track_session` will use (batch workers call this before timing starts)."""
+    import importlib
+
+    mods = ["vtrack.tracking.frontend", "vtrack.eval.pose_metrics", "vtrack.tracking.sdf_grid", "vtrack.io.session",
+            "vtrack.kinematics.hand", "vtrack.scene.load", "scipy.spatial", "trimesh", "yourdfpy", "zarr", "open3d"]
+    if method == "icp":
+        mods.append("vtrack.tracking.icp")
+    else:
+        mods.append("vtrack.tracking.slam" if shape == "slam" else "vtrack.tracking.tracker")
+    if write:
+        mods.append("matplotlib.pyplot")
+    for m in mods:
+        importlib.import_module(m)
+
+
 def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "known",
                   modalities: tuple[str, ...] | list[str] = ("vision", "touch"), method: str = "ours",
                   init_perturb: tuple[float, float] | None = None, max_frames: int = 0, seed: int = 0,
