@@ -4,8 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from vtrack.dome.features import REL_DIM, graph_arrays, match_reference, reference_markers
-from vtrack.dome.markers import NODE_DIM, MarkerSet
+from vtrack.dome.features import (
+    EDGE_REL_DIM,
+    REL_DIM,
+    _gated_assignment,
+    edge_strain,
+    graph_arrays,
+    match_reference,
+    reference_markers,
+)
+from vtrack.dome.markers import EDGE_DIM, NODE_DIM, MarkerSet
 from vtrack.dome.model import DomeConfig, DomeGeometry
 from vtrack.dome.nets import NODE_IN
 
@@ -48,5 +56,41 @@ def test_reference_frame_features_are_zero() -> None:
     a = graph_arrays(img, reference_markers(img), DomeGeometry(cfg))
     assert a["x"].shape[1] == NODE_IN and len(a["x"]) > 300
     assert np.allclose(a["x"][:, NODE_DIM:NODE_DIM + 4], 0) and np.all(a["x"][:, -1] == 1)
+    assert a["edge_attr"].shape[1] == EDGE_DIM + EDGE_REL_DIM and np.allclose(a["edge_attr"][:, EDGE_DIM:], 0)
     b = graph_arrays(img, reference_markers(img).centers, DomeGeometry(cfg))  # bare centres accepted
     assert np.allclose(b["x"][:, NODE_DIM:NODE_DIM + 4], 0)
+
+
+def test_edge_strain_measures_stretch_and_ignores_unmatched() -> None:
+    ref = _ms([[40, 40], [50, 40], [40, 50], [50, 50]], [8, 8, 8, 8])  # spacing 10 px
+    cur = _ms([[38, 40], [52, 40], [40, 50], [90, 90]], [8, 8, 8, 8])  # 0-1 stretched by 4 px, 3 gone
+    e = np.array([[0, 1, 0, 2], [1, 0, 3, 0]])
+    st = edge_strain(cur, ref, e, 80.0)
+    assert st.shape == (4, EDGE_REL_DIM)
+    assert np.allclose(st[0], [0.4, 0.0, 0.4]) and np.allclose(st[1], [-0.4, 0.0, 0.4])  # both directions
+    assert np.allclose(st[2], 0)  # edge to an unmatched marker
+    assert np.allclose(st[3], [-0.2, 0.0, (np.hypot(2, 10) - 10) / 10])  # edge 2->0: marker 0 moved 2 px left
+    assert np.all(np.isfinite(edge_strain(cur, _ms(np.zeros((0, 2)), np.zeros(0)), e, 80.0)))
+
+
+def test_gated_assignment_equals_dense_hungarian() -> None:
+    """The component-wise solver must give the dense gated Hungarian optimum (count, then total distance)."""
+    from scipy.optimize import linear_sum_assignment
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        m, n = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        b = rng.uniform(0, 60, (m, 2))
+        k = min(n, m)
+        a = np.concatenate([b[:k] + rng.normal(0, 2.5, (k, 2)), rng.uniform(0, 60, (max(0, n - m), 2))])
+        gate = 4.0
+        r, c = _gated_assignment(a, b, cKDTree(b), gate)
+        assert len(set(r.tolist())) == len(r) and len(set(c.tolist())) == len(c)  # one-to-one
+        d = np.linalg.norm(a[r] - b[c], axis=1)
+        assert np.all(d <= gate)
+        D = np.linalg.norm(a[:, None] - b[None], axis=-1)
+        rr, cc = linear_sum_assignment(np.where(D <= gate, D, 1e6))
+        keep = D[rr, cc] <= gate
+        assert len(r) == keep.sum()
+        assert np.isclose(d.sum(), D[rr[keep], cc[keep]].sum())

@@ -81,3 +81,30 @@ def test_shipped_weights_small_and_better_than_template() -> None:
         assert res[m]["vertex_err_moved"] < 0.8 * base["vertex_err_moved"], m
         assert res[m]["force_mae"] < 0.9 * base["force_mae"], m
         assert np.isfinite(list(res[m].values())).all()
+
+
+def test_platt_fit_recovers_scale_and_handles_degenerate_input():
+    import torch
+
+    from vtrack.dome.train import platt_fit
+
+    g = torch.Generator().manual_seed(0)
+    z = torch.randn(20000, generator=g) * 3
+    y = (torch.rand(20000, generator=g) < torch.sigmoid(2.0 * z - 1.0)).float()
+    a, b = platt_fit(z, y)
+    assert abs(a - 2.0) < 0.3 and abs(b + 1.0) < 0.3
+    raw = (torch.sigmoid(z) - y).pow(2).mean()
+    assert (torch.sigmoid(a * z + b) - y).pow(2).mean() < raw  # calibrated Brier score is lower
+    assert platt_fit(torch.zeros(0), torch.zeros(0)) == (1.0, 0.0)
+    assert platt_fit(torch.tensor([float("nan"), 1.0]), torch.tensor([0.0, 1.0])) == (1.0, 0.0)
+    a0, b0 = platt_fit(torch.randn(100, generator=g), torch.zeros(100))  # no contact at all
+    assert np.isfinite(a0) and np.isfinite(b0)
+
+
+def test_shipped_bundles_carry_contact_calibration():
+    from vtrack.dome.train import load_bundle, weights_dir
+
+    for kind in ("gnn", "cnn"):
+        model, _, _, _ = load_bundle(weights_dir() / f"{kind}.pt", with_heads=False)
+        a, b = model.decoder.contact_calib
+        assert a > 0 and (a, b) != (1.0, 0.0)

@@ -56,8 +56,8 @@ def run(quick: bool = False) -> BenchTable:
         f"Held-out simulated test set: {n_test} presses (seed 12345), lengths in mm, force in N. "
         "`force_mae` uses the pressure-FiLM head, `force_mae_nop` the same head trained without pressure.",
         "ms = median wall time per frame, one frame at a time, 1 thread: image -> marker extraction -> Delaunay "
-        "graph -> GNN (or image -> CNN) -> dense surface + force. The machine was shared with other jobs, "
-        "so wall times are noisy upper bounds; `cpu_ms` is the process CPU time per frame (what one free core needs).",
+        "graph -> GNN (or image -> CNN) -> dense surface + force. On a machine shared with other jobs "
+        "wall times are noisy upper bounds; `cpu_ms` is the process CPU time per frame (what one free core needs).",
         "`template` = predicting the undeformed dome: contact regions are small, so surface metrics start high.",
         "Command: `vtrack bench dome`" + (" --quick" if quick else ""),
     ]

@@ -208,7 +208,7 @@ def build_graph(ms: MarkerSet, *, knn_fallback: int = 4) -> MarkerGraph:
     Edges are stored in both directions. Edge attributes are the relative geometry of neighbour j seen
     from node i: ``[dx, dy, dist]`` (in units of half the image size) and the area and eta differences.
     """
-    from scipy.spatial import ConvexHull, Delaunay, QhullError
+    from scipy.spatial import Delaunay, QhullError
 
     n = len(ms)
     method = "delaunay"
@@ -219,7 +219,7 @@ def build_graph(ms: MarkerSet, *, knn_fallback: int = 4) -> MarkerGraph:
             tri = Delaunay(ms.centers)
             s = tri.simplices
             e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]]).T
-            boundary[ConvexHull(ms.centers).vertices] = True
+            boundary[np.unique(tri.convex_hull)] = True  # hull edges of the triangulation (no 2nd Qhull run)
         except QhullError:  # collinear / coincident markers
             method = "knn"
     else:
@@ -228,7 +228,10 @@ def build_graph(ms: MarkerSet, *, knn_fallback: int = 4) -> MarkerGraph:
         e = _knn_edges(ms.centers, knn_fallback)
         boundary[:] = True
     if e.shape[1]:
-        e = np.unique(np.sort(e, 0), axis=1)
+        # unique undirected edges via one int64 key per edge (np.unique(axis=1) is ~10x slower)
+        lo, hi = e.min(0).astype(np.int64), e.max(0).astype(np.int64)
+        key = np.unique(lo * max(n, 1) + hi)
+        e = np.stack([key // max(n, 1), key % max(n, 1)])
         e = e[:, e[0] != e[1]]
         e = np.concatenate([e, e[::-1]], 1)
     x = node_features(ms, boundary)

@@ -103,6 +103,14 @@ class CoarseToFineDecoder(nn.Module):
         self.fine_in = nn.Linear(2 * hidden + 3, hidden)
         self.fine_pos = nn.Linear(3, hidden, bias=False)
         self.fine_out = mlp(hidden, hidden, 3)
+        #: Platt scaling (a, b) of the contact logit for the reported probability, fitted on the training set
+        #: after training (``train.fit_contact_calibration``); the gate of the coarse stage uses the raw logit
+        self.contact_calib = (1.0, 0.0)
+
+    def contact_prob(self, logit: torch.Tensor) -> torch.Tensor:
+        """Calibrated contact probability of each coarse point from the contact logit."""
+        a, b = self.contact_calib
+        return torch.sigmoid(a * logit + b)
 
     def set_dense(self, dense_rest_mm: np.ndarray) -> None:
         """Use another dense template (rest positions, mm): recomputes the interpolation weights."""
@@ -140,16 +148,18 @@ class CoarseToFineDecoder(nn.Module):
 class GraphEncoder(nn.Module):
     """Marker-graph encoder: node MLP + GINE message passing with edge attributes (torch_geometric)."""
 
-    def __init__(self, hidden: int = 64, layers: int = 3) -> None:
+    def __init__(self, hidden: int = 64, layers: int = 3, edge_dim: int = EDGE_DIM) -> None:
         super().__init__()
         from torch_geometric.nn import GINEConv
 
         self.inp = mlp(NODE_IN, hidden, hidden)
-        self.convs = nn.ModuleList([GINEConv(mlp(hidden, hidden, hidden), edge_dim=EDGE_DIM) for _ in range(layers)])
+        self.edge_dim = edge_dim
+        self.convs = nn.ModuleList([GINEConv(mlp(hidden, hidden, hidden), edge_dim=edge_dim) for _ in range(layers)])
         self.hidden = hidden
 
     def forward(self, x, edge_index, edge_attr, batch, n_graphs: int) -> tuple[torch.Tensor, torch.Tensor]:
         h = self.inp(x)
+        edge_attr = edge_attr[:, :self.edge_dim]  # graphs carry strain columns a model may not use
         for conv in self.convs:
             h = h + torch.relu(conv(h, edge_index, edge_attr))
         F = h.shape[1]
@@ -166,9 +176,12 @@ class DomeGNN(nn.Module):
 
     kind = "gnn"
 
-    def __init__(self, geo: DomeGeometry, hidden: int = 64, layers: int = 3, k_markers: int = 4) -> None:
+    def __init__(self, geo: DomeGeometry, hidden: int = 64, layers: int = 3, k_markers: int = 4,
+                 edge_strain: bool = True) -> None:
         super().__init__()
-        self.encoder = GraphEncoder(hidden, layers)
+        from vtrack.dome.features import EDGE_REL_DIM
+
+        self.encoder = GraphEncoder(hidden, layers, EDGE_DIM + (EDGE_REL_DIM if edge_strain else 0))
         self.decoder = CoarseToFineDecoder(geo, hidden, 2 * hidden)
         self.k = k_markers
         self.R_in = geo.cfg.inner_radius_mm
@@ -260,6 +273,11 @@ class ForceHead(nn.Module):
         self.point = mlp(dec_hidden + 3 + 1 + 1 + 3, hidden, hidden, last_act=True)
         self.patch = mlp(hidden, hidden, hidden, last_act=True)
         self.film = mlp(1, 32, 2 * hidden + 4)
+        # FiLM starts as the identity (gamma = beta = 0): a randomly initialised modulation scales every
+        # feature by a random P-dependent factor from the first step, which made the head with pressure
+        # train worse than the one without
+        nn.init.zeros_(self.film[-1].weight)
+        nn.init.zeros_(self.film[-1].bias)
         self.head = mlp(2 * hidden + 2 + glob_dim, hidden, hidden, 3)
         self.hidden = hidden
 

@@ -166,7 +166,7 @@ class DomeReconstructor:
         ms = (time.perf_counter() - t0) * 1e3
         dense = out["dense"][0].numpy().astype(np.float64)
         coarse = out["coarse"][0].numpy().astype(np.float64)
-        prob = torch.sigmoid(out["contact_logit"][0]).numpy().astype(np.float64)
+        prob = self.model.decoder.contact_prob(out["contact_logit"][0]).numpy().astype(np.float64)
         for name, arr in (("dense", dense), ("coarse", coarse), ("force", force)):
             if not np.all(np.isfinite(arr)):  # never let NaN/Inf out silently
                 raise InputError("non-finite network output", field=name, expected="finite values")

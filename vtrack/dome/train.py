@@ -34,6 +34,13 @@ class TrainConfig:
     threads: int = 1
     gnn_k: int = 4  # markers interpolated per coarse template point
     gnn_layers: int = 3  # GINE layers
+    gnn_edge_strain: bool = True  # reference-relative edge strain attributes (features.edge_strain)
+
+
+def bundle_train_config(bundle: dict) -> TrainConfig:
+    """The TrainConfig a bundle was trained with; options added since then take their old behaviour."""
+    legacy = {"gnn_k": 4, "gnn_layers": 3, "gnn_edge_strain": False}
+    return TrainConfig(**{**legacy, **bundle["train"]})
 
 
 def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple[dict, dict]:
@@ -43,11 +50,12 @@ def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple
             make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress))
 
 
-def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 4, gnn_layers: int = 3):
+def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 4, gnn_layers: int = 3,
+                gnn_edge_strain: bool = True):
     from vtrack.dome.nets import DomeCNN, DomeGNN
 
     if kind == "gnn":
-        return DomeGNN(geo, hidden, gnn_layers, gnn_k)
+        return DomeGNN(geo, hidden, gnn_layers, gnn_k, gnn_edge_strain)
     if kind == "cnn":
         return DomeCNN(geo, hidden)
     raise ValueError(f"unknown model kind {kind!r} (gnn | cnn)")
@@ -122,7 +130,7 @@ def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
     import torch
 
     torch.manual_seed(tc.seed)
-    model = build_model(kind, train.geo, tc.hidden, tc.gnn_k, tc.gnn_layers)
+    model = build_model(kind, train.geo, tc.hidden, tc.gnn_k, tc.gnn_layers, tc.gnn_edge_strain)
     nbr = _dense_graph(train.geo)
     rng = np.random.default_rng(tc.seed)
     n = len(train)
@@ -204,12 +212,68 @@ def train_force(model, train: Batcher, tc: TrainConfig, use_pressure: bool, log=
     return head
 
 
+def fit_contact_calibration(model, train: Batcher, batch: int = 128) -> tuple[float, float]:
+    """Platt scaling of the contact logit on the training set: (a, b) minimising the mean squared error of
+    ``sigmoid(a * logit + b)`` against the GT mask (the Brier score, i.e. what ``contact_l2`` measures).
+
+    Why: the contact BCE weights contact points 4x (recall matters for the contact gate), which shifts the
+    raw probabilities of the ~98 % non-contact points upwards; the reported probability should be calibrated.
+    """
+    import torch
+
+    logits = []
+    with torch.no_grad():
+        for b in range(0, len(train), batch):
+            idx = np.arange(b, min(len(train), b + batch))
+            logits.append(model(train.inputs(idx), coarse_only=True)["contact_logit"])
+    return platt_fit(torch.cat(logits).flatten(), train.contact.flatten())
+
+
+def platt_fit(z, y) -> tuple[float, float]:
+    """(a, b) minimising ``mean((sigmoid(a z + b) - y)^2)`` for logits ``z`` and 0/1 labels ``y`` (torch, 1-D);
+    (1, 0) when there is nothing to fit or the fit degenerates (non-finite or a <= 0)."""
+    import torch
+
+    z, y = torch.as_tensor(z, dtype=torch.float32).flatten(), torch.as_tensor(y, dtype=torch.float32).flatten()
+    if z.numel() == 0 or not bool(torch.isfinite(z).all()):
+        return 1.0, 0.0
+    ab = torch.tensor([1.0, 0.0], requires_grad=True)
+    opt = torch.optim.LBFGS([ab], lr=0.5, max_iter=100, line_search_fn="strong_wolfe")
+
+    def closure():
+        opt.zero_grad()
+        loss = (torch.sigmoid(ab[0] * z + ab[1]) - y).pow(2).mean()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    a, b = (float(v) for v in ab.detach())
+    if not (np.isfinite(a) and np.isfinite(b)) or a <= 0:  # degenerate fit: keep the raw probabilities
+        return 1.0, 0.0
+    return a, b
+
+
+def calibrate_bundle(path: Path, tc: TrainConfig | None = None) -> tuple[float, float]:
+    """Fit the contact calibration of a saved bundle on its training set and store it in the bundle."""
+    import torch
+
+    b = torch.load(path, map_location="cpu", weights_only=False)
+    tc = tc or bundle_train_config(b)
+    torch.set_num_threads(tc.threads)
+    model, _, cfg, _ = load_bundle(path, with_heads=False)
+    tr, _ = load_sets(tc, cfg)
+    btr = Batcher(b["kind"], tr, DomeGeometry(cfg), f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
+    b["contact_calib"] = list(fit_contact_calibration(model, btr))
+    torch.save(b, path)
+    return tuple(b["contact_calib"])
+
+
 def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
     """Retrain only the two force heads of a saved bundle (same budget for every method); re-save it."""
     import torch
 
     b = torch.load(path, map_location="cpu", weights_only=False)
-    tc = tc or TrainConfig(**b["train"])
+    tc = tc or bundle_train_config(b)
     torch.set_num_threads(tc.threads)
     model, _, cfg, info = load_bundle(path, with_heads=False)
     geo = DomeGeometry(cfg)
@@ -217,6 +281,10 @@ def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
     btr = Batcher(b["kind"], tr, geo, f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
     heads = {"p": train_force(model, btr, tc, True, log), "nop": train_force(model, btr, tc, False, log)}
     save_bundle(path, b["kind"], model, heads, cfg, tc, info)
+    if "contact_calib" in b:  # save_bundle writes a fresh dict: keep the calibration
+        b2 = torch.load(path, map_location="cpu", weights_only=False)
+        b2["contact_calib"] = b["contact_calib"]
+        torch.save(b2, path)
     return info
 
 
@@ -229,7 +297,8 @@ def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: 
 
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save({"kind": kind, "cfg": cfg.to_dict(), "train": asdict(tc), "info": info,
-                "recon": half(model.state_dict()), **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()}},
+                "contact_calib": list(model.decoder.contact_calib), "recon": half(model.state_dict()),
+                **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()}},
                path)
 
 
@@ -243,9 +312,10 @@ def load_bundle(path: Path, with_heads: bool = True):
     cfg = DomeConfig(**b["cfg"])
     geo = DomeGeometry(cfg)
     hidden = b["train"]["hidden"]
-    # bundles written before these options existed used 4 markers and 3 layers
-    model = build_model(b["kind"], geo, hidden, b["train"].get("gnn_k", 4), b["train"].get("gnn_layers", 3))
+    tc = bundle_train_config(b)
+    model = build_model(b["kind"], geo, hidden, tc.gnn_k, tc.gnn_layers, tc.gnn_edge_strain)
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
+    model.decoder.contact_calib = tuple(float(v) for v in b.get("contact_calib", (1.0, 0.0)))
     heads = {}
     for key, use_p in (("p", True), ("nop", False)):
         if with_heads and f"force_{key}" in b:
@@ -266,7 +336,7 @@ def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str,
             o = model(batcher.inputs(idx))
             outs.setdefault("coarse", []).append(o["coarse"].numpy())
             outs.setdefault("dense", []).append(o["dense"].numpy())
-            outs.setdefault("contact", []).append(torch.sigmoid(o["contact_logit"]).numpy())
+            outs.setdefault("contact", []).append(model.decoder.contact_prob(o["contact_logit"]).numpy())
             for key, h in heads.items():
                 f = h(o, batcher.pressure[idx], model.decoder.coarse_rest).numpy()
                 outs.setdefault("force" if key == "p" else "force_nop", []).append(f)
@@ -297,6 +367,7 @@ def train_all(tc: TrainConfig | None = None, cfg: DomeConfig | None = None, out_
         bte = Batcher(kind, te, geo, f"{tc.n_test}-{tc.test_seed}-{cfg.to_dict()}")
         model = train_recon(kind, btr, tc, log)
         heads = {"p": train_force(model, btr, tc, True, log), "nop": train_force(model, btr, tc, False, log)}
+        model.decoder.contact_calib = fit_contact_calibration(model, btr)
         secs = time.time() - t0
         pred = predict(model, heads, bte)
         gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
