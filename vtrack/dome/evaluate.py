@@ -77,3 +77,41 @@ def template_baseline(te: dict, geo) -> dict[str, float]:
     gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
           "force": te["force_n"], "dense_rest": geo.dense_rest}
     return evaluate_predictions(pred, gt)
+
+
+def pressure_probe(method: str = "gnn", weights_dir: Path | None = None, ridge: float = 10.0) -> dict[str, float]:
+    """How much of the internal pressure (kPa) a trained encoder already reads from the image alone.
+
+    Ridge regression from the encoder's pooled features (global feature + mean decoder hidden state) to P,
+    fitted on the training set, scored on the held-out set. A small error means the image shows the pressure
+    (the simulator's reference frame is at P = 0, so inflation moves the markers), and a force head gains
+    little from being told P. Returns ``{"mae_kpa", "baseline_mae_kpa"}`` (baseline = predicting the mean).
+    """
+    import torch
+
+    from vtrack.dome.model import DomeGeometry
+    from vtrack.dome.train import Batcher, bundle_train_config, load_bundle, load_sets
+    from vtrack.dome.train import weights_dir as wdir
+
+    path = Path(weights_dir or wdir()) / f"{method}.pt"
+    tc = bundle_train_config(torch.load(path, map_location="cpu", weights_only=False))
+    model, _, cfg, _ = load_bundle(path, with_heads=False)
+    geo = DomeGeometry(cfg)
+    tr, te = load_sets(tc, cfg)
+
+    def feats(data: dict, n: int, seed: int) -> np.ndarray:
+        bt = Batcher(method, data, geo, f"{n}-{seed}-{cfg.to_dict()}")
+        out = []
+        with torch.no_grad():
+            for s in range(0, len(bt), 128):
+                o = model(bt.inputs(np.arange(s, min(len(bt), s + 128))), coarse_only=True)
+                out.append(torch.cat([o["glob"], o["hidden"].mean(1)], -1).numpy())
+        return np.concatenate(out).astype(np.float64)
+
+    xtr, xte = feats(tr, tc.n_train, tc.seed), feats(te, tc.n_test, tc.test_seed)
+    ytr, yte = np.asarray(tr["pressure_kpa"], np.float64), np.asarray(te["pressure_kpa"], np.float64)
+    mu, sd = xtr.mean(0), xtr.std(0) + 1e-6
+    a, b = (xtr - mu) / sd, (xte - mu) / sd
+    w = np.linalg.solve(a.T @ a + ridge * np.eye(a.shape[1]), a.T @ (ytr - ytr.mean()))
+    pred = b @ w + ytr.mean()
+    return {"mae_kpa": float(np.abs(pred - yte).mean()), "baseline_mae_kpa": float(np.abs(yte - ytr.mean()).mean())}
