@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from vtrack.batch.tasks import TASKS, accepted_params, is_available, resolve
+from vtrack.batch.tasks import TASKS, accepted_params, is_available, resolve, warm_up_hook
 from vtrack.errors import InputError
 
 #: stage -> registry task name
@@ -33,16 +33,13 @@ def _call(task: str, session_dir: str, out_dir: Path, options: dict[str, Any]) -
 def warm_up(stages: list[str] | None = None, reconstruction: dict[str, Any] | None = None,
             tracking: dict[str, Any] | None = None, **shared: Any) -> None:
     """Run the warm-up hooks of the stages :func:`bench_session` will call (batch workers, before timing)."""
-    import sys
-
     own = {"reconstruction": reconstruction or {}, "tracking": tracking or {}}
     for stage in stages or STAGES:
         task = STAGES.get(stage)
         if task is None or not is_available(task):
             continue
-        fn = resolve(TASKS[task])
-        hook = getattr(sys.modules.get(fn.__module__), "warm_up", None)
-        if callable(hook):
+        hook = warm_up_hook(TASKS[task])
+        if hook is not None:
             hook(**{**shared, **own[stage]})
 
 

@@ -78,6 +78,15 @@ def resolve(target: str) -> Callable[..., Any]:
     return fn
 
 
+def warm_up_hook(target: str) -> Callable[..., Any] | None:
+    """The ``warm_up(**params)`` function of a task's module, if it defines one (imports the module)."""
+    import sys
+
+    fn = resolve(target)
+    hook = getattr(sys.modules.get(fn.__module__), "warm_up", None)
+    return hook if callable(hook) else None
+
+
 def accepted_params(fn: Callable[..., Any]) -> tuple[set[str], bool]:
     """Names of the keyword parameters ``fn`` accepts, and whether it takes ``**kwargs``."""
     sig = inspect.signature(fn)

@@ -190,17 +190,14 @@ def warm_up(target: str, params: dict[str, Any] | None = None, cpu_slot: int | N
     With ``cpu_slot`` the worker is pinned first, as a task would be: Open3D's TBB sizes its thread pool
     from the affinity mask when it loads, and a pool sized for all CPUs makes results differ run to run.
     """
-    import sys
-
-    from vtrack.batch.tasks import resolve
+    from vtrack.batch.tasks import warm_up_hook
 
     try:
         _apply_threads(threads)
         if cpu_slot is not None:
             pin_to_slot(int(cpu_slot), int(threads))
-        fn = resolve(target)
-        hook = getattr(sys.modules.get(fn.__module__), "warm_up", None)
-        if callable(hook):
+        hook = warm_up_hook(target)
+        if hook is not None:
             hook(**(params or {}))
     except Exception:
         pass  # the real run reports it

@@ -280,11 +280,7 @@ def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
     tr, _ = load_sets(tc, cfg)
     btr = Batcher(b["kind"], tr, geo, f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
     heads = {"p": train_force(model, btr, tc, True, log), "nop": train_force(model, btr, tc, False, log)}
-    save_bundle(path, b["kind"], model, heads, cfg, tc, info)
-    if "contact_calib" in b:  # save_bundle writes a fresh dict: keep the calibration
-        b2 = torch.load(path, map_location="cpu", weights_only=False)
-        b2["contact_calib"] = b["contact_calib"]
-        torch.save(b2, path)
+    save_bundle(path, b["kind"], model, heads, cfg, tc, info)  # keeps the calibration (load_bundle set it)
     return info
 
 
