@@ -7,8 +7,8 @@ import numpy as np
 from vtrack.dome.features import (
     EDGE_REL_DIM,
     REL_DIM,
-    _gated_assignment,
     edge_strain,
+    gated_assignment,
     graph_arrays,
     match_reference,
     reference_markers,
@@ -85,7 +85,7 @@ def test_gated_assignment_equals_dense_hungarian() -> None:
         k = min(n, m)
         a = np.concatenate([b[:k] + rng.normal(0, 2.5, (k, 2)), rng.uniform(0, 60, (max(0, n - m), 2))])
         gate = 4.0
-        r, c = _gated_assignment(a, b, cKDTree(b), gate)
+        r, c = gated_assignment(a, b, cKDTree(b), gate)
         assert len(set(r.tolist())) == len(r) and len(set(c.tolist())) == len(c)  # one-to-one
         d = np.linalg.norm(a[r] - b[c], axis=1)
         assert np.all(d <= gate)
@@ -94,3 +94,16 @@ def test_gated_assignment_equals_dense_hungarian() -> None:
         keep = D[rr, cc] <= gate
         assert len(r) == keep.sum()
         assert np.isclose(d.sum(), D[rr[keep], cc[keep]].sum())
+
+
+def test_tactip_matcher_counts_every_pair_within_the_gate() -> None:
+    """Out-of-gate pairs must not crowd out a pair within the gate: the earlier clipped-cost Hungarian
+    (cost min(d, 10 gate)) paired 0->1 (3.8 px) and 1->0 (3.1 px), total 6.9 < 1.7 + 5.4, and so matched
+    nothing although detection 0 lies 1.7 px from reference 0."""
+    from vtrack.dome.tactip import match_to_reference
+
+    ref = np.array([[1.2, 3.6], [0.9, 6.0]])
+    cur = np.array([[2.6, 2.6], [2.9, 1.0]])
+    assert match_to_reference(cur, ref, gate_px=3.0).tolist() == [0, -1]
+    assert np.all(match_to_reference(np.zeros((0, 2)), ref, 3.0) == -1)
+    assert match_to_reference(cur, np.zeros((0, 2)), 3.0).tolist() == [-1, -1]

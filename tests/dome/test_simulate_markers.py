@@ -103,3 +103,16 @@ def test_tactip_init_frames_pin_counts(shared_data) -> None:
     for name, (expected, mask_r) in SETS.items():
         img = cv2.imread(str(shared_data / "tactip_frames" / name / "frames_bw" / "init_0.png"), 0)
         assert len(extract_markers(img, polarity="bright", mask_radius=mask_r)) == expected
+
+
+def test_tactip_analysis_runs_end_to_end(shared_data) -> None:
+    """`vtrack dome tactip` on the real 127-pin set: detection, matching and both pose regressors run and give
+    finite, better-than-trivial numbers (a short GNN training budget keeps the test fast)."""
+    pytest.importorskip("torch")
+    from vtrack.dome.tactip import analyse_set, load_set
+
+    r = analyse_set(load_set(shared_data / "tactip_frames", "tactip_127"), epochs=3, log=lambda *a: None)
+    assert r["count_mean"] > 120 and r["track_continuity_mean"] > 0.9
+    for k in ("gnn_depth_mae_mm", "gnn_roll_mae_deg", "ridge_depth_mae_mm", "ridge_roll_mae_deg"):
+        assert np.isfinite(r[k]), k
+    assert r["ridge_depth_mae_mm"] < r["label_std_depth_mm"]

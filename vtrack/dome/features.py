@@ -21,7 +21,7 @@ REL_DIM = 5  # reference-relative node features appended to the S5 descriptor
 EDGE_REL_DIM = 3  # reference-relative edge features (strain) appended to the S5 edge attributes
 
 
-def _gated_assignment(a: np.ndarray, b: np.ndarray, tree_b, gate: float) -> tuple[np.ndarray, np.ndarray]:
+def gated_assignment(a: np.ndarray, b: np.ndarray, tree_b, gate: float) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one matching of points ``a`` (n, 2) to ``b`` (m, 2) that first maximises the number of pairs
     closer than ``gate`` and then minimises their total distance (the Hungarian problem with gated costs).
 
@@ -79,7 +79,7 @@ def _match(ms: MarkerSet, ref: MarkerSet, half: float) -> tuple[np.ndarray, np.n
     else:
         spacing, gate = half, np.inf
     partner = tree.query(ms.centers, k=1)[1].astype(np.int64).reshape(n)
-    rows, cols = _gated_assignment(ms.centers, ref.centers, tree, gate)
+    rows, cols = gated_assignment(ms.centers, ref.centers, tree, gate)
     matched = np.zeros(n, bool)
     partner[rows] = cols
     matched[rows] = True

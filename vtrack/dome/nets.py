@@ -148,11 +148,11 @@ class CoarseToFineDecoder(nn.Module):
 class GraphEncoder(nn.Module):
     """Marker-graph encoder: node MLP + GINE message passing with edge attributes (torch_geometric)."""
 
-    def __init__(self, hidden: int = 64, layers: int = 3, edge_dim: int = EDGE_DIM) -> None:
+    def __init__(self, hidden: int = 64, layers: int = 3, edge_dim: int = EDGE_DIM, node_in: int = NODE_IN) -> None:
         super().__init__()
         from torch_geometric.nn import GINEConv
 
-        self.inp = mlp(NODE_IN, hidden, hidden)
+        self.inp = mlp(node_in, hidden, hidden)
         self.edge_dim = edge_dim
         self.convs = nn.ModuleList([GINEConv(mlp(hidden, hidden, hidden), edge_dim=edge_dim) for _ in range(layers)])
         self.hidden = hidden

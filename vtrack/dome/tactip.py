@@ -58,16 +58,18 @@ def load_set(root: Path, name: str) -> TacTipSet:
 
 
 def match_to_reference(centers: np.ndarray, ref: np.ndarray, gate_px: float) -> np.ndarray:
-    """Index of the matched reference marker per detected marker (-1 = unmatched), Hungarian + gate."""
-    from scipy.optimize import linear_sum_assignment
+    """Index of the matched reference marker per detected marker (-1 = unmatched): the most pairs within
+    ``gate_px``, then the least total distance (:func:`vtrack.dome.features.gated_assignment`, the matcher the
+    GNN features use)."""
+    from scipy.spatial import cKDTree
+
+    from vtrack.dome.features import gated_assignment
 
     out = np.full(len(centers), -1, np.int64)
     if len(centers) == 0 or len(ref) == 0:
         return out
-    d = np.linalg.norm(centers[:, None] - ref[None], axis=-1)
-    r, c = linear_sum_assignment(np.minimum(d, 10 * gate_px))
-    ok = d[r, c] <= gate_px
-    out[r[ok]] = c[ok]
+    r, c = gated_assignment(np.asarray(centers, np.float64), np.asarray(ref, np.float64), cKDTree(ref), gate_px)
+    out[r] = c
     return out
 
 
@@ -132,7 +134,7 @@ def _gnn_regressor(graphs, y, tr, te, seed, epochs, log) -> dict:
     from vtrack.dome.nets import GraphEncoder, mlp
 
     torch.manual_seed(seed)
-    enc = GraphEncoder(32, 3)
+    enc = GraphEncoder(32, 3, node_in=graphs[0]["x"].shape[1])  # S5 + [dx, dy] to the reference pin
     head = mlp(64, 32, 2)
     mu, sd = y[tr].mean(0), y[tr].std(0) + 1e-9
     yt = torch.tensor((y - mu) / sd, dtype=torch.float32)
