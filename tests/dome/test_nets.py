@@ -51,6 +51,30 @@ def test_training_reduces_loss(kind, tiny_data) -> None:
     assert np.isfinite(losses).all() and min(losses[-3:]) < 0.8 * losses[0]
 
 
+def test_still_l1_pulls_still_points_and_has_finite_gradient_at_zero_error() -> None:
+    """The L1 term on non-contact points: finite gradient when the prediction is exact, and for a 0.01 mm
+    error on the still points its gradient is ~still_l1 / 0.08 = 25x the L2 term's (what removes phantom
+    deformation), while a contact-point error is weighted as before."""
+    from vtrack.dome.train import recon_loss
+
+    gt = torch.zeros(1, 256, 3)
+    contact = torch.zeros(1, 256)
+    contact[0, :4] = 1.0
+    tg = {"coarse": gt, "contact": contact}
+    grads = {}
+    for w in (0.0, 2.0):
+        for off, pts in (("exact", 0.0), ("still", 0.01)):
+            pred = gt.clone()
+            pred[0, 4:, 0] += pts
+            pred.requires_grad_(True)
+            loss, _ = recon_loss({"coarse": pred, "contact_logit": torch.zeros(1, 256)}, tg, None, 1, w)
+            loss.backward()
+            assert torch.isfinite(pred.grad).all(), (w, off)
+            grads[w, off] = pred.grad[0, 4:, 0].abs().mean().item()
+    assert grads[2.0, "exact"] < 1e-6 and grads[0.0, "exact"] == 0.0
+    assert 20 < grads[2.0, "still"] / grads[0.0, "still"] < 30
+
+
 def test_fine_residual_is_bounded() -> None:
     from vtrack.dome.model import DomeGeometry
     from vtrack.dome.nets import CoarseToFineDecoder
@@ -111,10 +135,60 @@ def test_shipped_bundles_carry_contact_calibration():
 
 
 @pytest.mark.slow
-def test_pressure_probe_reads_pressure_from_shipped_gnn():
-    """The shipped GNN's features carry the internal pressure (reference frame at P = 0): the probe must beat
-    predicting the mean by a wide margin (measured 0.22 vs 2.60 kPa)."""
-    from vtrack.dome.evaluate import pressure_probe
+def test_pressure_improves_force_of_shipped_nets_on_held_out_set():
+    """Issue #10 targets on the held-out presses (seed 12345, 300 presses): with the reference frame at the
+    operating pressure, telling the force head P lowers the force error of both nets (measured GNN 0.307 vs
+    0.345 N, CNN 0.465 vs 0.503 N); the GNN beats the CNN on every surface metric and both beat the no-contact
+    reference state on CD and HD95 (GNN 0.022 / 0.075 mm, reference 0.030 / 0.090 mm); the pressure probe
+    reads P from the GNN's features only partly (0.50 kPa vs 2.60 kPa for the mean; 0.22 kPa with the older
+    P = 0 reference, where P did not help the GNN)."""
+    from vtrack.dome.evaluate import evaluate, pressure_probe, template_baseline
+    from vtrack.dome.model import DomeGeometry
+    from vtrack.dome.simulate import make_dataset
 
+    res = evaluate(timing_frames=2)
+    base = template_baseline(make_dataset(300, 12345), DomeGeometry())
+    for m in ("gnn", "cnn"):
+        assert res[m]["force_mae"] < 0.97 * res[m]["force_nop_mae"], m
+        for k in ("cd_fine", "hd95"):
+            assert res[m][k] < base[k], (m, k)
+    for k in ("cd_coarse", "cd_fine", "hd95", "vertex_err_moved"):
+        assert res["gnn"][k] < 0.95 * res["cnn"][k], k
     r = pressure_probe("gnn")
-    assert np.isfinite(r["mae_kpa"]) and r["mae_kpa"] < 0.25 * r["baseline_mae_kpa"]
+    assert np.isfinite(r["mae_kpa"]) and 0.1 * r["baseline_mae_kpa"] < r["mae_kpa"] < r["baseline_mae_kpa"]
+
+
+def test_reconstructor_uses_the_reference_at_the_operating_pressure():
+    """No-contact frames at 0 and 8 kPa: the default reference is the no-contact frame at the same pressure,
+    and the surface comes out inflated by the sensor's calibration (0.03 mm/kPa), not pressed."""
+    from vtrack.dome.reconstruct import DomeReconstructor
+    from vtrack.dome.simulate import DomeSimulator, Press
+
+    rec = DomeReconstructor("gnn")
+    assert rec.cfg.reference_at_pressure
+    sim = DomeSimulator(rec.cfg)
+    R = rec.cfg.radius_mm
+    for P in (0.0, 8.0):
+        ref_img, _ = rec.reference(P)
+        assert np.array_equal(ref_img, sim.reference_image(P))
+        img = sim.sample(np.random.default_rng(3), Press("none", np.array([0.0, 0.0, 1.0]), 0.0, 0.0, 0.0,
+                                                          np.zeros(2), P))["image"]
+        res = rec.reconstruct(img, pressure_kpa=P)
+        radius = np.linalg.norm(res.dense_mm, axis=1)
+        assert abs(np.median(radius) - (R + 0.03 * P)) < 0.05, P
+        assert res.info["max_indentation_mm"] < 0.3 and (res.contact_prob > 0.5).sum() <= 2, P
+        assert np.linalg.norm(res.force_n) < 0.5, P
+    fixed = DomeReconstructor("gnn", reference=sim.reference_image(8.0))
+    assert fixed.reference(0.0)[0] is fixed.reference(8.0)[0]  # a user reference is used as given
+
+
+def test_batcher_rejects_a_dataset_of_the_other_reference_protocol(tiny_data):
+    from dataclasses import replace
+
+    from vtrack.dome.model import DomeConfig, DomeGeometry
+    from vtrack.dome.train import Batcher
+    from vtrack.errors import InputError
+
+    legacy = DomeGeometry(replace(DomeConfig(), reference_at_pressure=False))
+    with pytest.raises(InputError, match="reference_image"):
+        Batcher("cnn", tiny_data, legacy, None)

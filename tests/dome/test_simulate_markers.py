@@ -116,3 +116,53 @@ def test_tactip_analysis_runs_end_to_end(shared_data) -> None:
     for k in ("gnn_depth_mae_mm", "gnn_roll_mae_deg", "ridge_depth_mae_mm", "ridge_roll_mae_deg"):
         assert np.isfinite(r[k]), k
     assert r["ridge_depth_mae_mm"] < r["label_std_depth_mm"]
+
+
+def test_reference_at_operating_pressure_cancels_inflation(sim) -> None:
+    """A no-contact frame at P = 8 kPa matches its own reference (captured at 8 kPa) to noise level, while
+    against a P = 0 reference the pins have moved outwards (away from the image centre)."""
+    from vtrack.dome.features import _match, reference_markers
+
+    P = 8.0
+    frame = sim.sample(np.random.default_rng(1), _press(sim, 0.0, P, "none"))["image"]
+    ms = extract_markers(frame)
+    half = sim.cfg.image_size / 2
+    c = (sim.cfg.image_size - 1) / 2
+    shifts = {}
+    for p_ref in (P, 0.0):
+        ref = reference_markers(sim.reference_image(p_ref))
+        partner, matched, _ = _match(ms, ref, half)
+        d = ms.centers[matched] - ref.centers[partner[matched]]
+        radial = ((ms.centers[matched] - c) * d).sum(1) / np.maximum(np.linalg.norm(ms.centers[matched] - c, axis=1), 1)
+        shifts[p_ref] = (np.linalg.norm(d, axis=1).mean(), np.median(radial))
+    # measured: 0.03 px mean shift, median radial 0.00 px at the right reference; 0.17 px, 0.11 px outwards
+    # against the P = 0 reference (0.24 mm inflation is ~0.1 px through the fisheye)
+    assert shifts[P][0] < 0.06 and abs(shifts[P][1]) < 0.02
+    assert shifts[0.0][1] > 0.07 and shifts[0.0][0] > 3 * shifts[P][0]
+    with pytest.raises(ValueError, match="reference pressure"):
+        sim.reference_image(-1.0)
+
+
+def test_dataset_references_follow_the_protocol() -> None:
+    from dataclasses import replace
+
+    from vtrack.dome.simulate import make_dataset
+
+    cfg = DomeConfig()
+    assert cfg.reference_at_pressure  # the default protocol
+    d = make_dataset(3, 5, cfg, cache=False)
+    assert d["reference_image"].shape == (3, cfg.image_size, cfg.image_size)
+    sim = DomeSimulator(cfg)
+    for i in range(3):
+        assert np.array_equal(d["reference_image"][i], sim.reference_image(float(d["pressure_kpa"][i])))
+    g = DomeGeometry(cfg)
+    assert np.allclose(g.reference_inflation_mm(d["pressure_kpa"]), 0.03 * d["pressure_kpa"])
+    legacy = replace(cfg, reference_at_pressure=False)
+    d0 = make_dataset(3, 5, legacy, cache=False)
+    assert d0["reference_image"].shape == (cfg.image_size, cfg.image_size)
+    assert np.array_equal(d0["image"], d["image"])  # same presses; only the reference differs
+    assert np.allclose(DomeGeometry(legacy).reference_inflation_mm(d0["pressure_kpa"]), 0.0)
+    # bundles saved before the protocol existed load as the old (P = 0) protocol
+    old = cfg.to_dict()
+    old.pop("reference_at_pressure")
+    assert DomeConfig.from_dict(old).reference_at_pressure is False

@@ -54,11 +54,14 @@ def run(quick: bool = False) -> BenchTable:
         model.decoder.set_dense(geo.dense_rest)
     table.notes += [
         f"Held-out simulated test set: {n_test} presses (seed 12345), lengths in mm, force in N. "
-        "`force_mae` uses the pressure-FiLM head, `force_mae_nop` the same head trained without pressure.",
+        "`force_mae` uses the pressure-FiLM head, `force_mae_nop` the same head without pressure (both "
+        "continued from one shared start, `train.train_force_heads`).",
         "ms = median wall time per frame, one frame at a time, 1 thread: image -> marker extraction -> Delaunay "
         "graph -> GNN (or image -> CNN) -> dense surface + force. On a machine shared with other jobs "
         "wall times are noisy upper bounds; `cpu_ms` is the process CPU time per frame (what one free core needs).",
-        "`template` = predicting the undeformed dome: contact regions are small, so surface metrics start high.",
+        "`template` = predicting the no-contact reference state (the rest dome inflated by the known "
+        "pressure): ~80 % of the dome does not move, so whole-surface metrics (CD, HD95, F-scores) start low "
+        "and only `vertex_err_moved` shows the contact region.",
         "Command: `vtrack bench dome`" + (" --quick" if quick else ""),
     ]
     return table

@@ -20,6 +20,8 @@ def time_end_to_end(method: str, weights: Path, images: np.ndarray, pressures: n
     rec = DomeReconstructor(method, weights)
     if dense_rest is not None:
         rec.model.decoder.set_dense(dense_rest)
+    for p in pressures:  # a session's reference frame is prepared once, before its frames arrive
+        rec.reference(float(p))
     rec._run(images[0], float(pressures[0]))  # warm-up
     ts, cs = [], []
     for img, p in zip(images, pressures, strict=True):
@@ -67,12 +69,16 @@ def evaluate(weights_dir: Path | None = None, n_test: int = 300, test_seed: int 
 
 
 def template_baseline(te: dict, geo) -> dict[str, float]:
-    """Metrics of predicting the undeformed template (no contact, zero force): how hard the set is."""
+    """Metrics of predicting the undeformed reference state (no contact, zero force): how hard the set is.
+
+    The reference state is the rest template inflated by the reference pressure (what a net that sees no
+    deformation would output)."""
     from vtrack.dome.metrics import evaluate_predictions
 
     n = len(te["image"])
-    pred = {"coarse": np.broadcast_to(geo.coarse_rest, te["coarse_mm"].shape),
-            "dense": np.broadcast_to(geo.dense_rest, te["dense_mm"].shape),
+    infl = geo.reference_inflation_mm(np.asarray(te["pressure_kpa"], np.float64))[:, None, None]
+    pred = {"coarse": geo.coarse_rest * (1 + infl / geo.cfg.radius_mm),
+            "dense": geo.dense_rest * (1 + infl / geo.cfg.radius_mm),
             "contact": np.zeros((n, geo.cfg.n_coarse)), "force": np.zeros((n, 3))}
     gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
           "force": te["force_n"], "dense_rest": geo.dense_rest}
@@ -84,8 +90,9 @@ def pressure_probe(method: str = "gnn", weights_dir: Path | None = None, ridge: 
 
     Ridge regression from the encoder's pooled features (global feature + mean decoder hidden state) to P,
     fitted on the training set, scored on the held-out set. A small error means the image shows the pressure
-    (the simulator's reference frame is at P = 0, so inflation moves the markers), and a force head gains
-    little from being told P. Returns ``{"mae_kpa", "baseline_mae_kpa"}`` (baseline = predicting the mean).
+    (with a reference frame at P = 0, inflation moves the markers), and a force head gains little from being
+    told P; with the reference at the operating pressure the image should not show it. Returns
+    ``{"mae_kpa", "baseline_mae_kpa"}`` (baseline = predicting the mean).
     """
     import torch
 

@@ -154,7 +154,8 @@ def graph_arrays(image: np.ndarray, ref: MarkerSet | np.ndarray, geo: DomeGeomet
     """Marker graph of one image as arrays: x (n, 13), edge_index (2, m), edge_attr (m, 8) (S5 edge attributes +
     :func:`edge_strain`), pos (n, 3).
 
-    ``ref`` is the reference (no-contact) frame's markers (``reference_markers``) or its bare centres.
+    ``ref`` is the reference (no-contact) frame's markers (``reference_markers``) or its bare centres; the
+    reference is captured at the frame's operating pressure when ``geo.cfg.reference_at_pressure``.
     """
     ms = extract_markers(image)
     g = build_graph(ms)
@@ -191,10 +192,11 @@ def prepare_graphs(data: dict, geo: DomeGeometry, cache_key: str | None = None) 
         if path.exists():
             with np.load(path) as z:
                 return {k: z[k] for k in z.files}
-    ref = reference_markers(data["reference_image"])
+    refs = np.asarray(data["reference_image"])
+    shared = reference_markers(refs) if refs.ndim == 2 else None  # else one reference frame per sample
     xs, eis, eas, ps, no, eo = [], [], [], [], [0], [0]
-    for img in data["image"]:
-        a = graph_arrays(img, ref, geo)
+    for i, img in enumerate(data["image"]):
+        a = graph_arrays(img, shared if shared is not None else reference_markers(refs[i]), geo)
         xs.append(a["x"])
         eis.append(a["edge_index"])
         eas.append(a["edge_attr"])
@@ -239,11 +241,12 @@ def slice_graph(G: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
 
 
 def image_batch(images: np.ndarray, ref_image: np.ndarray) -> dict:
-    """CNN input: (B, 2, S, S) float tensor [image, reference] scaled to [0, 1]."""
+    """CNN input: (B, 2, S, S) float tensor [image, reference] scaled to [0, 1]; ``ref_image`` is one
+    reference (S, S) for all images or one per image (B, S, S)."""
     import torch
 
     imgs = np.asarray(images, np.float32) / 255.0
     if imgs.ndim == 2:
         imgs = imgs[None]
-    ref = np.broadcast_to(np.asarray(ref_image, np.float32) / 255.0, imgs.shape)
+    ref = np.broadcast_to(np.asarray(ref_image, np.float32).reshape((-1,) + imgs.shape[1:]) / 255.0, imgs.shape)
     return {"image": torch.from_numpy(np.ascontiguousarray(np.stack([imgs, ref], 1)))}

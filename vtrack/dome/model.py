@@ -18,6 +18,14 @@ class DomeConfig:
 
     The outer (contact) surface has radius ``radius_mm``; markers sit on the inner surface
     (``radius_mm - thickness_mm``). The cap spans polar angles ``<= cap_deg`` from the apex.
+
+    Internal pressure ``P`` (kPa, ``0..pressure_max_kpa``) inflates the shell radially by
+    ``inflation_mm_per_kpa * P`` (a sensor calibration: the no-contact shape at pressure P) and stiffens it.
+    ``reference_at_pressure`` is the reference-frame protocol: True (default) = the no-contact reference
+    frame is captured at the operating pressure, as a pneumatic sensor is re-zeroed after inflating, so the
+    image shows only the contact deformation and the pressure must come from the pressure sensor; False =
+    one reference at P = 0 for every pressure (inflation then shows in the image; the protocol of the
+    bundles trained before 2026-11-23).
     """
 
     radius_mm: float = 20.0
@@ -31,6 +39,8 @@ class DomeConfig:
     n_coarse: int = 256
     n_dense: int = 1024
     pressure_max_kpa: float = 10.0
+    inflation_mm_per_kpa: float = 0.03
+    reference_at_pressure: bool = True
 
     @property
     def inner_radius_mm(self) -> float:
@@ -55,6 +65,16 @@ class DomeConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> DomeConfig:
+        """Config stored in a bundle; keys added since then take the behaviour of that time."""
+        legacy = {"reference_at_pressure": False}
+        return cls(**{**legacy, **d})
+
+    def reference_pressure(self, pressure_kpa: float) -> float:
+        """Pressure (kPa) at which the reference frame of a frame taken at ``pressure_kpa`` was captured."""
+        return float(pressure_kpa) if self.reference_at_pressure else 0.0
 
 
 def fibonacci_cap(n: int, cap_deg: float) -> np.ndarray:
@@ -111,6 +131,12 @@ class DomeGeometry:
         self.marker_rest = self.marker_dirs * c.inner_radius_mm
         self.camera_center = np.array([0.0, 0.0, -c.camera_offset_mm])
         self._faces: np.ndarray | None = None
+
+    def reference_inflation_mm(self, pressure_kpa) -> np.ndarray:
+        """Radial inflation (mm) of the reference (no-contact) state for frames at ``pressure_kpa`` (scalar or
+        array): the offset from the rest templates that the nets do not have to read from the image."""
+        p = np.asarray(pressure_kpa, np.float64)
+        return self.cfg.inflation_mm_per_kpa * p if self.cfg.reference_at_pressure else np.zeros_like(p)
 
     @property
     def dense_faces(self) -> np.ndarray:

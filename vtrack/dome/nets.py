@@ -120,10 +120,14 @@ class CoarseToFineDecoder(nn.Module):
         self.interp_idx = idx
         self.interp_w = idw_weights(dist / self.R)
 
-    def forward(self, feat: torch.Tensor, glob: torch.Tensor, coarse_only: bool = False) -> dict[str, torch.Tensor]:
+    def forward(self, feat: torch.Tensor, glob: torch.Tensor, coarse_only: bool = False,
+                ref_inflation_mm: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """feat (B, 256, F) per coarse point, glob (B, G) -> contact logits, coarse and dense positions (mm).
 
-        ``coarse_only`` skips the fine stage (training phase 1)."""
+        The nets predict displacements from the reference (no-contact) state; ``ref_inflation_mm`` (B,) is
+        that state's radial inflation from the rest template (sensor calibration, ``DomeGeometry.
+        reference_inflation_mm``), added to the output positions (``disp_coarse`` stays relative to the
+        reference state, which is what the force head needs). ``coarse_only`` skips the fine stage."""
         a = self.in_feat(feat) + self.in_glob(glob).unsqueeze(1) + self.in_pos(self.coarse_rest / self.R)
         zc, zd = torch.relu(a).chunk(2, -1)
         logit = self.contact(zc).squeeze(-1)  # S6-S7
@@ -132,6 +136,9 @@ class CoarseToFineDecoder(nn.Module):
         d = self.coarse_head(torch.cat([h, gate], -1)) * DISP_SCALE_MM
         disp_c = gate * d[..., :3] + (1 - gate) * d[..., 3:]  # S8-S9: contact-gated deformation
         coarse = self.coarse_rest + disp_c
+        infl = None if ref_inflation_mm is None else ref_inflation_mm.view(-1, 1, 1) / self.R
+        if infl is not None:
+            coarse = coarse + infl * self.coarse_rest
         if coarse_only:
             return {"contact_logit": logit, "coarse": coarse, "hidden": h, "disp_coarse": disp_c}
         # S10-S12: EdgeConv on the coarse graph, interpolate to the dense template, bounded residual
@@ -142,6 +149,8 @@ class CoarseToFineDecoder(nn.Module):
         dd = q[..., -3:]
         q = torch.relu(q[..., :-3] + self.fine_pos(self.dense_rest / self.R))
         dense = self.dense_rest + dd + self.s_mm * torch.tanh(self.fine_out(q))
+        if infl is not None:
+            dense = dense + infl * self.dense_rest
         return {"contact_logit": logit, "coarse": coarse, "dense": dense, "hidden": h, "disp_coarse": disp_c}
 
 
@@ -205,7 +214,7 @@ class DomeGNN(nn.Module):
         w = w / w.sum(-1, keepdim=True).clamp_min(1e-6)
         feat = torch.gather(hd, 1, idx.flatten(1).unsqueeze(-1).expand(-1, -1, hd.shape[-1]))
         feat = (feat.view(B, idx.shape[1], self.k, -1) * w.unsqueeze(-1)).sum(2)
-        out = self.decoder(feat, glob, coarse_only)
+        out = self.decoder(feat, glob, coarse_only, batch.get("ref_inflation_mm"))
         out["glob"] = glob
         return out
 
@@ -241,7 +250,7 @@ class DomeCNN(nn.Module):
         s4 = F.grid_sample(f4, g, align_corners=False).squeeze(2).transpose(1, 2)
         feat = torch.relu(self.proj(torch.cat([s3, s4], -1)))
         glob = torch.cat([f4.mean((2, 3)), f4.amax((2, 3))], -1)
-        out = self.decoder(feat, glob, coarse_only)
+        out = self.decoder(feat, glob, coarse_only, batch.get("ref_inflation_mm"))
         out["glob"] = glob
         return out
 

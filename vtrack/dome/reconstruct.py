@@ -65,16 +65,16 @@ class DomeReconstructor:
     Args:
         method: ``"gnn"`` (default) or ``"cnn"``.
         weights: bundle file (default: the shipped ``vtrack/dome/weights/<method>.pt``).
-        reference: the sensor's no-contact image (array or path); default the simulator's reference frame.
+        reference: the sensor's no-contact image (array or path), captured at the operating pressure that
+            is passed to :meth:`reconstruct` (``DomeConfig.reference_at_pressure``; at P = 0 for bundles of the
+            older protocol). Default: the simulator's reference frame at the frame's pressure.
     """
 
     def __init__(self, method: str = "gnn", weights: str | Path | None = None,
                  reference: np.ndarray | str | Path | None = None) -> None:
         import torch
 
-        from vtrack.dome.features import reference_markers
         from vtrack.dome.model import DomeGeometry
-        from vtrack.dome.simulate import DomeSimulator
         from vtrack.dome.train import load_bundle
 
         if method not in ("gnn", "cnn"):
@@ -85,16 +85,34 @@ class DomeReconstructor:
         self.method = method
         self.model, self.heads, self.cfg, self.info = load_bundle(path)
         self.geo = DomeGeometry(self.cfg)
-        if reference is None:
-            ref = DomeSimulator(self.cfg).reference_image()
-        else:
+        self._torch = torch
+        self._fixed: tuple | None = None  # user reference: (image, markers)
+        self._simulated: dict[float, tuple] = {}  # simulated references by pressure (kPa)
+        if reference is not None:
             ref = self._read(reference)
             self._check_size(ref, reference if isinstance(reference, (str, Path)) else None)
+            self._fixed = self._prepare_reference(ref)
+
+    def _prepare_reference(self, ref: np.ndarray) -> tuple:
+        from vtrack.dome.features import reference_markers
         from vtrack.dome.markers import check_image
 
-        self.reference = check_image(ref)
-        self.ref_markers = reference_markers(self.reference)
-        self._torch = torch
+        ref = check_image(ref)
+        return ref, reference_markers(ref)
+
+    def reference(self, pressure_kpa: float = 0.0) -> tuple:
+        """(reference image, its markers) used for frames at ``pressure_kpa``: the user's reference, else the
+        simulator's no-contact frame at the reference pressure (prepared once per pressure and cached)."""
+        if self._fixed is not None:
+            return self._fixed
+        key = round(self.cfg.reference_pressure(pressure_kpa), 6)
+        if key not in self._simulated:
+            from vtrack.dome.simulate import DomeSimulator
+
+            if len(self._simulated) >= 64:  # a session uses one pressure; bound the cache anyway
+                self._simulated.pop(next(iter(self._simulated)))
+            self._simulated[key] = self._prepare_reference(DomeSimulator(self.cfg).reference_image(key))
+        return self._simulated[key]
 
     @classmethod
     def from_scene(cls, scene: Any, **opts: Any) -> DomeReconstructor:
@@ -153,13 +171,17 @@ class DomeReconstructor:
 
         t0 = time.perf_counter()
         n_markers, method = 0, "image"
+        ref_img, ref_markers = self.reference(p)
+        infl = torch.tensor([float(self.geo.reference_inflation_mm(p))], dtype=torch.float32)
         with torch.no_grad():
             if self.method == "gnn":
-                g = graph_arrays(img, self.ref_markers, self.geo)
+                g = graph_arrays(img, ref_markers, self.geo)
                 n_markers, method = len(g["x"]), g["method"]
-                out = self.model(collate_graphs([g]))
+                batch = collate_graphs([g])
             else:
-                out = self.model(image_batch(img, self.reference))
+                batch = image_batch(img, ref_img)
+            batch["ref_inflation_mm"] = infl
+            out = self.model(batch)
             force = np.zeros(3, np.float32)
             if "p" in self.heads:
                 force = self.heads["p"](out, torch.tensor([p]), self.model.decoder.coarse_rest)[0].numpy()
@@ -171,7 +193,8 @@ class DomeReconstructor:
             if not np.all(np.isfinite(arr)):  # never let NaN/Inf out silently
                 raise InputError("non-finite network output", field=name, expected="finite values")
         rest = self.model.decoder.dense_rest.numpy()  # may be a subset (benchmark operating points)
-        ind = np.linalg.norm(rest, axis=1) - np.linalg.norm(dense, axis=1)
+        # indentation from the reference (no-contact) state at this pressure, not from the deflated rest shape
+        ind = np.linalg.norm(rest, axis=1) + float(infl[0]) - np.linalg.norm(dense, axis=1)
         faces = self.geo.dense_faces if len(dense) == self.cfg.n_dense else np.zeros((0, 3), np.int64)
         info = {"max_indentation_mm": float(max(0.0, ind.max())), "pressure_kpa": p,
                 "low_marker_count": bool(self.method == "gnn" and n_markers < 0.5 * self.cfg.n_markers)}

@@ -12,7 +12,9 @@ Deformation model (why: fast, smooth, and it respects the rigid-contact constrai
    ``l = 1.5 * thickness``. The max keeps contact points on the indenter surface (thin-shell
    approximation: inner and outer surface move together, no through-thickness compression).
 3. *Shear and pressure.* Friction adds a tangential displacement ``s * w / max(w)``; internal pressure
-   ``P`` (kPa) inflates the shell radially by ``alpha * P`` and stiffens it.
+   ``P`` (kPa) inflates the shell radially by ``alpha * P`` (``DomeConfig.inflation_mm_per_kpa``) and
+   stiffens it. The reference (no-contact) frame is rendered at the operating pressure when
+   ``DomeConfig.reference_at_pressure`` (one reference per sample), else at P = 0.
 4. *Force* (N): ``F = -n_c k_n(P) sum delta A + k_t s A_contact`` with ``k_n(P) = k0 (1 + P / P_max)``
    (Winkler-foundation estimate; the shell gets stiffer when inflated).
 
@@ -36,7 +38,6 @@ INDENTERS = ("sphere", "cylinder", "edge", "textured")
 #: area per template point (mm^2) is computed from the cap area; stiffness constants below.
 K0_N_PER_MM3 = 0.04
 KT_N_PER_MM3 = 0.05
-INFLATION_MM_PER_KPA = 0.03
 
 
 @dataclass
@@ -114,7 +115,7 @@ class DomeSimulator:
         c = self.cfg
         dirs = self._eval_dirs
         P = press.pressure_kpa
-        disp = dirs * (INFLATION_MM_PER_KPA * P)  # radial inflation
+        disp = dirs * (c.inflation_mm_per_kpa * P)  # radial inflation
         delta = np.zeros(len(dirs))
         force = np.zeros(3)
         if press.shape != "none":
@@ -200,21 +201,28 @@ class DomeSimulator:
                 "force_n": d["force"].astype(np.float32), "pressure_kpa": np.float32(press.pressure_kpa),
                 "shape": press.shape}
 
-    def reference_image(self) -> np.ndarray:
-        """No-contact, zero-pressure, noise-free image (the sensor's reference frame)."""
-        return self.render(self.geo.marker_rest, None, noise=0.0)
+    def reference_image(self, pressure_kpa: float = 0.0) -> np.ndarray:
+        """No-contact, noise-free image at internal pressure ``pressure_kpa`` (the sensor's reference frame)."""
+        p = float(pressure_kpa)
+        if not np.isfinite(p) or p < 0:
+            raise ValueError(f"reference pressure must be finite and >= 0 kPa, got {pressure_kpa}")
+        g = self.geo
+        return self.render(g.marker_rest + g.marker_dirs * (self.cfg.inflation_mm_per_kpa * p), None, noise=0.0)
 
 
 def dataset_path(n: int, seed: int, cfg: DomeConfig) -> Path:
     from vtrack.paths import cache_dir
 
-    key = hashlib.sha1(json.dumps({"n": n, "seed": seed, "cfg": cfg.to_dict(), "v": 3}, sort_keys=True).encode())
+    key = hashlib.sha1(json.dumps({"n": n, "seed": seed, "cfg": cfg.to_dict(), "v": 4}, sort_keys=True).encode())
     return cache_dir() / "dome" / f"sim_{n}_{seed}_{key.hexdigest()[:10]}.npz"
 
 
 def make_dataset(n: int, seed: int, cfg: DomeConfig | None = None, *, cache: bool = True,
                  progress: bool = False) -> dict[str, np.ndarray]:
-    """``n`` simulated samples stacked into arrays (cached as .npz in ``vtrack.paths.cache_dir()``)."""
+    """``n`` simulated samples stacked into arrays (cached as .npz in ``vtrack.paths.cache_dir()``).
+
+    ``reference_image`` is (S, S) (one reference at P = 0) or, when ``cfg.reference_at_pressure``, (n, S, S):
+    each sample's reference frame at its own operating pressure."""
     cfg = cfg or DomeConfig()
     path = dataset_path(n, seed, cfg)
     if cache and path.exists():
@@ -230,7 +238,10 @@ def make_dataset(n: int, seed: int, cfg: DomeConfig | None = None, *, cache: boo
         if progress and (i + 1) % 500 == 0:
             print(f"[dome simulate] {i + 1}/{n}", flush=True)
     arrs = {k: np.stack(v) if k != "shape" else np.array(v) for k, v in out.items()}
-    arrs["reference_image"] = sim.reference_image()
+    if cfg.reference_at_pressure:
+        arrs["reference_image"] = np.stack([sim.reference_image(p) for p in arrs["pressure_kpa"]])
+    else:
+        arrs["reference_image"] = sim.reference_image()
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")

@@ -18,7 +18,8 @@ def register(app: typer.Typer) -> None:
         n: int = typer.Option(20, "--n", min=1, help="number of samples"),
         seed: int = typer.Option(0, "--seed"),
     ) -> None:
-        """Simulate dome presses: PNG images + ground truth (markers, templates, contact, force) in gt.npz."""
+        """Simulate dome presses: PNG images, their no-contact reference frames (at each press's operating
+        pressure: dome_XXXXX_ref.png) and ground truth (markers, templates, contact, force, pressure) in gt.npz."""
         import cv2
         import numpy as np
 
@@ -28,9 +29,14 @@ def register(app: typer.Typer) -> None:
         out.mkdir(parents=True, exist_ok=True)
         for i, img in enumerate(data["image"]):
             cv2.imwrite(str(out / f"dome_{i:05d}.png"), img)
-        cv2.imwrite(str(out / "reference.png"), data["reference_image"])
-        np.savez_compressed(out / "gt.npz", **{k: v for k, v in data.items() if k != "image"})
-        typer.echo(f"wrote {n} images, reference.png and gt.npz to {out}")
+        refs = data["reference_image"]
+        if refs.ndim == 3:
+            for i, ref in enumerate(refs):
+                cv2.imwrite(str(out / f"dome_{i:05d}_ref.png"), ref)
+        else:
+            cv2.imwrite(str(out / "reference.png"), refs)
+        np.savez_compressed(out / "gt.npz", **{k: v for k, v in data.items() if k not in ("image", "reference_image")})
+        typer.echo(f"wrote {n} images, their reference frames and gt.npz to {out}")
 
     @dome_app.command("train")
     def train(
@@ -93,10 +99,11 @@ def register(app: typer.Typer) -> None:
     @dome_app.command("reconstruct")
     def reconstruct(
         image: Path = typer.Argument(..., help="dome-sensor image (grey or colour)"),
-        pressure: float = typer.Option(0.0, "--pressure", help="internal pressure, kPa"),
+        pressure: float = typer.Option(0.0, "--pressure", help="internal (operating) pressure, kPa"),
         method: str = typer.Option("gnn", "--method", help="gnn | cnn"),
         weights: Path = typer.Option(None, "--weights", help="bundle .pt (default: shipped)"),
-        reference: Path = typer.Option(None, "--reference", help="no-contact image of the same sensor"),
+        reference: Path = typer.Option(None, "--reference",
+                                       help="no-contact image of the same sensor at the same pressure"),
         resize: bool = typer.Option(False, "--resize", help="rescale the image to the model's input size"),
         out: Path = typer.Option(None, "--out", help="write mesh.ply, coarse.ply, result.json here"),
     ) -> None:
