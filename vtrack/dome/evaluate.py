@@ -98,7 +98,7 @@ def pressure_probe(method: str = "gnn", weights_dir: Path | None = None, ridge: 
     import torch
 
     from vtrack.dome.model import DomeGeometry
-    from vtrack.dome.train import Batcher, bundle_train_config, load_bundle, load_sets
+    from vtrack.dome.train import Batcher, bundle_train_config, force_features, load_bundle, load_sets
     from vtrack.dome.train import weights_dir as wdir
 
     path = Path(weights_dir or wdir()) / f"{method}.pt"
@@ -108,13 +108,8 @@ def pressure_probe(method: str = "gnn", weights_dir: Path | None = None, ridge: 
     tr, te = load_sets(tc, cfg)
 
     def feats(data: dict, n: int, seed: int) -> np.ndarray:
-        bt = Batcher(method, data, geo, f"{n}-{seed}-{cfg.to_dict()}")
-        out = []
-        with torch.no_grad():
-            for s in range(0, len(bt), 128):
-                o = model(bt.inputs(np.arange(s, min(len(bt), s + 128))), coarse_only=True)
-                out.append(torch.cat([o["glob"], o["hidden"].mean(1)], -1).numpy())
-        return np.concatenate(out).astype(np.float64)
+        o = force_features(model, Batcher(method, data, geo, f"{n}-{seed}-{cfg.to_dict()}"))
+        return torch.cat([o["glob"], o["hidden"].mean(1)], -1).numpy().astype(np.float64)
 
     xtr, xte = feats(tr, tc.n_train, tc.seed), feats(te, tc.n_test, tc.test_seed)
     ytr, yte = np.asarray(tr["pressure_kpa"], np.float64), np.asarray(te["pressure_kpa"], np.float64)

@@ -242,7 +242,7 @@ def train_force(model, train: Batcher, tc: TrainConfig, use_pressure: bool, log=
     return head
 
 
-def train_force_heads(model, train: Batcher, tc: TrainConfig, log=print) -> dict:
+def train_force_heads(model, train: Batcher, tc: TrainConfig, log=print, feats: dict | None = None) -> dict:
     """The two force heads, "p" (pressure FiLM) and "nop" (P = 0), with the same budget from one shared start.
 
     A head is trained without pressure for ``epochs_force // 2`` epochs; it is then continued for the
@@ -251,7 +251,7 @@ def train_force_heads(model, train: Batcher, tc: TrainConfig, log=print) -> dict
     scratch ended up to 10 % apart in training loss from optimisation noise alone (measured: a CNN head with P
     at 0.433 vs 0.396 without), which swamps the effect of P that the with/without comparison measures.
     """
-    feats = force_features(model, train)
+    feats = feats if feats is not None else force_features(model, train)
     first = max(1, tc.epochs_force // 2)
     rest = max(1, tc.epochs_force - first)
     base = train_force(model, train, tc, False, log, epochs=first, feats=feats)
@@ -259,21 +259,16 @@ def train_force_heads(model, train: Batcher, tc: TrainConfig, log=print) -> dict
             "nop": train_force(model, train, tc, False, log, init=base, epochs=rest, feats=feats)}
 
 
-def fit_contact_calibration(model, train: Batcher, batch: int = 128) -> tuple[float, float]:
+def fit_contact_calibration(model, train: Batcher, feats: dict | None = None) -> tuple[float, float]:
     """Platt scaling of the contact logit on the training set: (a, b) minimising the mean squared error of
     ``sigmoid(a * logit + b)`` against the GT mask (the Brier score, i.e. what ``contact_l2`` measures).
+    ``feats`` are the net's :func:`force_features` on ``train`` when already computed.
 
     Why: the contact BCE weights contact points 4x (recall matters for the contact gate), which shifts the
     raw probabilities of the ~98 % non-contact points upwards; the reported probability should be calibrated.
     """
-    import torch
-
-    logits = []
-    with torch.no_grad():
-        for b in range(0, len(train), batch):
-            idx = np.arange(b, min(len(train), b + batch))
-            logits.append(model(train.inputs(idx), coarse_only=True)["contact_logit"])
-    return platt_fit(torch.cat(logits).flatten(), train.contact.flatten())
+    logits = (feats if feats is not None else force_features(model, train))["contact_logit"]
+    return platt_fit(logits.flatten(), train.contact.flatten())
 
 
 def platt_fit(z, y) -> tuple[float, float]:
@@ -409,8 +404,9 @@ def train_all(tc: TrainConfig | None = None, cfg: DomeConfig | None = None, out_
         btr = Batcher(kind, tr, geo, f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
         bte = Batcher(kind, te, geo, f"{tc.n_test}-{tc.test_seed}-{cfg.to_dict()}")
         model = train_recon(kind, btr, tc, log)
-        heads = train_force_heads(model, btr, tc, log)
-        model.decoder.contact_calib = fit_contact_calibration(model, btr)
+        feats = force_features(model, btr)  # frozen net outputs, shared by the force heads and the calibration
+        heads = train_force_heads(model, btr, tc, log, feats)
+        model.decoder.contact_calib = fit_contact_calibration(model, btr, feats)
         secs = time.time() - t0
         pred = predict(model, heads, bte)
         gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
