@@ -36,3 +36,13 @@ def tiny_session(shared_data) -> Path:
     from vtrack.sim.fixtures import tiny_session_path
 
     return tiny_session_path(occlusion="none", seconds=1.0)
+
+
+@pytest.fixture(scope="session")
+def blind_session(tiny_session, tmp_path_factory) -> Path:
+    """``tiny_session`` with every trace of ground truth removed (``vtrack session strip-gt``)."""
+    from vtrack.io.strip import strip_gt
+
+    out = tmp_path_factory.mktemp("blind") / "session"
+    strip_gt(tiny_session, out)
+    return out

@@ -1,10 +1,13 @@
 """The main job (``vtrack demo``): run a scene end to end and write a results folder.
 
 Stages, each run only when its component exists and the scene asks for it:
-1. generate a synthetic session from the scene (``vtrack.sim``), cached by scene content;
-2. reconstruct the object (``vtrack.fusion``) -> mesh, fused cloud, metrics;
-3. track the object pose (``vtrack.tracking``) -> poses, metrics;
-4. screenshot (``vtrack.viz``).
+1. generate a synthetic session from the scene (``vtrack.sim``), cached by scene content, and strip it of
+   every trace of ground truth (``vtrack.io.strip``): the pipeline below sees only what a real recording has;
+2. reconstruct the object (``vtrack.fusion``) from the blind session: SLAM poses (the shape is not given),
+   segmentation and touch without ground truth -> mesh, poses, fused cloud, metrics;
+3. track the object pose (``vtrack.tracking``) on the blind session with the scene's mesh as the user's
+   known shape (no initial pose: global registration) -> poses, metrics;
+4. score both against the ORIGINAL session's ground truth (``vtrack.eval``), and screenshot (``vtrack.viz``).
 """
 
 from __future__ import annotations
@@ -66,17 +69,28 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
         if not (session_dir / "manifest.json").exists() or not _session_complete(session_dir):
             generate_session(scene, session_dir, seconds=seconds, overwrite=True, progress=progress)
         summary["stages"]["generate"] = {"session": str(session_dir), "seconds": time.perf_counter() - ts}
-    if session_dir is not None and scene.pipeline.reconstruction != "off" and _available("vtrack.fusion.reconstruct"):
+    blind_dir: Path | None = None
+    if session_dir is not None:
+        from vtrack.io.strip import strip_gt
+
+        blind_dir = session_dir.with_name(session_dir.name + "-blind")
+        ts = time.perf_counter()
+        if not _session_complete(blind_dir):
+            strip_gt(session_dir, blind_dir, overwrite=blind_dir.exists())
+        summary["stages"]["strip_gt"] = {"session": str(blind_dir), "seconds": time.perf_counter() - ts}
+    if blind_dir is not None and scene.pipeline.reconstruction != "off" and _available("vtrack.fusion.reconstruct"):
         from vtrack.fusion.reconstruct import reconstruct_session
 
-        summary["stages"]["reconstruct"] = reconstruct_session(session_dir, out / "reconstruction",
+        summary["stages"]["reconstruct"] = reconstruct_session(blind_dir, out / "reconstruction",
                                                                method=scene.pipeline.reconstruction,
-                                                               modalities=tuple(scene.effective_modalities))
-    if session_dir is not None and scene.pipeline.tracking != "off" and _available("vtrack.tracking.run"):
+                                                               modalities=tuple(scene.effective_modalities),
+                                                               poses="track", gt=session_dir)
+    if blind_dir is not None and scene.pipeline.tracking != "off" and _available("vtrack.tracking.run"):
         from vtrack.tracking.run import track_session
 
-        shape = "slam" if scene.pipeline.tracking == "slam" else "known"
-        summary["stages"]["track"] = track_session(session_dir, out / "tracking", shape=shape,
+        known = scene.pipeline.tracking == "known_shape" and scene.object.mesh is not None
+        summary["stages"]["track"] = track_session(blind_dir, out / "tracking", shape="known" if known else "slam",
+                                                   mesh=scene.object.mesh if known else None, gt=session_dir,
                                                    modalities=tuple(scene.effective_modalities))
     produced = any(k in summary["stages"] for k in ("generate", "reconstruct", "track"))
     if produced and _available("vtrack.viz.screenshot"):

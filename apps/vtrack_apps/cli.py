@@ -28,8 +28,20 @@ app = typer.Typer(
 @app.callback()
 def _root(
     threads: int = typer.Option(0, "--threads", help="torch/OpenMP threads (0 = library default)."),
+    on_corrupt: str = typer.Option(None, "--on-corrupt",
+                                   help="session frames whose data chunks are damaged: raise (default), "
+                                        "skip them, or stop at the first"),
 ) -> None:
     """vtrack: tactile height maps, world-frame visuo-tactile fusion, in-hand tracking."""
+    if on_corrupt is not None:
+        import os
+
+        from vtrack.errors import InputError
+
+        if on_corrupt not in ("raise", "skip", "stop"):
+            raise InputError("unknown value", field="--on-corrupt", expected="raise, skip or stop", got=on_corrupt)
+        # The session reader reads this (vtrack.io.session.ON_CORRUPT_ENV), so every command honours it.
+        os.environ["VTRACK_ON_CORRUPT"] = on_corrupt
     if threads > 0:
         import os
 
@@ -58,7 +70,8 @@ def main() -> None:
     try:
         app()
     except VtrackError as e:
-        typer.secho(f"error: {e}", fg=typer.colors.RED, err=True)
+        # Always one line, even if a message carries a library's multi-line text.
+        typer.secho(f"error: {' '.join(str(e).split())}", fg=typer.colors.RED, err=True)
         sys.exit(2)
     except KeyboardInterrupt:
         typer.secho("interrupted", err=True)

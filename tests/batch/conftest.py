@@ -50,7 +50,8 @@ def real_case(synthetic_sessions) -> BatchCase | None:
     if not _have("vtrack.fusion.reconstruct"):
         return None
     return BatchCase("reconstruct", synthetic_sessions[:3],
-                     {"method": "tsdf", "modalities": ["vision"], "screenshot": False})
+                     {"method": "tsdf", "modalities": ["vision"], "screenshot": False, "poses": "gt",
+                      "segmentation": "gt"})
 
 
 @pytest.fixture(scope="session")

@@ -88,7 +88,9 @@ def test_live_tracking_and_reconstruction_on_replay(tmp_path):
     tr = res["consumers"]["track"]
     assert "first_error" not in tr, tr.get("first_error")
     assert tr["result"]["steps"] >= 5
-    assert tr["result"]["translation_error_mm_final"] < 5.0
+    # blind SLAM (no mesh, no pose given), scored after the run against the session's ground truth; a
+    # sphere's spin is unobservable, so ADD-S (measured 1.6 mm; ADD 5.1 mm)
+    assert tr["result"]["mode"] == "slam" and tr["result"]["motion_add_s_mm"] < 4.0
     rc = res["consumers"]["reconstruct"]
     assert "first_error" not in rc, rc.get("first_error")
     assert rc["result"]["integrated"] >= 5 and rc["result"]["mesh_vertices"] > 50

@@ -43,8 +43,9 @@ def test_tiny_session_is_valid(tiny_session):
 
     r = open_session(tiny_session)
     assert r.complete
-    sc = r.scene(check_files=True)  # embedded scene resolves assets/object.ply
-    assert sc.object.mesh == tiny_session / "assets" / "object.ply"
+    sc = r.scene(check_files=True)  # embedded scene resolves the sensors' calibrations in assets/
+    assert sc.object.mesh is None and sc.object.T_world_object is None  # what a user would know: neither
+    assert all(t.calibration == tiny_session / "assets" / "calibration" / f"{t.name}.npz" for t in sc.tactile)
     hk = HandKinematics.from_scene(sc)
     assert r["joints"].attrs["joint_names"] == hk.joint_names
     assert len(r["joints"]) == 60 and len(r["gt/object_pose"]) == 60
@@ -62,7 +63,7 @@ def test_tiny_session_is_valid(tiny_session):
     # The object mesh is stored centred (bounding-box centre at the object-frame origin).
     import trimesh
 
-    m = trimesh.load(r.asset("object.ply"))
+    m = trimesh.load(r.path / "gt" / "object.ply")
     assert np.abs(m.bounds.mean(0)).max() < 1e-6
     assert m.is_watertight
 
@@ -79,13 +80,13 @@ def test_rendered_depth_lies_on_object_and_hand(exact_session):
     K = np.asarray(cam.attrs["K"])
     pc = PinholeCamera(cam.attrs["width"], cam.attrs["height"], K[0, 0], K[1, 1], K[0, 2], K[1, 2])
     T_wc = np.asarray(cam.attrs["T_world_camera"])
-    obj = load_object_mesh(r.asset("object.ply"))
+    obj = load_object_mesh(r.path / "gt" / "object.ply")
     hk = HandKinematics.from_scene(r.scene())
     i = 3
     t = cam.t[i]
     pts, rc = pc.unproject(cam["depth"][i], depth_scale=cam.attrs["depth_scale"])
     pw = transform_points(T_wc, pts)
-    on_obj = cam["mask"][i][rc[:, 0], rc[:, 1]] > 0
+    on_obj = r["gt/camera/cam0"]["mask"][i][rc[:, 0], rc[:, 1]] > 0
     assert on_obj.sum() > 500 and (~on_obj).sum() > 500
     T_wo = r["gt/object_pose"].sample("T_world_object", [t], mode="linear")[0]
     d_obj = _mesh_distance(obj.vertices, obj.faces, transform_points(np.linalg.inv(T_wo), pw[on_obj]))
@@ -109,7 +110,7 @@ def test_tactile_contacts_lie_on_object_surface(exact_session):
 
     r = open_session(exact_session)
     hk = HandKinematics.from_scene(r.scene())
-    obj = load_object_mesh(r.asset("object.ply"))
+    obj = load_object_mesh(r.path / "gt" / "object.ply")
     n_pts = 0
     for s in hk.sensor_names:
         gt = r[f"gt/tactile/{s}"]

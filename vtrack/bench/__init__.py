@@ -9,4 +9,6 @@ STAGES: dict[str, str] = {
     "fusion": "vtrack.bench.fusion",
     "tracking": "vtrack.bench.tracking",
     "dome": "vtrack.bench.dome",
+    "simreal": "vtrack.bench.simreal",
+    "segmentation": "vtrack.bench.segmentation",
 }

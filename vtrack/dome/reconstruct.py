@@ -32,7 +32,15 @@ class DomeResult:
     ms: float
     info: dict = field(default_factory=dict)
 
+    @property
+    def valid(self) -> bool:
+        """False when the input did not look like a frame of this sensor (see ``info['invalid_reason']``)."""
+        return bool(self.info.get("valid", True))
+
     def summary(self) -> dict[str, Any]:
+        if not self.valid:  # no force/indentation numbers from an image the model cannot read
+            return {"valid": False, "n_markers": self.n_markers, "force_n": None, "contact_points": None,
+                    "max_indentation_mm": None, "invalid_reason": self.info.get("invalid_reason", "")}
         return {"n_markers": self.n_markers, "graph": self.graph_method, "ms": round(self.ms, 2),
                 "force_n": [round(float(v), 4) for v in self.force_n],
                 "contact_points": int((self.contact_prob > 0.5).sum()),
@@ -163,7 +171,39 @@ class DomeReconstructor:
         if not np.isfinite(p) or p < 0 or p > self.cfg.pressure_max_kpa:
             raise InputError("internal pressure out of the trained range", field="pressure_kpa",
                              expected=f"0 <= P <= {self.cfg.pressure_max_kpa} kPa", got=pressure_kpa)
-        return self._run(img, p)
+        res = self._run(img, p)
+        ok, reason = self.marker_match(img, p)
+        res.info["valid"] = ok
+        if not ok:
+            res.info["invalid_reason"] = reason
+        return res
+
+    #: fraction of the reference markers that must be found near their rest position for a frame to be read
+    MIN_MATCHED_FRACTION = 0.6
+
+    def marker_match(self, img: np.ndarray, pressure_kpa: float = 0.0) -> tuple[bool, str]:
+        """Is ``img`` a frame of this sensor? (validity, reason if not).
+
+        A real press moves markers by well under one marker spacing except inside the contact, so most
+        reference (no-contact) markers have a detected marker within half a spacing. Random noise,
+        blank images, other sensors and the un-rectified fisheye frames find few (measured: simulated
+        presses 100 %, noise 1 %, black 0 %, the real DiffTactile frames resized 4 % and 23 %).
+        """
+        from scipy.spatial import cKDTree
+
+        from vtrack.dome.markers import extract_markers
+
+        ref = self.reference(pressure_kpa)[1].centers
+        found = extract_markers(img).centers
+        if len(ref) < 3:
+            return False, "the reference image has fewer than 3 markers"
+        spacing = float(np.median(cKDTree(ref).query(ref, k=2)[0][:, 1]))
+        frac = float((cKDTree(found).query(ref)[0] < 0.5 * spacing).mean()) if len(found) else 0.0
+        if frac < self.MIN_MATCHED_FRACTION:
+            return False, (f"not a frame of this dome sensor: {frac:.0%} of the {len(ref)} reference markers found "
+                           f"near their rest position (need >= {self.MIN_MATCHED_FRACTION:.0%}; "
+                           f"{len(found)} markers detected)")
+        return True, ""
 
     def _run(self, img: np.ndarray, p: float) -> DomeResult:
         torch = self._torch

@@ -1,8 +1,12 @@
-"""``reconstruct_session``: session -> object-frame mesh, unified cloud, metrics, screenshot.
+"""``reconstruct_session``: session -> object-frame mesh, poses, unified cloud, metrics, screenshot.
 
-Mapping only: object poses are KNOWN (``gt/object_pose``); every observation is accumulated in the
-object frame, and the result is compared with the session's GT mesh ``assets/object.ply`` (object
-frame) when it exists.
+Works on a recording without ground truth: the object poses come from the tracker run on the same
+session (``poses="track"``: SLAM for an unknown object, known-shape tracking when ``mesh`` is given),
+from a ``poses.csv`` file, or - as a labelled ORACLE ablation - from the simulator (``poses="gt"``).
+Every observation (frames layer: segmented depth, contacts from tactile images) is moved into the object
+frame of those poses and fused. The result is scored against ground truth only when it is available
+(``gt=`` session, or the session's own ``gt/``), after aligning the estimate's object frame to the GT's
+(:mod:`vtrack.eval.session_gt`).
 """
 
 from __future__ import annotations
@@ -92,22 +96,31 @@ def reconstruct_observations(obs: list, method: str = "neural_sdf", *, online: b
 
 
 def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: str = "neural_sdf",
-                        modalities: Any = ("vision", "touch"), *, tactile_source: str = "auto",
-                        online: bool = False, screenshot: bool = True, vision_frame_step: int = 2,
-                        touch_frame_step: int = 2, vision_stride: int = 4, touch_stride: int = 6,
-                        threads: int | None = 1, **opts: Any) -> dict[str, Any]:
-    """Reconstruct a session's object (known object poses) and write the result folder.
+                        modalities: Any = ("vision", "touch"), *, poses: str | Path = "track",
+                        mesh: str | Path | None = None, gt: str | Path | None = None,
+                        tactile_source: str = "pipeline", segmentation: str = "pipeline", online: bool = False,
+                        screenshot: bool = True, frame_step: int = 2, vision_stride: int = 4, touch_stride: int = 3,
+                        threads: int | None = 1, track_opts: dict | None = None, **opts: Any) -> dict[str, Any]:
+    """Reconstruct a session's object and write the result folder.
 
-    Writes ``mesh.ply``, ``cloud.ply`` (object-frame unified cloud with ``modality``, ``sensor_id``,
-    ``t``, ``confidence``, ``tactile_value``), ``metrics.json``, ``result.json`` and ``screenshot.png``
-    into ``out_dir``. Returns the metrics dict (also in ``metrics.json``): ``fscore`` at 1/2/5/10 mm,
-    ``precision``, ``recall`` (at 5 mm; per threshold under ``precision_at`` / ``recall_at``),
-    ``chamfer_mm``, ``normal_consistency``, ``seconds`` (whole reconstruction incl. loading),
-    ``modalities``, ``method``, and what was used (``tactile_source``, frames, points).
+    Args:
+        poses: ``track`` (run the tracker: SLAM, or known shape with ``mesh``), ``gt`` (ORACLE ablation) or
+            the path of a ``poses.csv`` (``T_world_object`` over time, :mod:`vtrack.io.poses`).
+        mesh: known object shape for tracking (object frame, m); the reconstruction is then in its frame.
+        gt: session with ground truth to SCORE against (default: this session if it has ``gt/``).
+        frame_step: fuse every k-th frame of the time base (the first camera's frames).
+        track_opts: options of :func:`vtrack.tracking.run.track_session`.
+
+    Writes ``mesh.ply`` (object frame), ``poses.csv`` (the poses of the frames used, same object frame),
+    ``cloud.ply`` (object-frame unified cloud with ``modality``, ``sensor_id``, ``t``, ``confidence``,
+    ``tactile_value``), ``metrics.json``, ``result.json`` and ``screenshot.png``; with ground truth
+    ``fscore`` at 1/2/5/10 mm, ``precision``, ``recall``, ``chamfer_mm``, ``normal_consistency``.
     """
-    from vtrack.fusion.observations import load_observations
+    from vtrack.eval.session_gt import SessionGroundTruth
+    from vtrack.frames.session import SessionFrames
+    from vtrack.fusion.observations import observations_from_frames
     from vtrack.io.export import export_mesh
-    from vtrack.io.session import open_session
+    from vtrack.io.poses import PoseTrack, read_poses_csv, write_poses_csv
 
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -119,59 +132,107 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
     if method not in METHODS:
         raise InputError("unknown reconstruction method", field="method", expected=" or ".join(METHODS), got=method)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    reader = open_session(session_dir)
-    so = load_observations(reader, mods, tactile_source=tactile_source, vision_stride=vision_stride,
-                           vision_frame_step=vision_frame_step, touch_stride=touch_stride,
-                           touch_frame_step=touch_frame_step, keep_depth=(method == "tsdf"))
+    gt_data = None
+    try:
+        gt_data = SessionGroundTruth.load(gt if gt is not None else session_dir)
+    except InputError:
+        if gt is not None:
+            raise
+    oracle = [n for n, v in (("tactile", tactile_source), ("segmentation", segmentation)) if v == "gt"]
+    track_metrics: dict[str, Any] | None = None
+    mesh_frame: Path | None = None
+    if str(poses) == "track":
+        from vtrack.tracking.run import track_session
+
+        kept: dict[str, Any] = {}
+        shape = "known" if mesh is not None else "slam"
+        track_metrics, (times, est) = track_session(
+            session_dir, out / "tracking", shape=shape, modalities=mods, mesh=mesh, gt=gt,
+            tactile_source=tactile_source, segmentation=segmentation, write=True, return_poses=True,
+            keep_frames=kept, keep_step=frame_step, **(track_opts or {}))
+        frames, built = kept["frames"], kept["built"]
+        track = PoseTrack(times, est)
+        mesh_frame = Path(mesh) if mesh is not None else None
+        pose_source = f"tracking ({shape})"
+    else:
+        frames = SessionFrames(session_dir, mods, tactile_source=tactile_source, segmentation=segmentation,
+                               touch_stride=touch_stride)
+        built = [(i, frames.frame(i)[0]) for i in range(0, len(frames), max(1, int(frame_step)))]
+        if str(poses) == "gt":
+            if gt_data is None:
+                raise InputError("poses 'gt' (oracle) need ground truth", path=session_dir, field="--poses",
+                                 expected="track | FILE, or --gt SESSION")
+            track = PoseTrack(gt_data.pose_times, gt_data.poses)
+            mesh_frame = gt_data.mesh_path
+            pose_source = "ground truth [oracle]"
+            oracle.append("poses")
+        else:
+            track = read_poses_csv(poses)
+            mesh_frame = Path(mesh) if mesh is not None else None
+            pose_source = f"file {poses}"
     t_loaded = time.perf_counter()
+    so = observations_from_frames(frames, built, track, vision_stride=vision_stride, keep_depth=(method == "tsdf"))
+    if not so.observations:
+        raise InputError("no object observations in the session (no segmented depth, no contact)",
+                         path=frames.path, expected="frames where the object is seen or touched")
     cloud = so.cloud()
     n_pts = cloud.counts()
     res = reconstruct_observations(so.observations, method, online=online, **opts)
     V, F = res["vertices"], res["faces"]
     seconds = time.perf_counter() - t_start
-    gt_path = reader.path / "assets" / "object.ply"
+    used_t = np.array([frames.times[i] for i, _ in built])
     metrics: dict[str, Any] = {"method": method, "modalities": list(mods), "online": online,
+                               "poses": pose_source, "oracle": oracle, "blind": not oracle,
                                "seconds": seconds, "cpu_seconds": time.process_time() - cpu_start,
                                "load_seconds": t_loaded - t_start,
                                "reconstruct_seconds": res["seconds"], "ms_per_frame": res.get("ms_per_frame"),
                                "frames": len(so.observations), "points": n_pts,
                                "tactile_source": so.info.get("tactile_source", "none"),
+                               "segmentation": so.info.get("segmentation", "none"),
                                "n_vertices": int(len(V)), "n_faces": int(len(F)),
-                               "session": str(reader.path)}
+                               "session": str(frames.path)}
+    if track_metrics is not None:
+        metrics["tracking"] = {k: v for k, v in track_metrics.items()
+                               if k in ("mode", "init", "motion_err_mm", "motion_drift_mm", "add_s_mm", "drift_mm",
+                                        "poses_per_s", "ms_per_frame_mean", "status_counts", "alignment")}
     for k in ("iterations", "ms_per_frame_p95", "cpu_ms_per_frame"):
         if k in res:
             metrics[k] = res[k]
-    if gt_path.exists():
+    if gt_data is not None and gt_data.mesh_path is not None:
         from vtrack.eval.reconstruction import load_mesh, mesh_metrics
+        from vtrack.eval.session_gt import align_mesh_to_gt
 
-        Vg, Fg = load_mesh(gt_path)
-        m = mesh_metrics(V, F, Vg, Fg)
+        Vg, Fg = load_mesh(gt_data.mesh_path)
+        Va, how = align_mesh_to_gt(gt_data, V, mesh_frame, used_t, track.at(used_t))
+        m = mesh_metrics(Va, F, Vg, Fg)
         metrics.update(fscore=m["fscore"], precision=m["precision"]["5mm"], recall=m["recall"]["5mm"],
                        precision_at=m["precision"], recall_at=m["recall"], chamfer_mm=m["chamfer_mm"],
                        accuracy_mm=m["accuracy_mm"], completeness_mm=m["completeness_mm"],
-                       normal_consistency=m["normal_consistency"], empty=m["empty"])
+                       normal_consistency=m["normal_consistency"], empty=m["empty"], alignment=how,
+                       scored_against=str(gt_data.path))
     else:
         metrics.update(fscore=None, precision=None, recall=None, chamfer_mm=None,
-                       note="session has no assets/object.ply: no ground truth to score against")
+                       note="no ground truth to score against (pass --gt SESSION to score)")
     # outputs
+    out.mkdir(parents=True, exist_ok=True)
     if len(F):
         export_mesh(out / "mesh.ply", V, F)
     else:
         _write_empty_mesh(out / "mesh.ply")
+    write_poses_csv(out / "poses.csv", used_t, track.at(used_t))
     cloud.to_ply(out / "cloud.ply")
     if screenshot:
         try:
-            save_screenshot(out / "screenshot.png", V, F, cloud, title=f"{method} ({'+'.join(mods)})",
-                            gt_path=gt_path if gt_path.exists() else None)
+            save_screenshot(out / "screenshot.png", V, F, cloud, title=f"{method} ({'+'.join(mods)})")
             metrics["screenshot"] = "screenshot.png"
         except Exception as e:  # no display / VTK problem must not lose the reconstruction
             metrics["screenshot_error"] = f"{type(e).__name__}: {e}"
     write_json(out / "metrics.json", metrics)
-    write_json(out / "result.json", {"kind": "reconstruction", "session": str(reader.path), "method": method,
-                                      "modalities": list(mods), "mesh": "mesh.ply", "cloud": "cloud.ply",
-                                      "metrics": "metrics.json"})
+    write_json(out / "result.json", {"kind": "reconstruction", "session": str(frames.path), "method": method,
+                                      "modalities": list(mods), "mesh": "mesh.ply", "poses": "poses.csv",
+                                      "cloud": "cloud.ply", "metrics": "metrics.json"})
     return metrics
+
 
 
 def warm_up(method: str = "neural_sdf", screenshot: bool = True, **_: Any) -> None:

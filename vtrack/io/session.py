@@ -111,6 +111,47 @@ class StreamSpec:
         }
 
 
+#: Top-level entries a session folder may hold; anything else is user data that --force must not delete.
+_SESSION_ENTRIES = {MANIFEST, DATA, ASSETS}
+
+
+def check_replaceable(path: str | Path) -> None:
+    """Raise unless ``path`` may be deleted to write a new session there (``overwrite=True`` / ``--force``).
+
+    Only an empty directory, or a vtrack session (a ``manifest.json`` whose ``format`` is
+    ``vtrack-session``, holding nothing but ``manifest.json``, ``data.zarr/``, ``assets/`` and the
+    writer's own ``.manifest.json.*.tmp`` files) may be replaced: ``--force`` on a folder of
+    user files must never delete them.
+
+    Raises:
+        InputError: ``path`` is a file, a symlink, a non-session folder or a session with extra files.
+    """
+    p = Path(path)
+    if p.is_symlink() or not p.is_dir():
+        raise InputError("output path exists and is not a directory; refusing to replace it", path=p,
+                         expected="a vtrack session folder, an empty folder or a new path")
+    entries = [e.name for e in p.iterdir()]
+    if not entries:
+        return
+    m = p / MANIFEST
+    fmt = None
+    if m.is_file():
+        try:
+            fmt = json.loads(m.read_text()).get("format")
+        except Exception:  # unreadable/corrupt manifest: treat as not a session (refuse below)
+            fmt = None
+    if fmt != FORMAT_NAME:
+        raise InputError("output folder exists and is not a vtrack session; --force only replaces a session "
+                         "or an empty folder (nothing was deleted)", path=p,
+                         expected="a folder with a vtrack manifest.json", got=f"{len(entries)} entries, e.g. "
+                         f"{sorted(entries)[:3]}")
+    extra = sorted(e for e in entries if e not in _SESSION_ENTRIES
+                   and not (e.startswith(f".{MANIFEST}.") and e.endswith(".tmp")))
+    if extra:
+        raise InputError(f"session folder holds files that are not part of the session ({', '.join(extra[:5])}); "
+                         "refusing to delete them (move them away first)", path=p)
+
+
 class SessionWriter:
     """Append-only writer of a session directory, frame by frame.
 
@@ -130,10 +171,11 @@ class SessionWriter:
         import zarr
 
         self.path = Path(path)
-        if self.path.exists():
+        if self.path.exists() or self.path.is_symlink():
             if not overwrite:
                 raise InputError("session directory exists (pass overwrite=True / --force to replace it)",
                                  path=self.path)
+            check_replaceable(self.path)
             shutil.rmtree(self.path)
         self.path.mkdir(parents=True)
         (self.path / ASSETS).mkdir()
@@ -173,12 +215,15 @@ class SessionWriter:
         block = {}
         for fname, fs in {"t": FieldSpec((), "float64", "s", 1024), **spec.fields}.items():
             chunk = fs.resolved_chunk()
+            # CRC32C over each compressed chunk lets readers tell corruption from data, and writing
+            # all-fill chunks too means a missing chunk file is always damage (see verify_session).
             arrays[fname] = g.create_array(
                 fname, shape=(0, *fs.shape), chunks=(chunk, *fs.shape), dtype=fs.dtype,
-                fill_value=0, compressors=zarr.codecs.ZstdCodec(level=3),
+                fill_value=0, compressors=[zarr.codecs.ZstdCodec(level=3), zarr.codecs.Crc32cCodec()],
+                config={"write_empty_chunks": True},
             )
             block[fname] = chunk
-        g.attrs.update({"n_committed": 0, "kind": spec.kind})
+        g.attrs.update({"n_committed": 0, "kind": spec.kind, "all_chunks_written": True})
         self._streams[name] = {
             "spec": spec, "group": g, "arrays": arrays, "block": block,
             "buffer": [], "n": 0, "capacity": 0, "last_t": -np.inf,
@@ -314,13 +359,36 @@ def _vtrack_version() -> str:
     return __version__
 
 
-class FieldReader:
-    """Lazy view of one field, limited to the committed frames (indexing reads from disk)."""
+class CorruptDataError(InputError):
+    """A committed chunk of a session array cannot be read (truncated, overwritten, checksum mismatch)."""
 
-    def __init__(self, array: Any, n: int, name: str) -> None:
+
+#: What readers do when a frame cannot be read: raise (default), skip the bad frames, or stop at the first.
+OnCorrupt = Literal["raise", "skip", "stop"]
+ON_CORRUPT_ENV = "VTRACK_ON_CORRUPT"
+
+
+class FieldReader:
+    """Lazy view of one field, limited to the committed frames (indexing reads from disk).
+
+    Args:
+        array: the Zarr array.
+        n: committed frames visible through this reader.
+        name: ``<stream>/<field>`` (for messages).
+        path: the array's folder on disk (for messages).
+        index: optional map from visible frame to stored frame (set when bad frames are skipped).
+
+    Raises (on indexing):
+        CorruptDataError: a chunk of the requested frames cannot be decoded; names the array and frame.
+    """
+
+    def __init__(self, array: Any, n: int, name: str, path: Path | None = None,
+                 index: np.ndarray | None = None) -> None:
         self._a = array
         self.n = n
         self.name = name
+        self.path = path
+        self._index = index
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -333,21 +401,40 @@ class FieldReader:
     def __len__(self) -> int:
         return self.n
 
+    def _read(self, sel: Any, frames: str) -> np.ndarray:
+        try:
+            return np.asarray(sel())
+        except Exception as e:  # zstd / checksum / shape errors from a damaged chunk file
+            raise CorruptDataError(f"cannot read frame {frames}: corrupt or truncated chunk "
+                                   f"({type(e).__name__}: {str(e).splitlines()[0][:120] if str(e) else ''}); "
+                                   "run 'vtrack session verify' for the full list",
+                                   path=self.path, field=self.name) from None
+
     def __getitem__(self, idx: Any) -> np.ndarray:
         if isinstance(idx, (int, np.integer)):
             i = int(idx) + (self.n if idx < 0 else 0)
             if not 0 <= i < self.n:
                 raise IndexError(f"{self.name}: frame {idx} out of range (0..{self.n - 1})")
-            return np.asarray(self._a[i])
+            j = i if self._index is None else int(self._index[i])
+            return self._read(lambda: self._a[j], str(j))
         if isinstance(idx, slice):
-            return np.asarray(self._a[slice(*idx.indices(self.n))])
+            r = range(*idx.indices(self.n))
+            if self._index is None:
+                return self._read(lambda: self._a[slice(r.start, r.stop, r.step)],
+                                  f"{r.start}..{r.stop - 1}" if len(r) else "(none)")
+            idx = np.arange(r.start, r.stop, r.step, dtype=np.int64)
         ids = np.asarray(idx)
         if ids.dtype == bool:
             ids = np.nonzero(ids)[0]
         if ids.size and (ids.min() < -self.n or ids.max() >= self.n):
             raise IndexError(f"{self.name}: frame index out of range (0..{self.n - 1})")
         ids = np.where(ids < 0, ids + self.n, ids)
-        return np.asarray(self._a.get_orthogonal_selection((ids,)))
+        if self._index is not None:
+            ids = self._index[ids]
+        if ids.size == 0:
+            return np.zeros((0, *self._a.shape[1:]), dtype=self._a.dtype)
+        return self._read(lambda: self._a.get_orthogonal_selection((ids,)),
+                          f"{int(ids.min())}..{int(ids.max())}")
 
     def all(self) -> np.ndarray:
         return self[:]
@@ -356,7 +443,8 @@ class FieldReader:
 class StreamReader:
     """Committed frames of one stream with time-synchronised access."""
 
-    def __init__(self, name: str, group: Any, meta: dict, n: int) -> None:
+    def __init__(self, name: str, group: Any, meta: dict, n: int, path: Path | None = None,
+                 index: np.ndarray | None = None) -> None:
         self.name = name
         self.meta = meta
         self.kind: str = meta.get("kind", "")
@@ -365,8 +453,14 @@ class StreamReader:
         self.attrs: dict = meta.get("attrs", {})
         self.n = n
         self._group = group
-        self.t = np.asarray(group["t"][:n], dtype=np.float64)
-        self.fields = {k: FieldReader(group[k], n, f"{name}/{k}") for k in meta["fields"]}
+        self.path = path
+        t_reader = FieldReader(group["t"], n, f"{name}/t", None if path is None else path / "t")
+        t = np.asarray(t_reader[:], dtype=np.float64)
+        self.t = t if index is None else t[index]
+        if index is not None:
+            self.n = len(index)
+        self.fields = {k: FieldReader(group[k], self.n, f"{name}/{k}", None if path is None else path / k, index)
+                       for k in meta["fields"]}
 
     def __len__(self) -> int:
         return self.n
@@ -433,10 +527,15 @@ class SessionReader:
             mismatched lengths or non-increasing timestamps (the message names the file/stream).
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, on_corrupt: OnCorrupt | None = None) -> None:
         import zarr
 
         self.path = Path(path)
+        policy = on_corrupt or os.environ.get(ON_CORRUPT_ENV) or "raise"
+        if policy not in ("raise", "skip", "stop"):
+            raise InputError("unknown corrupt-frame policy", field=f"on_corrupt / ${ON_CORRUPT_ENV}",
+                             expected="raise, skip or stop", got=policy)
+        self.on_corrupt: str = policy
         mpath = self.path / MANIFEST
         if not self.path.is_dir():
             raise InputError("session directory does not exist", path=self.path)
@@ -446,6 +545,11 @@ class SessionReader:
             self.manifest = json.loads(mpath.read_text())
         except json.JSONDecodeError as e:
             raise InputError(f"corrupt manifest (JSON error at line {e.lineno}: {e.msg})", path=mpath) from None
+        except UnicodeDecodeError:
+            raise InputError("corrupt manifest (not UTF-8 text)", path=mpath) from None
+        if not isinstance(self.manifest, dict):
+            raise InputError("corrupt manifest", path=mpath, expected="a JSON object",
+                             got=type(self.manifest).__name__)
         if self.manifest.get("format") != FORMAT_NAME:
             raise InputError("not a vtrack session manifest", path=mpath, field="format",
                              expected=FORMAT_NAME, got=self.manifest.get("format"))
@@ -465,12 +569,54 @@ class SessionReader:
         self.streams: dict[str, StreamReader] = {}
         for name, meta in streams.items():
             self.streams[name] = self._open_stream(name, meta)
+        #: frames hidden by ``on_corrupt`` ("skip"/"stop"): stream -> stored frame indices
+        self.dropped_frames: dict[str, list[int]] = {}
+        if self.on_corrupt != "raise":
+            self._drop_bad_frames()
+
+    def _drop_bad_frames(self) -> None:
+        """Read every chunk once and hide the unreadable frames (all fields of a frame go together)."""
+        for problem in verify_session(self):
+            if problem.stream is None or problem.frames is None:
+                continue
+            self.dropped_frames.setdefault(problem.stream, []).extend(range(*problem.frames))
+        for name, bad_list in self.dropped_frames.items():
+            st = self.streams[name]
+            bad = np.zeros(st.n, dtype=bool)
+            bad[[b for b in bad_list if b < st.n]] = True
+            if self.on_corrupt == "stop":
+                first = int(np.argmax(bad)) if bad.any() else st.n
+                keep = np.arange(first)
+            else:
+                keep = np.nonzero(~bad)[0]
+            self.dropped_frames[name] = sorted(set(range(st.n)) - set(keep.tolist()))
+            self.streams[name] = StreamReader(name, st._group, st.meta, st.n, st.path, keep)
 
     def _open_stream(self, name: str, meta: dict) -> StreamReader:
         where = self.path / DATA / name
+        mpath = self.path / MANIFEST
+        # The manifest is user-editable JSON: check the stream entry's structure before using it.
+        if not isinstance(meta, dict):
+            raise InputError("stream entry must be an object", path=mpath, field=f"streams.{name}",
+                             got=type(meta).__name__)
+        fields = meta.get("fields")
+        if not isinstance(fields, dict) or not all(
+                isinstance(f, dict) and isinstance(f.get("shape"), list) for f in fields.values()):
+            raise InputError("stream fields must map names to {shape: [...], dtype: ...}", path=mpath,
+                             field=f"streams.{name}.fields", got=type(fields).__name__)
+        for key, typ in (("kind", str), ("frame", str), ("attrs", dict)):
+            if key in meta and not isinstance(meta[key], typ):
+                raise InputError(f"must be a {typ.__name__}", path=mpath, field=f"streams.{name}.{key}",
+                                 got=type(meta[key]).__name__)
         try:
             g = self._root[name]
-            n = int(g.attrs.get("n_committed", -1))
+            n_raw = g.attrs.get("n_committed", -1)
+            if isinstance(n_raw, bool) or not isinstance(n_raw, int):
+                raise InputError(f"committed frame count is not an integer (got {n_raw!r})", path=where,
+                                 field="n_committed")
+            n = int(n_raw)
+        except InputError:
+            raise
         except Exception as e:
             raise InputError(f"stream is missing or unreadable ({type(e).__name__})", path=where) from None
         if n < 0:
@@ -487,7 +633,13 @@ class SessionReader:
             if decl is not None and list(arr.shape[1:]) != list(decl["shape"]):
                 raise InputError("array shape differs from the manifest", path=where / fname,
                                  expected=str(decl["shape"]), got=list(arr.shape[1:]))
-        sr = StreamReader(name, g, meta, n)
+        try:
+            sr = StreamReader(name, g, meta, n, where)
+        except CorruptDataError:
+            if self.on_corrupt == "raise":
+                raise
+            raise InputError("timestamps of the stream are unreadable (corrupt chunk); no frame can be "
+                             "skipped safely", path=where / "t") from None
         if n > 1:
             bad = np.nonzero(np.diff(sr.t) <= 0)[0]
             if bad.size:
@@ -550,9 +702,73 @@ class SessionReader:
         return out
 
 
-def open_session(path: str | Path) -> SessionReader:
-    """Open and validate a session directory."""
-    return SessionReader(path)
+def open_session(path: str | Path, on_corrupt: OnCorrupt | None = None) -> SessionReader:
+    """Open and validate a session directory.
+
+    Args:
+        path: session folder.
+        on_corrupt: what to do with frames whose chunks cannot be read: ``"raise"`` (default; reading
+            them raises :class:`CorruptDataError`), ``"skip"`` (hide them) or ``"stop"`` (hide every
+            frame from the first bad one on). ``skip``/``stop`` read every chunk once at open. Default
+            from ``$VTRACK_ON_CORRUPT`` (set by ``vtrack --on-corrupt``), else ``raise``.
+    """
+    return SessionReader(path, on_corrupt=on_corrupt)
+
+
+@dataclass
+class ChunkProblem:
+    """One damaged piece of a session found by :func:`verify_session`.
+
+    ``frames`` is the half-open stored-frame range ``[start, stop)`` the chunk covers (None when the
+    problem is not a chunk).
+    """
+
+    path: Path
+    stream: str | None
+    field: str | None
+    frames: tuple[int, int] | None
+    message: str
+
+    def __str__(self) -> str:
+        where = f"frames {self.frames[0]}..{self.frames[1] - 1}: " if self.frames else ""
+        return f"{self.path}: {where}{self.message}"
+
+
+def verify_session(session: str | Path | SessionReader) -> list[ChunkProblem]:
+    """Read every committed chunk of every array of a session; return what is damaged.
+
+    Checks: each chunk decodes (Zstd) and matches its stored CRC32C checksum (sessions written since
+    checksums were added); for such sessions a missing chunk file is damage too (every chunk is
+    written, even all-zero ones). Older sessions' missing chunks read as zeros and cannot be told
+    from data. Memory: one chunk at a time.
+
+    Raises:
+        InputError: the session cannot be opened at all (manifest, store, timestamps).
+    """
+    r = session if isinstance(session, SessionReader) else SessionReader(session, on_corrupt="raise")
+    problems: list[ChunkProblem] = []
+    for name, st in r.streams.items():
+        g = st._group
+        n = int(g.attrs.get("n_committed", st.n))
+        strict = bool(g.attrs.get("all_chunks_written", False))
+        for fname in ["t", *st.meta.get("fields", {})]:
+            arr = g[fname]
+            where = r.path / DATA / name / fname
+            step = int(arr.chunks[0]) or 1
+            for a in range(0, n, step):
+                b = min(a + step, n)
+                if strict:
+                    key = "/".join(["c", str(a // step), *["0"] * (arr.ndim - 1)])
+                    if not (where / key).is_file():
+                        problems.append(ChunkProblem(where, name, fname, (a, b), f"chunk file {key} is missing"))
+                        continue
+                try:
+                    arr[a:b]
+                except Exception as e:
+                    msg = str(e).splitlines()[0][:120] if str(e) else ""
+                    problems.append(ChunkProblem(where, name, fname, (a, b),
+                                                 f"corrupt chunk ({type(e).__name__}: {msg})"))
+    return problems
 
 
 def copy_streams(reader: SessionReader, writer: SessionWriter, names: Iterable[str] | None = None) -> None:

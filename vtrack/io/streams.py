@@ -36,6 +36,16 @@ def camera_stream(cam, with_mask: bool = True, T_world_camera: np.ndarray | None
     )
 
 
+def camera_gt_stream(cam) -> StreamSpec:
+    """Ground truth of a simulated camera (``gt/camera/<cam>``): the renderer's exact object mask and the
+    visible fraction of the object. Scoring only: the pipeline segments the depth itself."""
+    return StreamSpec(
+        kind="visibility", frame=f"camera/{cam.name}", rate_hz=cam.rate_hz,
+        fields={"visible_fraction": FieldSpec((), "float32", "fraction"),
+                "mask": FieldSpec((cam.height, cam.width), "uint8", "label")},
+    )
+
+
 def tactile_stream(spec) -> StreamSpec:
     """Stream declaration for a :class:`~vtrack.scene.schema.TactileSpec`."""
     return StreamSpec(

@@ -71,10 +71,26 @@ class HandKinematics:
         self.urdf_path = Path(urdf)
         if not self.urdf_path.exists():
             raise InputError("URDF file does not exist", path=self.urdf_path)
+        # Check the XML first: yourdfpy logs parser noise on malformed files and then fails with an
+        # unrelated AttributeError; the XML parser's own message (with line/column) is the useful one.
+        import logging
+        import xml.etree.ElementTree as ET
+
+        try:
+            xml_root = ET.parse(self.urdf_path).getroot()
+        except (ET.ParseError, OSError, UnicodeDecodeError) as e:
+            raise InputError(f"URDF is not well-formed XML ({e})", path=self.urdf_path) from None
+        if xml_root.tag != "robot":
+            raise InputError("not a URDF (root element is not <robot>)", path=self.urdf_path, got=xml_root.tag)
+        yl = logging.getLogger("yourdfpy")
+        level = yl.level
+        yl.setLevel(logging.CRITICAL)  # its warnings go to stderr as noise; errors are re-raised below
         try:
             model = yourdfpy.URDF.load(str(self.urdf_path), load_meshes=False, build_scene_graph=False)
         except Exception as e:  # yourdfpy raises several types for malformed files
             raise InputError(f"cannot parse URDF ({type(e).__name__}: {e})", path=self.urdf_path) from None
+        finally:
+            yl.setLevel(level)
         self._model = model
         robot = model.robot
         actuated = [j.name for j in robot.joints if j.type != "fixed" and j.mimic is None]
@@ -91,6 +107,12 @@ class HandKinematics:
         self.joint_names: list[str] = joint_names
         col = {n: i for i, n in enumerate(joint_names)}
 
+        link_set = {lk.name for lk in robot.links}
+        for j in robot.joints:
+            for role, ln in (("parent", j.parent), ("child", j.child)):
+                if ln not in link_set:
+                    raise InputError(f"joint '{j.name}' has a {role} link that is not defined", path=self.urdf_path,
+                                     field=f"joint {j.name}/{role}", expected="a <link> name of the URDF", got=ln)
         children = {j.child for j in robot.joints}
         roots = [lk.name for lk in robot.links if lk.name not in children]
         if len(roots) != 1:
@@ -116,6 +138,12 @@ class HandKinematics:
                                            col.get(j.name, -1), lo, hi))
                 stack.append(j.child)
         self.link_names: list[str] = [self.root_link] + [j.child for j in self._joints]
+        reached = {j.name for j in self._joints}
+        unreached = [j.name for j in robot.joints if j.name not in reached]
+        if unreached:  # a cycle or a second tree: FK would silently ignore these joints
+            raise InputError("joints not connected to the root link (cycle or disconnected tree)",
+                             path=self.urdf_path, field="joint", expected=f"a tree rooted at '{self.root_link}'",
+                             got=unreached[:5])
         self.lower = np.array([next(j.lower for j in self._joints if j.name == n) for n in joint_names])
         self.upper = np.array([next(j.upper for j in self._joints if j.name == n) for n in joint_names])
 

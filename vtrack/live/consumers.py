@@ -1,5 +1,5 @@
-"""Live consumers: ``null`` (throughput check), ``track`` (known-shape tracking per camera frame),
-``reconstruct`` (TSDF integration per camera frame).
+"""Live consumers: ``null`` (throughput check), ``track`` (tracking per camera frame through the frames
+layer), ``reconstruct`` (TSDF integration per camera frame).
 
 ``track`` and ``reconstruct`` call the tracking / fusion engineers' per-frame APIs
 (:meth:`vtrack.tracking.tracker.KnownShapeTracker.step`,
@@ -36,132 +36,157 @@ class NullConsumer(Consumer):
 
 
 class TrackConsumer(Consumer):
-    """Known-shape tracking on the live stream.
+    """In-hand tracking on the live stream through the frames layer (no ground truth).
 
-    Vision: each camera frame's depth (segmented with its mask when present) is unprojected into
-    the world (the session's camera calibration). Touch: the newest ground-truth tactile height
-    maps (``gt/tactile/*``, when the session has them) placed with the hand kinematics at the
-    newest joint state. One ``tracker.step`` per camera frame.
+    Joint states and tactile images update the newest state; each camera frame is segmented (hand removed
+    by forward kinematics), the newest tactile images go through the calibrated tactile pipeline, and the
+    tracker takes one step. Known shape when ``mesh`` is given (initial pose ``init_pose``, else global
+    registration on the first frame), else SLAM (object frame at the first frame's centroid).
     """
 
     name = "track"
 
-    def __init__(self, session: str | Path, depth_stride: int = 4, **tracker_opts: Any) -> None:
-        from vtrack.tracking.frontend import SessionFrames
-        from vtrack.tracking.tracker import KnownShapeTracker
+    def __init__(self, session: str | Path, depth_stride: int = 4, mesh: str | Path | None = None,
+                 init_pose: np.ndarray | None = None, **tracker_opts: Any) -> None:
+        from vtrack.frames.session import SessionFrames
 
         self.session = Path(session)
-        mods = ("vision", "touch")
         try:
-            self.sf = SessionFrames(self.session, modalities=mods, depth_stride=depth_stride)
-        except InputError:
+            self.sf = SessionFrames(self.session, modalities=("vision", "touch"), depth_stride=depth_stride)
+        except InputError:  # e.g. a sensor without calibration: vision only, said in the result
             self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride)
-        reader = self.sf.reader
-        mesh = self.session / "assets" / "object.ply"
-        if not mesh.exists():
-            raise InputError("live tracking needs the object mesh in the session", path=mesh)
-        T0 = None
-        if "gt/object_pose" in reader and reader["gt/object_pose"].n:
-            T0 = reader["gt/object_pose"]["T_world_object"][0]
-        self.tracker = KnownShapeTracker.from_scene(self.sf.scene, T_init=T0, mesh=mesh, **tracker_opts)
-        self.cams = {f"camera/{c.name}" if not c.name.startswith("camera/") else c.name: c for c in self.sf.cams}
-        self.kin = None
-        if self.sf.scene.hand is not None and "joints" in reader and any(
-                k.startswith("gt/tactile/") for k in reader.streams):
-            from vtrack.kinematics.hand import HandKinematics
-
-            self.kin = HandKinematics.from_scene(self.sf.scene)
-            self.joint_names = reader["joints"].attrs.get("joint_names")
+        self.mesh = None if mesh is None else Path(mesh)
+        self.init_pose = init_pose
+        self.tracker_opts = tracker_opts
+        self.tracker: Any = None
+        self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
+        self.touch_streams = [f"tactile/{s}" for s in (self.sf.touch.sensors if self.sf.touch else [])]
         self.q: np.ndarray | None = None
-        self.touch: dict[str, tuple] = {}
+        self.images: dict[str, Any] = {}
         self.poses: list[tuple[float, np.ndarray]] = []
 
     def streams(self) -> list[str]:
-        s = list(self.cams)
-        if self.kin is not None:
-            s += ["joints"] + [k for k in self.sf.reader.streams if k.startswith("gt/tactile/")]
+        s = list(self.cams) + self.touch_streams
+        if self.sf.kin is not None:
+            s.append("joints")
         return s
 
     def wants(self, stream: str) -> bool:
-        touch = stream == "joints" or stream.startswith("gt/tactile/")
-        return stream in self.cams or (self.kin is not None and touch)
+        return stream in self.cams or stream in self.touch_streams or (stream == "joints" and self.sf.kin is not None)
+
+    def _start(self, frame: Any) -> None:
+        from vtrack.tracking.run import build_tracker
+
+        if self.mesh is not None:
+            T0 = self.init_pose
+            if T0 is None:
+                from vtrack.tracking.globalreg import global_register
+                from vtrack.tracking.sdf_grid import load_mesh_arrays
+
+                V, F = load_mesh_arrays(self.mesh)
+                hyps = global_register(V, F, [frame], symmetric=bool(self.sf.scene.object.symmetric))
+                if not hyps:
+                    return
+                T0 = hyps[0].T_world_object
+            self.tracker = build_tracker("known", self.mesh, T0, **self.tracker_opts)
+        else:
+            P = [a for a in (frame.vision_points, frame.touch_points) if a is not None and len(a)]
+            if not P:
+                return
+            T0 = np.eye(4)
+            T0[:3, 3] = np.concatenate(P).mean(0)
+            self.tracker = build_tracker("slam", None, T0, **self.tracker_opts)
 
     def process(self, ev: FrameEvent) -> None:
         if ev.stream == "joints":
             q = np.asarray(ev.data["q"], dtype=np.float64)[None]
-            self.q = self.kin.reorder(q, self.joint_names)[0]
+            self.q = self.sf.kin.reorder(q, self.sf.reader["joints"].attrs.get("joint_names"))[0]
             return
-        if ev.stream.startswith("gt/tactile/"):
-            s = self.sf.reader[ev.stream]
-            self.touch[ev.stream.split("/", 2)[2]] = (ev.data["height_mm"], ev.data["contact"],
-                                                       float(s.attrs.get("mm_per_px", 0.1)))
+        if ev.stream in self.touch_streams:
+            self.images[ev.stream.split("/", 1)[1]] = ev.data["image"]
             return
         c = self.cams[ev.stream]
-        raw: dict = {"cams": [(c, ev.data["depth"], ev.data.get("mask"))], "touch": []}
-        if self.kin is not None and self.q is not None and np.all(np.isfinite(self.q)):
-            poses = self.kin.sensor_poses(self.q[None])
-            for s, (h, contact, mmpp) in self.touch.items():
-                if s in poses:
-                    raw["touch"].append((s, h, contact, mmpp, poses[s][0]))
-        frame = self.sf.build(ev.t, raw)
+        k = self.sf.depth_stride
+        raw = {"t": ev.t, "q": self.q, "cams": [(c, np.asarray(ev.data["depth"])[::k, ::k], None)],
+               "touch": list(self.images.items()) if self.q is not None else []}
+        frame = self.sf.build(raw).tracking_frame()
+        if self.tracker is None:
+            self._start(frame)
+            if self.tracker is None:
+                return
         T = self.tracker.step(frame)
         self.poses.append((ev.t, np.asarray(T)))
 
     def finish(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"steps": len(self.poses)}
-        r = self.sf.reader
-        if self.poses and "gt/object_pose" in r and r["gt/object_pose"].n:
+        out: dict[str, Any] = {"steps": len(self.poses), "modalities": list(self.sf.modalities),
+                               "mode": "known" if self.mesh is not None else "slam"}
+        if len(self.poses) > 1:
+            from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
+
+            try:
+                gt = SessionGroundTruth.load(self.session)  # scoring only, after the run
+            except InputError:
+                return out
             t = np.array([p[0] for p in self.poses])
             T = np.stack([p[1] for p in self.poses])
-            gt = r["gt/object_pose"].sample("T_world_object", t, mode="linear")
-            err = np.linalg.norm(T[:, :3, 3] - gt[:, :3, 3], axis=1) * 1e3
-            out["translation_error_mm_mean"] = round(float(err.mean()), 3)
-            out["translation_error_mm_final"] = round(float(err[-1]), 3)
+            m, _ = score_trajectory(gt, t, T, mesh=self.mesh)
+            out["motion_err_mm"] = round(float(m["motion_err_mm"]), 3)
+            out["motion_add_s_mm"] = round(float(m["motion_add_s_mm"]), 3)
+            if "add_s_mm" in m:
+                out["add_s_mm"] = round(float(m["add_s_mm"]), 3)
         return out
 
 
 class ReconstructConsumer(Consumer):
-    """TSDF reconstruction on the live stream: each camera frame's depth is integrated in the object
-    frame, with the object pose from the session's ``gt/object_pose`` when it has one (replay), else
-    the object is taken as static in the world frame."""
+    """TSDF reconstruction on the live stream: each camera frame's depth, segmented by the frames layer
+    (no ground truth), is integrated in the object frame given by ``poses`` (a ``poses.csv`` of
+    ``T_world_object``, e.g. from ``vtrack track``); without poses the object is taken as static in the
+    world frame."""
 
     name = "reconstruct"
 
-    def __init__(self, session: str | Path, voxel_size: float = 0.004) -> None:
+    def __init__(self, session: str | Path, voxel_size: float = 0.004, poses: str | Path | None = None,
+                 depth_stride: int = 4) -> None:
+        from vtrack.frames.session import SessionFrames
         from vtrack.fusion.tsdf import TSDFReconstructor
-        from vtrack.io.session import open_session
 
-        self.reader = open_session(session)
+        self.sf = SessionFrames(session, modalities=("vision",), depth_stride=depth_stride)
         self.tsdf = TSDFReconstructor(voxel_size=voxel_size, block_count=4000)
-        self.cams = {}
-        for k, s in self.reader.streams.items():
-            if k.startswith("camera/") and s.n:
-                a = s.attrs
-                self.cams[k] = (np.asarray(a["K"], np.float64), np.asarray(a["T_world_camera"], np.float64),
-                                float(a.get("depth_scale", 0.001)), "mask" in s.fields)
+        self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
         if not self.cams:
-            raise InputError("live reconstruction needs a camera stream", path=self.reader.path)
-        self.gt = self.reader["gt/object_pose"] if "gt/object_pose" in self.reader else None
+            raise InputError("live reconstruction needs a camera stream", path=self.sf.path)
+        self.poses = None
+        if poses is not None:
+            from vtrack.io.poses import read_poses_csv
+
+            self.poses = read_poses_csv(poses)
+        self.q: np.ndarray | None = None
         self.integrated = 0
 
     def streams(self) -> list[str]:
-        return list(self.cams)
+        return list(self.cams) + (["joints"] if self.sf.kin is not None else [])
 
     def wants(self, stream: str) -> bool:
-        return stream in self.cams
+        return stream in self.cams or (stream == "joints" and self.sf.kin is not None)
 
     def process(self, ev: FrameEvent) -> None:
-        K, T_wc, scale, has_mask = self.cams[ev.stream]
-        d = ev.data["depth"].astype(np.float32) * scale
-        if has_mask:
-            d = np.where(ev.data["mask"] > 0, d, 0.0)
+        import cv2
+
         from vtrack.geometry import se3
 
-        T_wo = np.eye(4)
-        if self.gt is not None and self.gt.n:
-            T_wo = self.gt.sample("T_world_object", ev.t, mode="linear")[0]
-        T_co = se3.invert(T_wc) @ T_wo
-        self.integrated += int(self.tsdf.integrate_depth(d, K, T_co))
+        if ev.stream == "joints":
+            q = np.asarray(ev.data["q"], dtype=np.float64)[None]
+            self.q = self.sf.kin.reorder(q, self.sf.reader["joints"].attrs.get("joint_names"))[0]
+            return
+        c = self.cams[ev.stream]
+        k = self.sf.depth_stride
+        depth = np.asarray(ev.data["depth"])
+        fr = self.sf.build({"t": ev.t, "q": self.q, "cams": [(c, depth[::k, ::k], None)], "touch": []})
+        mask = cv2.resize(fr.vision_mask[c.name].astype(np.uint8), (depth.shape[1], depth.shape[0]),
+                          interpolation=cv2.INTER_NEAREST) > 0
+        d = np.where(mask, depth.astype(np.float32) * c.depth_scale, 0.0).astype(np.float32)
+        T_wo = np.eye(4) if self.poses is None else self.poses.at(np.array([ev.t]))[0]
+        self.integrated += int(self.tsdf.integrate_depth(d, c.cam.K, se3.invert(c.T_wc) @ T_wo))
 
     def finish(self) -> dict[str, Any]:
         V, F = self.tsdf.extract_mesh()

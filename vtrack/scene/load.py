@@ -57,8 +57,9 @@ def format_validation_error(err: ValidationError, source: str | Path) -> InputEr
         msg = e["msg"].removeprefix("Value error, ")
         got = e.get("input")
         got_s = "" if isinstance(got, dict) else f" (got {got!r})"
-        lines.append(f"  {loc}: {msg}{got_s}")
-    return InputError("invalid scene:\n" + "\n".join(lines), path=source, field=first_field)
+        lines.append(f"{loc}: {msg}{got_s}")
+    # One line (the CLI's error contract): every bad field, separated by "; ".
+    return InputError("invalid scene: " + "; ".join(lines), path=source, field=first_field)
 
 
 def scene_from_dict(data: dict, base_dir: Path | None = None, source: Path | None = None,
@@ -114,5 +115,8 @@ def load_scene(path: str | Path, check_files: bool = True) -> Scene:
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise InputError(f"not valid YAML{where}: {getattr(err, 'problem', err)}", path=path) from None
+        why = " ".join(str(getattr(err, "problem", None) or err).split())  # one line (CLI error contract)
+        raise InputError(f"not valid YAML{where}: {why}", path=path) from None
+    except UnicodeDecodeError as err:
+        raise InputError(f"scene file is not UTF-8 text (byte {err.start})", path=path) from None
     return scene_from_dict(data, base_dir=path.parent, source=path.resolve(), check_files=check_files)

@@ -20,7 +20,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 class _Model(BaseModel):
     # Unknown keys are errors: a typo in a scene file must not be silently ignored.
-    model_config = ConfigDict(extra="forbid", frozen=False, arbitrary_types_allowed=True)
+    # NaN/Inf in a scene number is always a mistake (it would leak into every later stage).
+    model_config = ConfigDict(extra="forbid", frozen=False, arbitrary_types_allowed=True, allow_inf_nan=False)
 
 
 Vec3 = tuple[float, float, float]
@@ -76,6 +77,15 @@ class LookAt(_Model):
     target: Vec3 = (0.0, 0.0, 0.0)
     up: Vec3 = (0.0, 0.0, 1.0)
 
+    @model_validator(mode="after")
+    def _distinct(self) -> LookAt:
+        d = np.subtract(self.target, self.eye)
+        if float(np.linalg.norm(d)) < 1e-6:
+            raise ValueError("look_at.eye and target must differ")
+        if float(np.linalg.norm(np.cross(d, self.up))) < 1e-9 * float(np.linalg.norm(d)) or not np.any(self.up):
+            raise ValueError("look_at.up must not be parallel to the viewing direction")
+        return self
+
 
 class ObjectSpec(_Model):
     """The manipulated object. ``mesh: null`` means the shape is unknown (to be reconstructed)."""
@@ -83,7 +93,7 @@ class ObjectSpec(_Model):
     name: str = "object"
     mesh: Path | None = None
     scale: float = Field(1.0, gt=0, description="mesh units -> metres")
-    T_world_object: Pose = Field(default_factory=Pose, description="initial object pose")
+    T_world_object: Pose | None = Field(None, description="initial object pose prior (None = unknown)")
     symmetric: bool = Field(False, description="rotationally symmetric (report ADD-S)")
 
 
@@ -108,18 +118,19 @@ class CameraSpec(_Model):
     """An RGB-D camera: pinhole intrinsics (px), extrinsics and depth format."""
 
     name: str
-    width: int = Field(640, gt=0)
-    height: int = Field(480, gt=0)
-    fx: float = Field(600.0, gt=0)
-    fy: float = Field(600.0, gt=0)
+    # Plausible ranges (hostile-input hardening, issue #22): values outside them are typos or unit mistakes.
+    width: int = Field(640, gt=0, le=16384)
+    height: int = Field(480, gt=0, le=16384)
+    fx: float = Field(600.0, gt=0, le=1e5)
+    fy: float = Field(600.0, gt=0, le=1e5)
     cx: float | None = None
     cy: float | None = None
     T_world_camera: Pose | None = None
     look_at: LookAt | None = None
-    depth_scale: float = Field(0.001, gt=0, description="metres per depth unit (uint16 depth)")
-    depth_min: float = Field(0.1, ge=0, description="m")
-    depth_max: float = Field(3.0, gt=0, description="m")
-    rate_hz: float = Field(30.0, gt=0)
+    depth_scale: float = Field(0.001, ge=1e-6, le=0.1, description="metres per depth unit (uint16 depth)")
+    depth_min: float = Field(0.1, ge=0, le=100.0, description="m")
+    depth_max: float = Field(3.0, gt=0, le=100.0, description="m")
+    rate_hz: float = Field(30.0, gt=0, le=10000.0)
 
     @model_validator(mode="after")
     def _placement(self) -> CameraSpec:
@@ -127,6 +138,16 @@ class CameraSpec(_Model):
             raise ValueError("give either T_world_camera or look_at, not both")
         if self.depth_max <= self.depth_min:
             raise ValueError(f"depth_max ({self.depth_max}) must exceed depth_min ({self.depth_min})")
+        # uint16 depth: depth_min..depth_max must map to distinct units, or every depth rounds to 0/saturates.
+        if self.depth_max / self.depth_scale > 65535 or self.depth_min / self.depth_scale > 65535:
+            raise ValueError(f"depth_max {self.depth_max} m is {self.depth_max / self.depth_scale:.4g} units at "
+                             f"depth_scale {self.depth_scale} m/unit: more than uint16 holds (65535)")
+        if (self.depth_max - self.depth_min) / self.depth_scale < 100:
+            raise ValueError(f"depth_scale {self.depth_scale} m/unit leaves fewer than 100 depth steps between "
+                             f"depth_min and depth_max (expected about 0.0001..0.001 m/unit)")
+        for k, c, n in (("cx", self.cx, self.width), ("cy", self.cy, self.height)):
+            if c is not None and not 0.0 <= c <= n:
+                raise ValueError(f"{k} ({c} px) must lie inside the image (0..{n} px)")
         return self
 
     def intrinsics(self):
@@ -154,14 +175,14 @@ class TactileSpec(_Model):
 
     name: str
     type: SensorType
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    mm_per_px: float = Field(gt=0)
-    gel_thickness_mm: float = Field(3.0, gt=0)
-    rate_hz: float = Field(60.0, gt=0)
+    width: int = Field(gt=0, le=8192)
+    height: int = Field(gt=0, le=8192)
+    mm_per_px: float = Field(gt=0, le=2.0)
+    gel_thickness_mm: float = Field(3.0, gt=0, le=50.0)
+    rate_hz: float = Field(60.0, gt=0, le=10000.0)
     calibration: Path | None = Field(None, description="calibration file from `vtrack calibrate`")
     background: Path | None = Field(None, description="no-contact image")
-    contact_threshold_mm: float = Field(0.05, gt=0)
+    contact_threshold_mm: float = Field(0.05, gt=0, le=5.0)
 
 
 class PipelineSpec(_Model):
@@ -175,18 +196,32 @@ class PipelineSpec(_Model):
 class SimSpec(_Model):
     """Parameters of a synthetic session (see ``vtrack.sim``); times in s, angles in rad."""
 
-    seconds: float = Field(5.0, gt=0)
+    seconds: float = Field(5.0, gt=0, le=3600.0)
     seed: int = 0
     occlusion: Literal["none", "medium", "heavy"] = "none"
     rotation_axis: Vec3 = (0.0, 0.0, 1.0)
-    rotation_speed: float = Field(0.5, description="rad/s")
-    translation_amplitude: float = Field(0.005, ge=0, description="m")
-    depth_noise: float = Field(1.0, ge=0, description="scale of the depth noise model (0 = none)")
-    tactile_noise: float = Field(1.0, ge=0, description="scale of tactile image noise (0 = none)")
-    joint_noise: float = Field(0.0, ge=0, description="encoder noise std, rad")
+    rotation_speed: float = Field(0.5, ge=-20.0, le=20.0, description="rad/s")
+    translation_amplitude: float = Field(0.005, ge=0, le=0.1, description="m")
+    depth_noise: float = Field(1.0, ge=0, le=100.0, description="scale of the depth noise model (0 = none)")
+    tactile_noise: float = Field(1.0, ge=0, le=100.0, description="scale of tactile image noise (0 = none)")
+    joint_noise: float = Field(0.0, ge=0, le=0.5, description="encoder noise std, rad")
     penetration_mm: tuple[float, float] = (0.5, 2.0)
     finger_gaiting: bool = False
-    joint_rate_hz: float = Field(60.0, gt=0)
+    joint_rate_hz: float = Field(60.0, gt=0, le=10000.0)
+
+    @field_validator("penetration_mm")
+    @classmethod
+    def _penetration(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0.0 <= v[0] <= v[1] <= 10.0:
+            raise ValueError(f"penetration_mm must be [min, max] with 0 <= min <= max <= 10 mm, got {list(v)}")
+        return v
+
+    @field_validator("rotation_axis")
+    @classmethod
+    def _axis(cls, v: Vec3) -> Vec3:
+        if float(np.linalg.norm(v)) < 1e-9:
+            raise ValueError("rotation_axis must be non-zero")
+        return v
 
 
 class Scene(_Model):

@@ -26,7 +26,7 @@ def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str
     """
     scene_file = default_scene_path()
     key = json.dumps({"occ": occlusion, "s": seconds, "obj": str(object) if object else None, "seed": seed,
-                      "scene": hashlib.sha1(scene_file.read_bytes()).hexdigest(), "v": 1}, sort_keys=True)
+                      "scene": hashlib.sha1(scene_file.read_bytes()).hexdigest(), "v": 2}, sort_keys=True)
     digest = hashlib.sha1(key.encode()).hexdigest()[:12]
     path = cache_dir() / "sessions" / f"tiny-{occlusion}-{seconds:g}s-{digest}"
     if _complete(path):

@@ -6,12 +6,17 @@ standard streams of :mod:`vtrack.io.streams`:
 - ``joints`` (q, rad, ``sim.joint_rate_hz``; column order ``HandKinematics.joint_names``; optional
   encoder noise ``sim.joint_noise``), ``gt/object_pose`` (T_world_object at the joint times);
 - ``tactile/<sensor>`` (BGR image) and ``gt/tactile/<sensor>`` (height_mm, contact) at each sensor's
-  rate; the image comes from :func:`vtrack.tactile.render.render_tactile_image` (the calibrated
-  inverse model when the sensor has a calibration, else a three-light Lambertian model) on the real
-  DIGIT background, from the elastomer-smoothed height map, with pixel noise;
-- ``camera/<cam>`` (rgb, depth uint16, mask) and ``gt/camera/<cam>`` (visible_fraction) at each
-  camera's rate (see :mod:`vtrack.sim.rgbd` for the rendering and the depth-noise model);
-- ``assets/object.ply``: the object mesh in the object frame (bounding-box centre).
+  rate; the image comes from the independent optical model :mod:`vtrack.sim.tactile_optics` (one
+  jittered unit per sensor) on the real background; each sensor's calibration, trained on simulated
+  ball presses (:func:`vtrack.sim.presses.sensor_calibration`), is in ``assets/calibration/<sensor>.npz``;
+- ``camera/<cam>`` (rgb, depth uint16) and ``gt/camera/<cam>`` (the renderer's exact object ``mask``,
+  ``visible_fraction``) at each camera's rate (see :mod:`vtrack.sim.rgbd` for the rendering and the
+  depth-noise model);
+- ``gt/object.ply``: the object mesh in the object frame (bounding-box centre).
+
+Ground truth is for scoring only: everything the simulator knows is under ``gt/`` (streams in
+``data.zarr/gt/``, files in ``SESSION/gt/``); the embedded scene gives neither the object's pose nor
+its mesh, as a user's recording would not (``vtrack session strip-gt`` removes the rest).
 
 Simplifications (stated): the gel is flat (the real DIGIT gel bulges <= 4-5 mm); contacts are
 geometric (no contact forces, no shear); the hand does not collide with the object except at the
@@ -19,7 +24,7 @@ gels; the object moves on a prescribed trajectory (not simulated dynamics).
 
 The first camera is placed by the occlusion level (``none`` / ``medium`` / ``heavy``) on a sphere
 around the grasp at the distance of its declared placement; other cameras keep theirs. The
-session's embedded scene records the effective values (camera extrinsics, duration, seed, mesh).
+session's embedded scene records the effective values (camera extrinsics, duration, seed).
 """
 
 from __future__ import annotations
@@ -45,6 +50,9 @@ OCCLUSION_VIEWS: dict[str, tuple[float, float, float]] = {
 }
 
 _HAND_MESH_CACHE: dict[str, list] = {}
+
+#: Ground-truth object mesh of a generated session (object frame, m), relative to the session folder.
+GT_MESH = "gt/object.ply"
 
 
 def _log(progress: bool, msg: str) -> None:
@@ -146,12 +154,11 @@ def _load_background(spec) -> np.ndarray:
     return base.astype(np.uint8)
 
 
-def _render_tactile(height_mm, spec, background, calib, rng, noise_scale: float, blur_mm: float = 0.35):
-    from vtrack.tactile.render import render_tactile_image
-
-    return render_tactile_image(height_mm, spec.mm_per_px, background, calib=calib,
-                                rng=rng if noise_scale > 0 else None, noise_std=1.5 * noise_scale,
-                                blur_px=blur_mm / spec.mm_per_px)
+def _render_tactile(height_mm, spec, background, model, rng, noise_scale: float):
+    # the independent optical model (vtrack.sim.tactile_optics), not the pipeline's inverse model: no
+    # inverse crime; the model's elastomer blur smooths the indenter shape
+    return model.render(height_mm, spec.mm_per_px, background, rng=rng if noise_scale > 0 else None,
+                        noise=noise_scale)
 
 
 def place_camera(cam, occlusion: str, centre: np.ndarray) -> np.ndarray:
@@ -189,10 +196,10 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
     from vtrack.geometry import se3
     from vtrack.io.session import SessionWriter
     from vtrack.io.streams import (
+        camera_gt_stream,
         camera_stream,
         joints_stream,
         pose_stream,
-        scalar_stream,
         tactile_gt_stream,
         tactile_stream,
     )
@@ -252,8 +259,13 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
     if cams:
         T_cams[cams[0].name] = place_camera(cams[0], sim.occlusion, centre)
     sd = scene.to_dict()
-    sd["object"].update({"name": obj_name, "mesh": "assets/object.ply", "scale": 1.0,
-                         "T_world_object": {"matrix": plan.T0.tolist()}})
+    sd["tactile"] = [{**t, "calibration": f"assets/calibration/{t['name']}.npz"} if t["name"] in specs else t
+                     for t in sd.get("tactile", [])]  # written in step 4 (simulated ball-press calibration)
+    # The embedded scene says what a user would know: the object's name and symmetry, but neither its
+    # shape nor its pose (both are ground truth, under gt/). Known-shape runs take the mesh from --mesh.
+    sd["object"].update({"name": obj_name, "mesh": None, "scale": 1.0, "T_world_object": None})
+    if sd.get("pipeline", {}).get("tracking") == "known_shape":
+        sd["pipeline"]["tracking"] = "slam"
     for c in sd.get("cameras", []):
         c["look_at"] = None
         c["T_world_camera"] = {"matrix": T_cams[c["name"]].tolist()}
@@ -264,9 +276,10 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
 
     writer = SessionWriter(out_dir, sd, overwrite=overwrite, flush_every=16, info=info)
     try:
-        obj.write_ply(writer.path / "assets" / "object.ply")
-        writer.manifest["assets"]["object.ply"] = {"role": "object_mesh", "frame": "object",
-                                                   "source": str(mesh_path)}
+        (writer.path / GT_MESH).parent.mkdir(parents=True, exist_ok=True)
+        obj.write_ply(writer.path / GT_MESH)
+        writer.manifest["gt_files"] = {GT_MESH: {"role": "object_mesh", "frame": "object",
+                                                 "source": str(mesh_path)}}
 
         # 3. Joints and object pose.
         writer.add_stream("joints", joints_stream(hk.joint_names, sim.joint_rate_hz))
@@ -278,7 +291,11 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
 
         # 4. Tactile: GT height maps (full resolution) and images.
         t0 = time.perf_counter()
+        import shutil
+
         from vtrack.sim.grasp import gel_heights
+        from vtrack.sim.presses import sensor_calibration, sensor_seed
+        from vtrack.sim.tactile_optics import OpticalModel
 
         calib_cache: dict[str, Any] = {}
         controlled: dict[str, list[int]] = {}
@@ -293,15 +310,19 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
             heights = gel_heights(obj_rc, se3.invert(T_wo) @ T_ws, spec.width, spec.height, spec.mm_per_px,
                                   spec.gel_thickness_mm)
             bg = _load_background(spec)
-            calib = None
-            if spec.calibration is not None:
-                calib = calib_cache.setdefault(str(spec.calibration), str(spec.calibration))
+            # each sensor is its own unit (seeded optical jitter), calibrated from simulated ball presses like
+            # a real one; the session carries that calibration (the embedded scene points at it)
+            model = OpticalModel.for_sensor(spec.type, sensor_seed(s))
+            calib_dst = writer.path / "assets" / "calibration" / f"{s}.npz"
+            calib_dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(calib_cache.setdefault(s, sensor_calibration(spec, sensor_seed(s))), calib_dst)
+            writer.manifest["assets"][f"calibration/{s}.npz"] = {"role": "tactile_calibration", "sensor": s}
             writer.add_stream(f"tactile/{s}", tactile_stream(spec))
             writer.add_stream(f"gt/tactile/{s}", tactile_gt_stream(spec))
             touching[s] = float((heights.reshape(len(heights), -1).max(1) > spec.contact_threshold_mm).mean())
             for i, t in enumerate(t_tac):
                 h = heights[i]
-                img = _render_tactile(h, spec, bg, calib, rng_tac, sim.tactile_noise)
+                img = _render_tactile(h, spec, bg, model, rng_tac, sim.tactile_noise)
                 writer.append(f"tactile/{s}", float(t), image=img)
                 writer.append(f"gt/tactile/{s}", float(t), height_mm=h,
                               contact=(h > spec.contact_threshold_mm).astype(np.uint8))
@@ -318,9 +339,8 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
             t_cam = _times(sim.seconds, cam.rate_hz)
             T_wo = plan.object_pose_at(t_cam)
             poses = hk.link_poses(plan.q_at(t_cam))
-            writer.add_stream(f"camera/{cam.name}", camera_stream(cam, True, T_world_camera=T_wc))
-            writer.add_stream(f"gt/camera/{cam.name}",
-                              scalar_stream("visible_fraction", "fraction", kind="visibility", rate_hz=cam.rate_hz))
+            writer.add_stream(f"camera/{cam.name}", camera_stream(cam, False, T_world_camera=T_wc))
+            writer.add_stream(f"gt/camera/{cam.name}", camera_gt_stream(cam))
             hull = obj.vertices[_hull_indices(obj.vertices)]
             for i, t in enumerate(t_cam):
                 hand_meshes = _hand_world_meshes(link_meshes, poses, i)
@@ -336,9 +356,9 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
                 rgb = shade_rgb(fr, rgb_obj, rng_cam, noise=2.0 * sim.depth_noise)
                 n_all = int(fr.object_unoccluded.sum())
                 vis = float(fr.object_mask.sum()) / n_all if n_all else 0.0
-                writer.append(f"camera/{cam.name}", float(t), rgb=rgb, depth=depth_u16,
+                writer.append(f"camera/{cam.name}", float(t), rgb=rgb, depth=depth_u16)
+                writer.append(f"gt/camera/{cam.name}", float(t), visible_fraction=np.float32(vis),
                               mask=fr.object_mask.astype(np.uint8))
-                writer.append(f"gt/camera/{cam.name}", float(t), visible_fraction=np.float32(vis))
         _log(progress, f"cameras {time.perf_counter() - t0:.2f} s")
 
         contact_frac = {s: float(plan.in_contact_phase[s].mean()) for s in hk.sensor_names}

@@ -7,12 +7,17 @@ and a mesh written to a session (``assets/object.ply``) lies in that object fram
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from vtrack.errors import InputError
+
+
+class MeshNotWatertightWarning(UserWarning):
+    """The object mesh has holes (repaired if possible); simulated sensing may miss its open parts."""
 
 
 @dataclass
@@ -39,6 +44,9 @@ class ObjectMesh:
 def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
     """Load a mesh (PLY/OBJ/STL, metres after ``scale``) and recentre it at its bounding-box centre.
 
+    Warns:
+        MeshNotWatertightWarning: the mesh has holes (filled when trimesh can; the message says which).
+
     Raises:
         InputError: missing/unreadable file, no triangles, non-finite vertices, or a size that is
             not plausible for an in-hand object (extent outside 5 mm .. 0.5 m).
@@ -60,7 +68,20 @@ def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
         if m.volume < 0:
             m.invert()
     else:
+        # Holes are common in scans; try the cheap repairs first and say what was done, because a
+        # leaky mesh gives rays that pass through the object (missing depth/contacts) in the simulator.
         trimesh.repair.fix_normals(m)
+        trimesh.repair.fill_holes(m)
+        if m.is_watertight:
+            if m.volume < 0:
+                m.invert()
+            warnings.warn(f"{path}: object mesh was not watertight; holes were filled (repaired in memory)",
+                          MeshNotWatertightWarning, stacklevel=2)
+        else:
+            n_open = int(len(trimesh.grouping.group_rows(m.edges_sorted, require_count=1)))
+            warnings.warn(f"{path}: object mesh is not watertight ({n_open} open edges after hole filling); "
+                          "simulated depth and contacts may miss the object where it is open",
+                          MeshNotWatertightWarning, stacklevel=2)
     v = np.asarray(m.vertices, dtype=np.float64) * float(scale)
     if not np.all(np.isfinite(v)):
         raise InputError("object mesh has non-finite vertices", path=path, field="object.mesh")

@@ -209,8 +209,9 @@ class TactilePipeline:
     # ------------------------------------------------------------------ background / working resolution
     def _check(self, image: np.ndarray, name: str = "image") -> np.ndarray:
         img = np.asarray(image)
-        if img.ndim == 2:
-            img = np.repeat(img[..., None], 3, axis=2)
+        if img.ndim == 2:  # grey has lost the colour -> slope information the calibration reads
+            raise InputError("tactile image is greyscale; the calibration needs the colour channels", field=name,
+                             expected="(H, W, 3) BGR", got=img.shape)
         if img.ndim != 3 or img.shape[2] != 3 or img.size == 0:
             raise InputError("tactile image must be (H, W, 3) BGR", field=name, expected="(H, W, 3)", got=img.shape)
         if self.image_shape is not None and img.shape[:2] != tuple(self.image_shape):

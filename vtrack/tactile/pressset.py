@@ -62,7 +62,11 @@ class PressSet:
         return self._cache[name]
 
     def background(self) -> np.ndarray:
-        return self.read(self.background_file)
+        bg = self.read(self.background_file)
+        if float(bg.std()) < 2.0:
+            raise InputError("background image is blank (constant colour)", path=self.root / self.background_file,
+                             expected="the sensor's no-contact tactile image", got=f"std {float(bg.std()):.2f}")
+        return bg
 
     def image(self, press: Press) -> np.ndarray:
         img = self.read(press.file)
@@ -70,6 +74,11 @@ class PressSet:
         if img.shape != bg.shape:
             raise InputError("press image size differs from the background", path=self.root / press.file,
                              expected=str(bg.shape), got=img.shape)
+        # A blank (all-black, all-white, constant) frame carries no press; calibrating on it gives a
+        # calibration that looks fine but is ~40 degrees off (issue #22).
+        if float(img.std()) < 2.0:
+            raise InputError("press image is blank (constant colour)", path=self.root / press.file,
+                             expected="a tactile image of a ball press", got=f"std {float(img.std()):.2f}")
         return img
 
     @property
@@ -91,9 +100,22 @@ def read_bgr(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError("image file not found", path=path)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise InputError("cannot decode image", path=path, expected="PNG/JPEG readable by OpenCV")
+    # Tactile calibration maps colour to surface slope: a grey image has lost that information and
+    # would give a confidently wrong contact, so it is refused rather than silently expanded to BGR.
+    if img.ndim == 2 or img.shape[2] == 1:
+        raise InputError("tactile image is greyscale; the calibration needs the colour channels", path=path,
+                         expected="an 8-bit colour (BGR) image", got=f"{img.shape[1]}x{img.shape[0]} grey")
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise InputError("unsupported pixel type", path=path, expected="8- or 16-bit", got=str(img.dtype))
+    img = np.ascontiguousarray(img[..., :3])
+    if img.size > 64 and not (np.any(img[..., 0] != img[..., 1]) or np.any(img[..., 1] != img[..., 2])):
+        raise InputError("tactile image has no colour (all three channels are equal)", path=path,
+                         expected="a colour (BGR) tactile image", got="grey stored as colour")
     return img
 
 

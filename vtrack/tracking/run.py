@@ -1,22 +1,28 @@
 """Track a recorded session end to end and write the result folder.
 
-``track_session(SESSION, OUT)`` writes (see docs/tracking.md):
+``track_session(SESSION, OUT)`` runs on what a real recording has (RGB-D, tactile images, joint states,
+calibrations) through the frames layer (:mod:`vtrack.frames`): segmentation without ground truth, touch
+from the tactile images. It writes (see docs/tracking.md):
 
-- ``poses.csv``: ``t, x, y, z, qx, qy, qz, qw`` (estimate) + ``gt_*`` columns when the session has
-  ground truth, + ``status`` and ``ms`` per frame;
-- ``metrics.json``: ``add_s_mm``, ``drift_mm`` (mean position error of the object centre),
-  ``rot_drift_deg``, ``ms_per_frame_mean`` (point extraction + tracker step, disk reads excluded),
-  ``mode``, ``modalities`` and more;
-- ``result.json`` (``{"kind": "tracking", ...}``) and ``error.png`` (error over time).
+- ``poses.csv``: ``t, x, y, z, qx, qy, qz, qw`` of ``T_world_object`` (:mod:`vtrack.io.poses`), the
+  object frame being the one of ``--mesh`` (known shape) or the one SLAM defines, + ``status`` and ``ms``;
+- ``metrics.json``: speed (``ms_per_frame_mean`` = frame building incl. segmentation and the tactile
+  pipeline + tracker step, disk reads excluded; ``poses_per_s``), initialisation, and, when ground truth is
+  available for SCORING (``gt=`` session, or the session's own ``gt/``), pose errors from
+  :mod:`vtrack.eval.session_gt`;
+- ``result.json`` (``{"kind": "tracking", ...}``) and ``error.png`` (error over time, when scored).
 
-Initialisation: the first ground-truth pose (the documented protocol, as in NeuralFeels'
-tracking experiments), optionally perturbed by ``init_perturb = (metres, radians)``; without
-ground truth, the scene's ``object.T_world_object``.
+Initialisation, without ground truth:
+- SLAM: the object frame is defined by the data: origin at the centroid of the first frame's segmented
+  points and contacts, axes of the world;
+- known shape: ``init_pose`` (a user prior), else global registration of the first frames against the
+  mesh (:mod:`vtrack.tracking.globalreg`).
+``init="gt"`` starts from the first ground-truth pose (an ORACLE ablation, optionally perturbed by
+``init_perturb``), the protocol of NeuralFeels' tracking experiments.
 """
 
 from __future__ import annotations
 
-import csv
 import time
 from pathlib import Path
 from typing import Any
@@ -29,6 +35,7 @@ from vtrack.io.jsonio import write_json
 
 SHAPES = ("known", "slam")
 METHODS = ("ours", "icp")
+INITS = ("auto", "gt")
 
 
 def perturb_pose(T: np.ndarray, trans_m: float, rot_rad: float, seed: int = 0) -> np.ndarray:
@@ -49,7 +56,7 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
     """The tracker for a mode: ``ours`` known/slam or the ``icp`` baseline."""
     if method == "icp":
         if mesh is None:
-            raise InputError("the ICP baseline needs the object mesh", field="mesh")
+            raise InputError("the ICP baseline needs the object mesh", field="--mesh")
         from vtrack.tracking.icp import ICPTracker
 
         return ICPTracker(mesh, T_init, **opts)
@@ -59,8 +66,7 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
         from vtrack.tracking.tracker import KnownShapeTracker
 
         if mesh is None:
-            raise InputError("known-shape tracking needs the object mesh (session assets/object.ply)",
-                             field="mesh")
+            raise InputError("known-shape tracking needs the object mesh", field="--mesh", expected="a mesh file")
         return KnownShapeTracker(mesh, T_init, **opts)
     if shape == "slam":
         from vtrack.tracking.slam import SLAMTracker
@@ -69,12 +75,57 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
     raise InputError("unknown shape mode", field="shape", expected="known|slam", got=shape)
 
 
+def slam_origin(frames: Any, max_look: int = 10) -> tuple[np.ndarray, str]:
+    """The SLAM object frame from the data: origin at the centroid of the first frame's object points
+    (segmented vision + contacts; the first of ``max_look`` frames that has any), world axes."""
+    for i in range(min(max_look, len(frames))):
+        fr, _ = frames.frame(i)
+        P = [a for a in (fr.vision_points, fr.touch_points) if len(a)]
+        if P:
+            T = np.eye(4)
+            T[:3, 3] = np.concatenate(P).mean(0)
+            frames.reset()
+            return T, f"centroid of frame {i}'s object points"
+    frames.reset()
+    raise InputError("no object points (segmented depth or contacts) in the first frames: SLAM has nothing to "
+                     "define the object frame", path=frames.path, expected=f"object seen within {max_look} frames")
+
+
+def resolve_mesh(mesh: str | Path | None, scene: Any) -> Path | None:
+    """The known shape: ``--mesh`` if given, else the scene's ``object.mesh`` (a user-given file)."""
+    if mesh is not None:
+        p = Path(mesh)
+        if not p.is_file():
+            raise InputError("mesh file not found", path=p, field="--mesh", expected="a mesh file (PLY/OBJ/STL, m)")
+        return p
+    m = getattr(getattr(scene, "object", None), "mesh", None)
+    return Path(m) if m is not None and Path(m).is_file() else None
+
+
+def known_shape_init(frames: Any, mesh: Path, symmetric: bool, n_frames: int = 3) -> tuple[np.ndarray, dict]:
+    """``T_world_object`` of a known mesh from the first frames by global registration (no prior)."""
+    from vtrack.tracking.globalreg import global_register
+    from vtrack.tracking.sdf_grid import load_mesh_arrays
+
+    V, F = load_mesh_arrays(mesh)
+    t0 = time.perf_counter()
+    tfs = [frames.frame(i)[0].tracking_frame() for i in range(min(n_frames, len(frames)))]
+    frames.reset()
+    hyps = global_register(V, F, tfs, symmetric=symmetric)
+    if not hyps:
+        raise InputError("global registration found no pose of the mesh in the first frames", path=frames.path,
+                         field="--init-pose", expected="a pose prior (--init-pose) or more visible object")
+    return hyps[0].T_world_object, {"init_seconds": time.perf_counter() - t0, "init_hypotheses": len(hyps),
+                                    "init_score": float(hyps[0].score)}
+
+
 def warm_up(shape: str = "known", method: str = "ours", write: bool = True, **_: Any) -> None:
     """Import what :func:`track_session` will use (batch workers call this before timing starts)."""
     import importlib
 
-    mods = ["vtrack.tracking.frontend", "vtrack.eval.pose_metrics", "vtrack.tracking.sdf_grid", "vtrack.io.session",
-            "vtrack.kinematics.hand", "vtrack.scene.load", "scipy.spatial", "trimesh", "yourdfpy", "zarr", "open3d"]
+    mods = ["vtrack.frames.session", "vtrack.frames.segmentation", "vtrack.frames.touch", "vtrack.tactile.pipeline",
+            "vtrack.eval.pose_metrics", "vtrack.tracking.sdf_grid", "vtrack.io.session", "vtrack.kinematics.hand",
+            "vtrack.scene.load", "scipy.spatial", "trimesh", "yourdfpy", "zarr", "open3d", "cv2"]
     if method == "icp":
         mods.append("vtrack.tracking.icp")
     else:
@@ -86,65 +137,119 @@ def warm_up(shape: str = "known", method: str = "ours", write: bool = True, **_:
 
 
 def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "known",
-                  modalities: tuple[str, ...] | list[str] = ("vision", "touch"), method: str = "ours",
-                  init_perturb: tuple[float, float] | None = None, max_frames: int = 0, seed: int = 0,
-                  depth_stride: int = 4, touch_stride: int = 6, write: bool = True, **opts: Any) -> dict:
+                  modalities: tuple[str, ...] | list[str] = ("vision", "touch"), method: str = "ours", *,
+                  mesh: str | Path | None = None, init_pose: np.ndarray | None = None, init: str = "auto",
+                  init_perturb: tuple[float, float] | None = None, gt: str | Path | None = None,
+                  tactile_source: str = "pipeline", segmentation: str = "pipeline", max_frames: int = 0,
+                  seed: int = 0, depth_stride: int = 4, touch_stride: int = 3, write: bool = True,
+                  return_poses: bool = False, keep_frames: dict | None = None, keep_step: int = 1,
+                  **opts: Any) -> Any:
     """Run a tracker over a session; return the metrics dict (also written to ``out_dir``).
 
     Args:
-        session_dir: session directory (``vtrack.io.session`` format).
+        session_dir: session directory (``vtrack.io.session`` format); ground truth is not needed.
         out_dir: result folder (created).
-        shape: ``known`` (SDF of ``assets/object.ply``) or ``slam`` (shape reconstructed online).
+        shape: ``known`` (SDF of ``mesh``) or ``slam`` (shape reconstructed online).
         modalities: ("vision",), ("touch",) or both.
         method: ``ours`` or ``icp`` (Open3D point-to-plane baseline, vision only).
-        init_perturb: (metres, radians) applied to the first ground-truth pose.
+        mesh: the known shape (object frame, m); default the scene's ``object.mesh``.
+        init_pose: ``T_world_object`` prior of the first frame (4x4); known shape without it: global
+            registration; SLAM without it: the first frame's centroid.
+        init: ``auto`` (above) or ``gt`` (ORACLE: the first ground-truth pose, perturbed by ``init_perturb``
+            = (metres, radians)).
+        gt: session with ground truth to SCORE against (default: this session if it has ``gt/``).
+        tactile_source / segmentation: ``pipeline`` (default) or ``gt`` (oracle ablations).
         max_frames: track only the first frames (0 = all).
+        return_poses: return ``(metrics, (times, T_world_object))`` instead of the metrics alone.
+        keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
+            ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing.
         **opts: tracker options (:class:`~vtrack.tracking.window.TrackerOptions` fields, ...).
     """
-    from vtrack.tracking.frontend import SessionFrames
+    from vtrack.frames.session import SessionFrames
 
     if shape not in SHAPES:
         raise InputError("unknown shape mode", field="shape", expected="known|slam", got=shape)
+    if init not in INITS:
+        raise InputError("unknown initialisation", field="init", expected="auto | gt (oracle)", got=init)
     modalities = tuple(modalities)
     if method == "icp":
         modalities = ("vision",)
-    frames = SessionFrames(session_dir, modalities=modalities, depth_stride=depth_stride,
-                           touch_stride=touch_stride, max_frames=max_frames)
-    mesh = frames.mesh_path if frames.mesh_path.exists() else None
-    if frames.gt is not None:
-        T_init = frames.gt[0].copy()
-        init_from = "ground truth (first frame)"
+    frames = SessionFrames(session_dir, modalities=modalities, tactile_source=tactile_source,
+                           segmentation=segmentation, depth_stride=depth_stride, touch_stride=touch_stride,
+                           max_frames=max_frames)
+    mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known" or method == "icp") else None
+    if (shape == "known" or method == "icp") and mesh_path is None:
+        raise InputError("known-shape tracking needs the object mesh", path=frames.path, field="--mesh",
+                         expected="--mesh PATH (object frame, m) or object.mesh in the scene; or use --shape slam")
+    gt_data = _ground_truth(gt, frames.path)
+    oracle: list[str] = []
+    init_info: dict[str, Any] = {}
+    if init == "gt":
+        if gt_data is None:
+            raise InputError("init 'gt' (oracle) needs ground truth", path=frames.path, field="--gt")
+        _, T_mg = gt_data.alignment(mesh_path)
+        T_init = gt_data.poses_at(frames.times[:1])[0] @ (np.eye(4) if T_mg is None else se3.invert(T_mg))
+        init_from = "ground truth (first frame) [oracle]"
+        oracle.append("init")
+    elif init_pose is not None:
+        T_init = np.asarray(init_pose, np.float64)
+        if T_init.shape != (4, 4) or not se3.is_rigid(T_init, tol=1e-4):
+            raise InputError("initial pose must be a 4x4 rigid transform", field="--init-pose")
+        init_from = "user prior (--init-pose)"
+    elif shape == "slam":
+        T_init, init_from = slam_origin(frames)
     else:
-        T_init = frames.scene.object.T_world_object.as_matrix()
-        init_from = "scene object.T_world_object"
+        T_init, init_info = known_shape_init(frames, mesh_path, bool(frames.scene.object.symmetric))
+        init_from = "global registration of the first frames"
     if init_perturb is not None:
         T_init = perturb_pose(T_init, float(init_perturb[0]), float(init_perturb[1]), seed)
         init_from += f" perturbed by {init_perturb[0] * 1e3:.1f} mm / {np.degrees(init_perturb[1]):.1f} deg"
-    tracker = build_tracker(shape, mesh, T_init, method=method, **opts)
+    if tactile_source == "gt":
+        oracle.append("tactile")
+    if segmentation == "gt":
+        oracle.append("segmentation")
+    tracker = build_tracker(shape, mesh_path, T_init, method=method, **opts)
     n = len(frames)
     est = np.zeros((n, 4, 4))
     ms = np.zeros(n)
     ms_prep = np.zeros(n)
     cpu_ms = np.zeros(n)
     status: list[str] = []
+    if keep_frames is not None:
+        keep_frames.update(frames=frames, built=[])
+    reloc = _Relocalisation(tracker, mesh_path, bool(frames.scene.object.symmetric)) \
+        if (shape == "known" and method == "ours") else None
     for i in range(n):
         raw = frames.read(i)  # disk read + decompression: not part of the per-frame tracking cost
         c0, t0 = time.process_time(), time.perf_counter()
-        fr = frames.build(float(frames.times[i]), raw)
+        fr = frames.build(raw)
         t1 = time.perf_counter()
-        est[i] = tracker.step(fr)
+        tf = fr.tracking_frame()
+        est[i] = tracker.step(tf)
+        st = tracker.last_info.status if tracker.last_info else "ok"
+        if reloc is not None:
+            T_new, st = reloc.update(tf, est[i], st)
+            est[i] = T_new
         ms[i] = (time.perf_counter() - t0) * 1e3
         ms_prep[i] = (t1 - t0) * 1e3
         cpu_ms[i] = (time.process_time() - c0) * 1e3
-        status.append(tracker.last_info.status if tracker.last_info else "ok")
+        status.append(st)
+        if keep_frames is not None and i % max(1, int(keep_step)) == 0:
+            keep_frames["built"].append((i, fr))
     if not np.all(np.isfinite(est)):
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
     metrics: dict[str, Any] = {
         "mode": "icp" if method == "icp" else shape,
         "method": method,
         "modalities": list(modalities),
+        "tactile_source": tactile_source if "touch" in modalities else "none",
+        "segmentation": segmentation if "vision" in modalities else "none",
+        "oracle": oracle,
+        "blind": not oracle,
         "frames": n,
         "init": init_from,
+        **init_info,
+        "mesh": str(mesh_path) if mesh_path else None,
         "ms_per_frame_mean": float(ms.mean()),
         "ms_per_frame_median": float(np.median(ms)),
         "ms_per_frame_p95": float(np.percentile(ms, 95)),
@@ -156,58 +261,76 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
         "session": str(Path(session_dir)),
     }
     errors = None
-    if frames.gt is not None:
-        from vtrack.eval.pose_metrics import (
-            mesh_symmetry_axis,
-            sample_model_points,
-            summarize,
-            trajectory_errors,
-        )
-        from vtrack.tracking.sdf_grid import load_mesh_arrays
+    if gt_data is not None:
+        from vtrack.eval.session_gt import score_trajectory
 
-        if mesh is None:
-            raise InputError("metrics need the object mesh", path=frames.path / "assets" / "object.ply")
-        V, F = load_mesh_arrays(mesh)
-        pts = sample_model_points(V, F, 1000, seed=0)
-        errors = trajectory_errors(est, frames.gt, pts, symmetric=bool(frames.scene.object.symmetric),
-                                   centre=0.5 * (V.min(0) + V.max(0)), axis=mesh_symmetry_axis(V, F))
-        metrics.update(summarize(errors))
-        metrics["symmetric"] = bool(frames.scene.object.symmetric)
+        m, errors = score_trajectory(gt_data, frames.times, est, mesh=mesh_path)
+        metrics.update(m)
     if hasattr(tracker, "map_metrics"):
         metrics.update(tracker.map_metrics())
     if write:
         _write_outputs(Path(out_dir), frames, est, ms, status, metrics, errors)
+    if return_poses:
+        return metrics, (frames.times, est)
     return metrics
+
+
+class _Relocalisation:
+    """Known shape: when the tracker reports ``lost``, re-register the mesh on the newest frames near the
+    last good pose (:class:`~vtrack.tracking.globalreg.Relocaliser`) and restart the tracker there."""
+
+    def __init__(self, tracker: Any, mesh: Path, symmetric: bool, keep: int = 3) -> None:
+        self.tracker, self.mesh, self.symmetric = tracker, mesh, symmetric
+        self.recent: list[Any] = []
+        self.keep = keep
+        self.last_ok: np.ndarray | None = None
+        self._reloc: Any = None
+
+    def update(self, frame: Any, T: np.ndarray, status: str) -> tuple[np.ndarray, str]:
+        self.recent = [frame, *self.recent][: self.keep]
+        if status != "lost":
+            self.last_ok = T
+            return T, status
+        if self.last_ok is None:
+            return T, status
+        if self._reloc is None:
+            from vtrack.tracking.globalreg import Relocaliser
+            from vtrack.tracking.sdf_grid import load_mesh_arrays
+
+            V, F = load_mesh_arrays(self.mesh)
+            self._reloc = Relocaliser(V, F, symmetric=self.symmetric, grid=getattr(self.tracker, "grid", None))
+        h = self._reloc.relocalise(self.recent, self.last_ok)
+        if h is None:
+            return T, status
+        self.tracker.reset(h.T_world_object)
+        return h.T_world_object, "relocalised"
+
+
+def _ground_truth(gt: str | Path | None, session: Path) -> Any:
+    """Ground truth for scoring: ``gt`` (a session path) or the session's own ``gt/`` (None without)."""
+    from vtrack.eval.session_gt import SessionGroundTruth
+
+    if gt is not None:
+        return SessionGroundTruth.load(gt)
+    try:
+        return SessionGroundTruth.load(session)
+    except InputError:
+        return None
 
 
 def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
     from vtrack.eval.pose_metrics import plot_errors
+    from vtrack.io.poses import write_poses_csv
 
     out.mkdir(parents=True, exist_ok=True)
-    q = se3.matrix_to_quat(est[:, :3, :3])
-    cols = ["t", "x", "y", "z", "qx", "qy", "qz", "qw"]
-    gt = frames.gt
-    if gt is not None:
-        cols += ["gt_x", "gt_y", "gt_z", "gt_qx", "gt_qy", "gt_qz", "gt_qw"]
-        qg = se3.matrix_to_quat(gt[:, :3, :3])
-    cols += ["status", "ms"]
-    with open(out / "poses.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(cols)
-        for i, t in enumerate(frames.times):
-            row = [f"{t:.6f}", *[f"{v:.7f}" for v in est[i, :3, 3]], *[f"{v:.7f}" for v in q[i]]]
-            if gt is not None:
-                row += [*[f"{v:.7f}" for v in gt[i, :3, 3]], *[f"{v:.7f}" for v in qg[i]]]
-            row += [status[i], f"{ms[i]:.3f}"]
-            w.writerow(row)
+    write_poses_csv(out / "poses.csv", frames.times, est, extra={"status": status, "ms": list(ms)})
     write_json(out / "metrics.json", metrics)
     write_json(out / "result.json", {"kind": "tracking", "session": str(frames.path.resolve()),
                                      "mode": metrics["mode"], "modalities": metrics["modalities"],
-                                     "files": ["poses.csv", "metrics.json", "error.png"]})
+                                     "files": ["poses.csv", "metrics.json"] + (["error.png"] if errors else [])})
     if errors is not None:
         lost = np.array([s in ("lost",) for s in status])
+        key = "add_s_mm" if "add_s_mm" in metrics else "motion_err_mm"
         plot_errors(frames.times, errors, out / "error.png",
                     title=f"{metrics['mode']} / {'+'.join(metrics['modalities'])}: "
-                          f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics['add_s_mm']:.2f} mm", lost=lost)
-
-
+                          f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics[key]:.2f} mm", lost=lost)

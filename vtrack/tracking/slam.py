@@ -133,7 +133,13 @@ class SLAMTracker(WindowTracker):
 
     @classmethod
     def from_scene(cls, scene: Any, T_init: np.ndarray | None = None, **opts: Any) -> SLAMTracker:
-        T0 = scene.object.T_world_object.as_matrix() if T_init is None else T_init
+        if T_init is not None:
+            T0 = T_init
+        elif scene.object.T_world_object is not None:
+            T0 = scene.object.T_world_object.as_matrix()
+        else:
+            raise InputError("SLAM needs an object frame: pass T_init (e.g. from the first frame's points)",
+                             field="T_init")
         return cls(T0, **opts)
 
     # -- tracking with map-aware gating ---------------------------------------------------

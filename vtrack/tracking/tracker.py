@@ -48,5 +48,9 @@ class KnownShapeTracker(WindowTracker):
         if path is None:
             raise InputError("known-shape tracking needs the object mesh", path=getattr(scene, "source", None),
                              field="object.mesh", expected="a mesh file")
+        if T_init is None and scene.object.T_world_object is None:
+            raise InputError("known-shape tracking needs an initial pose (the scene gives none)",
+                             path=getattr(scene, "source", None), field="object.T_world_object",
+                             expected="a pose prior, or use vtrack.tracking.run (global registration)")
         T0 = scene.object.T_world_object.as_matrix() if T_init is None else T_init
         return cls(path, T0, scale=float(scene.object.scale) if mesh is None else 1.0, **opts)

@@ -574,9 +574,11 @@ class ViewData:
     def _load_gt_mesh(self) -> tuple[np.ndarray, np.ndarray] | None:
         cand: list[tuple[Path, float]] = []
         if self.session is not None:
-            p = self.session.path / "assets" / "object.ply"
-            if p.exists():
-                cand.append((p, 1.0))
+            # the viewer shows ground truth beside an estimate when a session still has it (gt/, or the
+            # assets/ of sessions written before the gt/ layout); the pipeline never reads it
+            for p in (self.session.path / "gt" / "object.ply", self.session.path / "assets" / "object.ply"):
+                if p.exists():
+                    cand.append((p, 1.0))
             if self.scene is not None and self.scene.object.mesh is not None:
                 cand.append((Path(self.scene.object.mesh), float(self.scene.object.scale)))
         for p, scale in cand:

@@ -38,6 +38,64 @@ GT_TRAJ_RGB = (40, 170, 70)
 EST_TRAJ_RGB = (220, 40, 40)
 
 
+_LOOPBACK_NAMES = {"127.0.0.1", "localhost", "::1", "[::1]"}
+
+
+def request_allowed(headers: object, bound_host: str) -> tuple[bool, str]:
+    """Is an HTTP/websocket request to the viewer from an allowed page? (allowed, reason if not).
+
+    viser accepts websocket connections from any web page, so a page open in the same browser could
+    read the scene while ``vtrack view`` runs. Two checks close that (the same ones Jupyter makes):
+
+    - ``Host`` must name the address the server is bound to (a loopback name when bound to
+      127.0.0.1): a DNS-rebinding page (``evil.example`` resolving to 127.0.0.1) fails this;
+    - a browser's ``Origin``, when sent, must be the viewer's own ``http://<Host>``: a
+      cross-site page's websocket fails this. Non-browser clients send no Origin and pass.
+    """
+    get = getattr(headers, "get", None)
+    host_hdr = (get("Host") if get else None) or ""
+    origin = (get("Origin") if get else None) or ""
+    name = host_hdr.rsplit(":", 1)[0] if not host_hdr.startswith("[") else host_hdr.split("]")[0] + "]"
+    if bound_host in ("127.0.0.1", "localhost", "::1"):
+        if name.lower() not in _LOOPBACK_NAMES:
+            return False, f"Host {host_hdr!r} is not a loopback address"
+    if origin and origin.lower() not in ("null",) and origin.lower() != f"http://{host_hdr}".lower():
+        return False, f"cross-origin request from {origin!r}"
+    if origin.lower() == "null":  # sandboxed iframes / file:// pages
+        return False, "request from an opaque (null) origin"
+    return True, ""
+
+
+class _origin_checked_serve:
+    """Context manager: while viser starts its server, wrap its ``process_request`` with
+    :func:`request_allowed` (viser has no option for it). Rejected requests get HTTP 403."""
+
+    def __init__(self, bound_host: str) -> None:
+        self.bound_host = bound_host
+
+    def __enter__(self) -> _origin_checked_serve:
+        import websockets.asyncio.server as wss
+
+        self._wss = wss
+        self._orig = wss.serve
+        bound = self.bound_host
+
+        def serve(*args, process_request=None, **kw):  # noqa: ANN001, ANN202 (mirrors websockets.serve)
+            def checked(connection, request):  # noqa: ANN001, ANN202
+                ok, why = request_allowed(request.headers, bound)
+                if not ok:
+                    return connection.respond(403, f"vtrack view: forbidden ({why})\n")
+                return process_request(connection, request) if process_request else None
+
+            return self._orig(*args, process_request=checked, **kw)
+
+        wss.serve = serve
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._wss.serve = self._orig
+
+
 def wxyz_position(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """viser pose of a 4x4 transform: quaternion (w, x, y, z) and translation (m)."""
     from vtrack.geometry.se3 import matrix_to_quat
@@ -153,7 +211,8 @@ class Viewer:
         self.data = data
         self.log = log or (lambda m: print(f"vtrack view: {m}", file=sys.stderr, flush=True))
         t0 = time.perf_counter()
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        with _origin_checked_serve(host):
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.scene.set_up_direction("+z")
         if not hdri:
             # Plain lights, no image-based lighting and no shadows: the HDRI environment map costs tens

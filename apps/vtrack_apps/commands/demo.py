@@ -24,7 +24,8 @@ def register(app: typer.Typer) -> None:
                 "modalities": summary["modalities"], "seconds_total": summary["seconds_total"]}
         for stage, res in summary["stages"].items():
             if isinstance(res, dict):
-                for k in ("fscore", "chamfer_mm", "drift_mm", "add_s_mm", "seconds", "session"):
+                for k in ("blind", "fscore", "chamfer_mm", "motion_err_mm", "drift_mm", "add_s_mm", "poses_per_s",
+                          "seconds", "session"):
                     if k in res:
                         flat[f"{stage}.{k}"] = res[k]
         report("vtrack demo", flat, json_out)

@@ -114,6 +114,11 @@ def register(app: typer.Typer) -> None:
 
         rec = DomeReconstructor(method, weights, reference)
         res = rec.reconstruct(image, pressure, resize=resize)
+        if not res.valid:  # refuse rather than print a confident force for an unreadable image
+            from vtrack.errors import InputError
+
+            raise InputError(res.info["invalid_reason"], path=image, field="image",
+                             expected="a marker image of this dome sensor (same size, pressure, lighting)")
         typer.echo(json.dumps(res.summary(), indent=1))
         if out:
             paths = res.save(out)

@@ -43,12 +43,16 @@ def register(app: typer.Typer) -> None:
         no_hand: bool = typer.Option(False, "--no-hand", help="do not add the DIGIT-Allegro hand to the scene"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
         json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
+        trust_pickle: bool = typer.Option(False, "--trust-pickle",
+                                          help="load data.pkl with plain pickle (runs code in the file; "
+                                               "default: numpy arrays and builtin containers only)"),
     ) -> None:
         """Import a FeelSight (NeuralFeels) log: DIGIT images, RealSense RGB-D, joints, object pose."""
         from vtrack.io.importers.feelsight import import_feelsight
 
         kw = {"hand_urdf": None} if no_hand else {}
-        _finish(import_feelsight(src, out, overwrite=force, max_frames=max_frames, object_mesh=mesh, **kw), json_out)
+        _finish(import_feelsight(src, out, overwrite=force, max_frames=max_frames, object_mesh=mesh,
+                                 trust_pickle=trust_pickle, **kw), json_out)
 
     _register_ros_import(imp, "rosbag", "ROS 1 .bag file or ROS 2 bag folder",
                          "Import a ROS 1/2 bag (Image, CompressedImage, CameraInfo, JointState, tf).",

@@ -10,25 +10,36 @@ import typer
 def register(app: typer.Typer) -> None:
     @app.command("track")
     def track(
-        session: Path = typer.Argument(..., help="session directory"),
-        out: Path = typer.Option(..., "--out", help="result folder (poses.csv, metrics.json, error.png)"),
+        session: Path = typer.Argument(..., help="session directory (no ground truth needed)"),
+        out: Path = typer.Option(..., "--out", help="result folder (poses.csv, metrics.json, ...)"),
         shape: str = typer.Option("known", "--shape", help="known (mesh SDF) | slam (shape reconstructed online)"),
+        mesh: Path = typer.Option(None, "--mesh", help="known object shape (object frame, m); default: the scene's"),
+        init_pose: str = typer.Option(None, "--init-pose",
+                                      help="first-frame prior x,y,z,qx,qy,qz,qw or a poses.csv (default: "
+                                           "global registration / SLAM's own frame)"),
         modalities: str = typer.Option("vision,touch", "--modalities", help="vision, touch or vision,touch"),
         method: str = typer.Option("ours", "--method", help="ours | icp (Open3D point-to-plane, vision only)"),
         mapper: str = typer.Option("surfel", "--mapper", help="SLAM map: surfel (numpy) | neural (neural SDF)"),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
+        gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
+        init: str = typer.Option("auto", "--init", help="auto | gt (ORACLE: first ground-truth pose)"),
+        tactile_source: str = typer.Option("pipeline", "--tactile-source",
+                                           help="pipeline (tactile images) | gt (ORACLE height maps)"),
+        segmentation: str = typer.Option("pipeline", "--segmentation",
+                                         help="pipeline (no GT) | gt (ORACLE masks) | none"),
         init_perturb_mm: float = typer.Option(0.0, "--init-perturb-mm",
-                                              help="start from the first GT pose moved by this much (mm)"),
+                                              help="with --init gt: start moved by this much (mm)"),
         init_perturb_deg: float = typer.Option(0.0, "--init-perturb-deg", help="... and rotated by this (deg)"),
         max_frames: int = typer.Option(0, "--max-frames", help="track only the first N frames (0 = all)"),
         seed: int = typer.Option(0, "--seed", help="seed of the initial-pose perturbation"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
     ) -> None:
-        """Track the object pose; initialised from the first ground-truth pose (optionally perturbed)."""
+        """Track the object pose from raw streams (segmentation and touch without ground truth)."""
         import math
 
         from vtrack.errors import InputError
+        from vtrack.io.poses import parse_pose
         from vtrack.tracking.run import track_session
         from vtrack_apps.output import report, write_json
 
@@ -44,11 +55,13 @@ def register(app: typer.Typer) -> None:
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
                 opts["mapper"] = mapper
-        m = track_session(session, out, shape=shape, modalities=mods, method=method, init_perturb=perturb,
-                          max_frames=max_frames, seed=seed, **opts)
-        keys = ("mode", "modalities", "frames", "add_s_mm", "drift_mm", "rot_drift_deg", "ms_per_frame_mean",
-                "poses_per_s", "status_counts")
+        m = track_session(session, out, shape=shape, modalities=mods, method=method, mesh=mesh,
+                          init_pose=parse_pose(init_pose) if init_pose else None, init=init, init_perturb=perturb,
+                          gt=gt, tactile_source=tactile_source, segmentation=segmentation, max_frames=max_frames,
+                          seed=seed, **opts)
+        keys = ("mode", "modalities", "blind", "oracle", "frames", "init", "add_s_mm", "drift_mm", "motion_err_mm",
+                "ms_per_frame_mean", "poses_per_s", "status_counts")
         report(f"track {session}", {k: m.get(k) for k in keys if k in m}, None)
         if json_out:
             write_json(json_out, m)
-        typer.echo(f"wrote {out}/poses.csv, metrics.json, result.json, error.png")
+        typer.echo(f"wrote {out}/poses.csv, metrics.json, result.json")

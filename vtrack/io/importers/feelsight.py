@@ -65,17 +65,66 @@ def _imread(path: Path, flags: int) -> np.ndarray:
     return img
 
 
-def load_data_pkl(path: Path) -> dict:
-    """Read ``data.pkl`` (plain pickle; dill if plain pickle fails and dill is installed).
+#: The only globals a ``data.pkl`` may reference unless the user trusts it: numpy arrays, dtypes and
+#: scalars, and builtin containers. Any other global (``os.system``, ``subprocess.Popen``, ...) is
+#: how a pickle runs code on load, so it is refused.
+_SAFE_GLOBALS = {
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "_reconstruct"),
+    ("numpy._core.multiarray", "scalar"), ("numpy.core.multiarray", "scalar"),
+    ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
+    ("_codecs", "encode"), ("collections", "OrderedDict"),
+    ("builtins", "set"), ("builtins", "frozenset"), ("builtins", "complex"), ("builtins", "slice"),
+    ("builtins", "range"), ("builtins", "bytearray"),
+    ("__builtin__", "set"), ("__builtin__", "frozenset"), ("__builtin__", "complex"),
+}
 
-    Note: unpickling runs code from the file: import only data you trust.
+
+class UnsafePickleError(InputError):
+    """A pickle references a global outside the data-only allow-list (it could run code on load)."""
+
+
+def _restricted_unpickler(f: Any) -> pickle.Unpickler:
+    import importlib
+
+    class _Restricted(pickle.Unpickler):
+        def find_class(self, module: str, name: str) -> Any:
+            if (module, name) not in _SAFE_GLOBALS:
+                raise UnsafePickleError(
+                    f"refusing to unpickle '{module}.{name}': data.pkl may only hold numpy arrays, "
+                    "numbers, strings and builtin containers (pass --trust-pickle to load a file you trust)")
+            # importlib (not super().find_class) so the Python-2 '__builtin__' alias resolves too.
+            return getattr(importlib.import_module("builtins" if module == "__builtin__" else module), name)
+
+    return _Restricted(f)
+
+
+def load_data_pkl(path: Path, *, trust: bool = False) -> dict:
+    """Read ``data.pkl`` safely.
+
+    By default a restricted unpickler is used: only numpy arrays/dtypes/scalars and builtin
+    containers and scalars may appear; anything else (the way a pickle executes code on load) is
+    refused with an :class:`InputError`. ``trust=True`` uses plain pickle (then dill, if installed)
+    and warns: it runs whatever code the file holds.
+
+    Raises:
+        InputError: missing, truncated or corrupt file, a disallowed global, or not a dict.
     """
     if not path.exists():
         raise InputError("FeelSight log has no data.pkl", path=path)
+    if trust:
+        import warnings
+
+        warnings.warn(f"{path}: loading with plain pickle (--trust-pickle): this runs any code the file holds",
+                      stacklevel=2)
     try:
         with open(path, "rb") as f:
-            data = pickle.load(f)
+            data = pickle.load(f) if trust else _restricted_unpickler(f).load()
+    except UnsafePickleError as e:
+        raise UnsafePickleError(str(e), path=path) from None
     except Exception as e:  # truncated / corrupt pickles raise many types
+        if not trust:
+            raise InputError(f"cannot read pickle ({type(e).__name__}: {e})", path=path) from None
         try:
             import dill  # type: ignore[import-not-found]
 
@@ -195,7 +244,7 @@ class DepthFrames:
 def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = False, flush_every: int = 256,
                      max_frames: int | None = None, object_mesh: str | Path | None = None,
                      hand_urdf: str | None = "${shared}/data/robots/allegro_digit/allegro_digit_left.urdf",
-                     rate_hz: float | None = None) -> ImportReport:
+                     rate_hz: float | None = None, trust_pickle: bool = False) -> ImportReport:
     """Convert one FeelSight log folder to a session at ``out``.
 
     Args:
@@ -207,6 +256,7 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
         object_mesh: object mesh to reference in the scene (the dataset does not ship it per log).
         hand_urdf: URDF of the DIGIT-Allegro hand for the scene's ``hand`` entry (None: no hand).
         rate_hz: nominal rate; default from ``time``.
+        trust_pickle: load ``data.pkl`` with plain pickle (runs code in the file; default: data only).
 
     Raises:
         InputError: missing/corrupt ``data.pkl``, images or depth archive (the message names the file),
@@ -221,7 +271,7 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
     if not src.is_dir():
         raise InputError("FeelSight log folder does not exist", path=src)
     pkl = src / "data.pkl"
-    data = load_data_pkl(pkl)
+    data = load_data_pkl(pkl, trust=trust_pickle)
     report = ImportReport(source=src, session=Path(out))
 
     t = _get(data, "time")
@@ -363,6 +413,11 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
         hand["joint_names"] = ALLEGRO_JOINTS
         scene["hand"] = hand
         report.note("hand: DIGIT-Allegro URDF from shared data; T_link_sensor is the vtrack default mount")
+    if not cam_specs and not tac_names and q is None and obj is None:
+        # Only timestamps: writing a session would give an empty one that later commands choke on.
+        raise InputError("nothing to import: no realsense/<camera> images + depth.npz, no allegro/<finger> "
+                         "images, no allegro.joint_state and no object.pose", path=pkl,
+                         expected="at least one sensor stream", got=f"keys {sorted(map(str, data))}")
     scene_dict = finalize_scene(scene, source=pkl)
 
     # --- write --------------------------------------------------------------------------------

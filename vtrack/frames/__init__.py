@@ -1,0 +1,1 @@
+"""Per-frame processing of camera frames (segmentation, ...)."""

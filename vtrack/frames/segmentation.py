@@ -1,0 +1,497 @@
+"""Object segmentation of one RGB-D frame without ground truth (hand removal by forward kinematics).
+
+:class:`HandAwareSegmenter` (one per camera, stateful over frames) turns a depth image in metres into
+an object mask and world-frame object points, in five steps (each reports counts in ``info``):
+
+1. **Hand removal.** The URDF hand, posed by forward kinematics of the measured joint vector, is
+   rendered into the camera by *z-buffer splatting* of link-frame surface samples: each link's
+   (decimated) visual mesh is sampled once at construction with a spacing of ``hand_sample_px``
+   pixel footprints at the nearest plausible hand depth; per frame the samples are moved by
+   ``T_camera_link = inv(T_world_camera) @ T_world_link`` (one 3x3 product per link), projected, and
+   ``np.minimum.at`` keeps the nearest depth per pixel. A grey erosion (min filter) of
+   ``hand_dilate_px`` pixels closes splat holes and grows the hand silhouette for FK/calibration
+   error. Depth pixels at or behind ``z_hand - hand_margin_m`` are hand (or hidden by it) and dropped.
+   Measured on the default scene at 160x120 (stride 4), one thread: splatting 0.4 ms per frame
+   (~19 k samples) against 3.6 ms for Open3D ``RaycastingScene`` with one static scene per link and
+   the rays of each link's projected bounding box moved into the link frame, for the same masks
+   within the erosion; hence splatting.
+2. **Workspace crop.** A sphere around the grasp centre (mean of the tactile sensor origins, else of
+   the hand's link origins) with radius ``crop_scale`` x the hand's extent (largest distance of a
+   link origin / sensor from the grasp centre), at least ``crop_min_radius_m``: sized from the hand,
+   never from the object.
+3. **Support planes.** Up to ``max_planes`` RANSAC planes (Open3D ``segment_plane``) on a subsample of
+   the cropped points; a plane is removed (with everything beyond it, seen from the grasp centre)
+   only when it holds ``plane_min_fraction`` of the points, lies ``plane_min_offset_m`` or more
+   from the grasp centre and its inliers' minor in-plane standard deviation exceeds
+   ``plane_min_extent_m`` (a table or wall, not a face of a held box).
+4. **Object cluster.** Connected components of the depth image (4-neighbours joined when their depth
+   differs by less than ``jump_abs_m + jump_px * z / fx``, i.e. resolution independent). The primary
+   cluster is the one nearest to the tactile contacts, the grasp centre and the previous object
+   centroid (among clusters at least ``primary_min_ratio`` of the largest); clusters within
+   ``merge_gap_m`` in 3D of the selection are merged (a finger in front of the object splits it).
+5. **Temporal consistency.** The previous object centroid and radius (95th percentile) are kept;
+   clusters far from them are not merged and score worse. ``reset()`` forgets them.
+
+Frames: depth and pixels are in the OpenCV camera frame of ``cam``; ``T_world_camera`` (4x4) maps
+camera to world; all 3D outputs and inputs (contacts, sensor positions) are world-frame metres.
+Pipeline code: this module never reads ground truth (no masks, object poses or object meshes).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.geometry.camera import PinholeCamera
+
+#: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
+_SAMPLE_CACHE: dict[tuple[str, int], dict[str, np.ndarray]] = {}
+
+
+@dataclass
+class SegmentationOptions:
+    """Tuning of :class:`HandAwareSegmenter` (lengths in metres, image sizes in working-resolution pixels)."""
+
+    # depth validity
+    min_depth_m: float = 0.05
+    max_depth_m: float = 3.0
+    # 1. hand removal
+    hand_removal: bool = True
+    hand_margin_m: float = 0.006  # pixels deeper than (hand surface - margin) are hand / hidden by it
+    hand_dilate_px: int = 1  # ring around the rendered hand where pixels at the hand's depth are hand (FK slack)
+    hand_sample_px: float = 1.5  # splat spacing in pixel footprints at the nearest hand depth (holes: ring)
+    max_hand_samples: int = 400_000  # cap (full-resolution images); spacing grows beyond it
+    # 2. workspace crop
+    crop: bool = True
+    crop_scale: float = 1.6  # radius = crop_scale x hand extent around the grasp centre
+    crop_min_radius_m: float = 0.12
+    # 3. support planes
+    plane_removal: bool = True
+    max_planes: int = 2
+    plane_distance_m: float = 0.005  # RANSAC inlier distance
+    plane_min_fraction: float = 0.25  # of the cropped points
+    plane_min_points: int = 60
+    plane_min_offset_m: float = 0.02  # distance of the plane from the grasp centre (not through the grasp)
+    plane_min_extent_m: float = 0.04  # minor in-plane std of the inliers (table of radius 0.12 m: 0.06)
+    plane_iterations: int = 60
+    plane_max_points: int = 1500  # RANSAC subsample
+    fill_holes_px: int = 1  # closing radius filling depth-less pixels enclosed by the mask (0 = off)
+    # 4. clustering
+    jump_abs_m: float = 0.004
+    jump_px: float = 4.0  # allowed depth step between neighbours in pixel footprints (z / fx)
+    min_cluster_px: int = 3
+    min_cluster_area_m2: float = 2e-4  # clusters seen smaller than this (2 cm^2) are remnants, not the object
+    min_cluster_fraction: float = 0.005  # of the candidate pixels
+    primary_min_ratio: float = 0.2  # primary cluster at least this fraction of the largest one
+    merge_gap_m: float = 0.025  # clusters closer than this (3D) to the selection are merged
+    # 5. temporal consistency
+    temporal: bool = True
+    temporal_gate_m: float = 0.05  # merged clusters' centroids within prev radius + gate of prev centroid
+    temporal_max_age: int = 15  # frames without an object after which the state is dropped
+
+
+@dataclass
+class SegmentResult:
+    """Segmentation of one frame: ``mask`` (H, W) bool, ``points_world`` (N, 3) m, ``info`` counts/reasons."""
+
+    mask: np.ndarray
+    points_world: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def sample_link_surfaces(kin: Any, spacing_m: float, max_samples: int) -> dict[str, np.ndarray]:
+    """Link-frame points covering each link's visual surface at about ``spacing_m`` (cached)."""
+    from vtrack.sim.generate import _decimated_link_meshes
+
+    meshes = _decimated_link_meshes(kin)
+    areas = {}
+    for link, parts in meshes.items():
+        a = 0.0
+        for v, f in parts:
+            tri = v[f]
+            a += 0.5 * float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
+        areas[link] = a
+    total = max(sum(areas.values()), 1e-12)
+    spacing_m = max(spacing_m, float(np.sqrt(total / max(max_samples, 1))))
+    key = (str(kin.urdf_path), int(round(spacing_m * 1e4)))
+    if key in _SAMPLE_CACHE:
+        return _SAMPLE_CACHE[key]
+    rng = np.random.default_rng(0)  # fixed seed: the same samples every run
+    out: dict[str, np.ndarray] = {}
+    for link, parts in meshes.items():
+        pts = []
+        for v, f in parts:
+            tri = v[f]
+            ta = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+            n = int(np.ceil(ta.sum() / spacing_m**2))
+            if n <= 0:
+                continue
+            # Area-weighted triangle choice + uniform barycentric samples; vertices too (silhouette tips).
+            idx = rng.choice(len(f), size=n, p=ta / ta.sum())
+            r1, r2 = rng.random(n), rng.random(n)
+            s = np.sqrt(r1)
+            w = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
+            pts.append(np.einsum("nk,nkd->nd", w, tri[idx]))
+            pts.append(v)
+        if pts:
+            out[link] = np.concatenate(pts).astype(np.float64)
+    _SAMPLE_CACHE[key] = out
+    return out
+
+
+class HandAwareSegmenter:
+    """Stateful per-camera object segmenter (see the module docstring for the steps).
+
+    Args:
+        kin: hand kinematics (``None``: no hand removal, crop from the sensor positions only).
+        cam: intrinsics of the depth image passed to :meth:`segment` (any resolution / stride).
+        T_world_camera: (4, 4) pose of the OpenCV camera frame in the world.
+        options: tuning; defaults in :class:`SegmentationOptions`.
+    """
+
+    def __init__(self, kin: Any | None, cam: PinholeCamera, T_world_camera: np.ndarray,
+                 options: SegmentationOptions | None = None) -> None:
+        T = np.asarray(T_world_camera, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputError("camera pose must be a finite 4x4 matrix", field="T_world_camera",
+                             expected="(4, 4) finite", got=T.shape)
+        self.kin = kin
+        self.cam = cam
+        self.opt = options or SegmentationOptions()
+        self.T_world_camera = T
+        self.T_camera_world = np.linalg.inv(T)
+        u = (np.arange(cam.width, dtype=np.float64) - cam.cx) / cam.fx
+        v = (np.arange(cam.height, dtype=np.float64) - cam.cy) / cam.fy
+        self._rx, self._ry = np.meshgrid(u, v)  # x/z and y/z per pixel
+        self._samples: dict[str, np.ndarray] | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous object centroid/radius (new sequence or lost track)."""
+        self._prev_centroid: np.ndarray | None = None
+        self._prev_radius = 0.0
+        self._age = 0
+
+    # ---------------------------------------------------------------------------------
+    def _hand_samples(self, link_pos_cam_z: np.ndarray) -> dict[str, np.ndarray]:
+        if self._samples is None:
+            z_near = max(float(np.min(link_pos_cam_z)) - 0.05, 0.05)  # surface nearer than link origins
+            spacing = self.opt.hand_sample_px * z_near / max(self.cam.fx, self.cam.fy)
+            self._samples = sample_link_surfaces(self.kin, max(spacing, 2e-4), self.opt.max_hand_samples)
+        return self._samples
+
+    def render_hand_depth(self, poses: dict[str, np.ndarray],
+                          with_core: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """(H, W) z-buffer (m, camera frame; inf = no hand) of the hand at link poses ``T_world_link``,
+        min-filtered over ``hand_dilate_px``; ``with_core`` also returns the unfiltered one first."""
+        H, W = self.cam.height, self.cam.width
+        Tcw = self.T_camera_world
+        Tcl = {k: Tcw @ (v[0] if v.ndim == 3 else v) for k, v in poses.items()}
+        samples = self._hand_samples(np.array([T[2, 3] for T in Tcl.values()]))
+        P = np.concatenate([s @ Tcl[k][:3, :3].T + Tcl[k][:3, 3] for k, s in samples.items() if k in Tcl])
+        z = P[:, 2]
+        front = z > 1e-3
+        P, z = P[front], z[front]
+        u = np.rint(self.cam.fx * P[:, 0] / z + self.cam.cx).astype(np.int64)
+        v = np.rint(self.cam.fy * P[:, 1] / z + self.cam.cy).astype(np.int64)
+        ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        zb = np.full(H * W, np.inf)
+        np.minimum.at(zb, v[ok] * W + u[ok], z[ok])
+        core = zb.reshape(H, W)
+        zb = core
+        r = int(self.opt.hand_dilate_px)
+        if r > 0:
+            import cv2
+
+            zb = cv2.erode(core.astype(np.float32), np.ones((2 * r + 1, 2 * r + 1), np.uint8)).astype(np.float64)
+        return (core, zb) if with_core else zb
+
+    # ---------------------------------------------------------------------------------
+    def segment(self, depth_m: np.ndarray, q: np.ndarray | None, contacts_world: np.ndarray | None = None,
+                sensor_positions_world: np.ndarray | None = None) -> SegmentResult:
+        """Object mask and world points of one depth frame.
+
+        Args:
+            depth_m: (H, W) depth of ``cam``, metres, 0/NaN = invalid.
+            q: joint vector (rad) in ``kin.joint_names`` order, or None (no hand removal).
+            contacts_world: (K, 3) tactile contact points in the world (m), optional.
+            sensor_positions_world: (S, 3) tactile sensor origins in the world (m), optional.
+
+        Returns:
+            :class:`SegmentResult`; an empty mask carries ``info["empty_reason"]``.
+        """
+        t_start = time.perf_counter()
+        opt, cam = self.opt, self.cam
+        H, W = cam.height, cam.width
+        d = np.asarray(depth_m)
+        if d.shape != (H, W):
+            raise InputError("depth image size does not match the camera", field="depth_m",
+                             expected=f"({H}, {W})", got=d.shape)
+        if d.dtype.kind not in "fiu":
+            raise InputError("depth must be numeric metres", field="depth_m", expected="float32", got=str(d.dtype))
+        z = d.astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(z) & (z > opt.min_depth_m) & (z < opt.max_depth_m)
+        z = np.where(valid, z, 0.0)
+        no_depth = ~valid
+        hand_px = np.zeros((H, W), bool)
+        info: dict[str, Any] = {"n_valid": int(valid.sum()), "ms": {}}
+        ms = info["ms"]
+
+        def empty(reason: str) -> SegmentResult:
+            info["empty_reason"] = reason
+            info["n_object"] = 0
+            self._age += 1
+            if self._age > opt.temporal_max_age:
+                self.reset()
+            ms["total"] = (time.perf_counter() - t_start) * 1e3
+            return SegmentResult(np.zeros((H, W), bool), np.zeros((0, 3)), info)
+
+        # Joint vector and FK (skipped, and said so, when q is missing or not finite).
+        poses = None
+        if self.kin is not None and q is not None:
+            qa = np.asarray(q, dtype=np.float64).ravel()
+            if qa.shape != (self.kin.n_joints,):
+                raise InputError("wrong joint vector length", field="q", expected=f"({self.kin.n_joints},)",
+                                 got=qa.shape)
+            if np.all(np.isfinite(qa)):
+                poses = self.kin.link_poses(qa)
+                info["hand_removal"] = "done" if opt.hand_removal else "disabled"
+            else:
+                info["hand_removal"] = "skipped: q has NaN/Inf"
+        else:
+            info["hand_removal"] = "skipped: no hand model" if self.kin is None else "skipped: no q"
+
+        sensors = _points_or_none(sensor_positions_world, "sensor_positions_world")
+        if sensors is None and poses is not None and getattr(self.kin, "sensor_names", None):
+            sp = [poses[self.kin.sensor_links[s]][0] @ self.kin.T_link_sensor[s] for s in self.kin.sensor_names]
+            sensors = np.array([T[:3, 3] for T in sp])
+        contacts = _points_or_none(contacts_world, "contacts_world")
+        link_pos = None if poses is None else np.array([T[0, :3, 3] for T in poses.values()])
+        centre = None
+        if sensors is not None:
+            centre = sensors.mean(axis=0)
+        elif link_pos is not None:
+            centre = link_pos.mean(axis=0)
+        info["grasp_centre"] = None if centre is None else centre.tolist()
+
+        if not valid.any():
+            return empty("no valid depth")
+
+        # 1. Hand removal.
+        t0 = time.perf_counter()
+        if poses is not None and opt.hand_removal:
+            zh_core, zh = self.render_hand_depth(poses, with_core=True)
+            # Inside the rendered silhouette: at or behind the hand surface (hidden by it). In the dilated
+            # ring only pixels at the hand's depth (FK/calibration error), so the object behind a finger
+            # edge is kept.
+            # (Measured: shrinking the silhouette by its boundary pixels, or a min/max depth-range ring,
+            # left hand remnants or cut object pixels touching the fingers; this rule scored best.)
+            hand = valid & ((z >= zh_core - opt.hand_margin_m) | (np.abs(z - zh) < opt.hand_margin_m))
+            hand_px = np.isfinite(zh)
+            info["n_hand_removed"] = int(hand.sum())
+            info["n_hand_rendered"] = int(np.isfinite(zh).sum())
+            valid &= ~hand
+        ms["hand"] = (time.perf_counter() - t0) * 1e3
+        if not valid.any():
+            return empty("no depth left after hand removal (the hand hides the object)")
+
+        # Back-projection of the remaining pixels (camera then world frame).
+        rows, cols = np.nonzero(valid)
+        zz = z[rows, cols]
+        Pc = np.stack([self._rx[rows, cols] * zz, self._ry[rows, cols] * zz, zz], axis=1)
+        Pw = Pc @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
+
+        # 2. Workspace crop.
+        t0 = time.perf_counter()
+        keep = np.ones(len(Pw), bool)
+        if opt.crop and centre is not None:
+            ref = [p for p in (sensors, link_pos) if p is not None]
+            extent = max(float(np.linalg.norm(np.concatenate(ref) - centre, axis=1).max()), 0.0)
+            radius = max(opt.crop_scale * extent, opt.crop_min_radius_m)
+            keep = np.einsum("ij,ij->i", Pw - centre, Pw - centre) < radius**2
+            info["crop_radius_m"] = radius
+            info["n_cropped"] = int((~keep).sum())
+        ms["crop"] = (time.perf_counter() - t0) * 1e3
+        if not keep.any():
+            return empty("no depth inside the workspace around the hand")
+
+        # 3. Support planes.
+        t0 = time.perf_counter()
+        info["planes"] = []
+        if opt.plane_removal and keep.sum() >= opt.plane_min_points:
+            keep = self._remove_planes(Pw, keep, centre, info)
+        ms["planes"] = (time.perf_counter() - t0) * 1e3
+        if not keep.any():
+            return empty("no depth left after removing support planes")
+
+        # 4. + 5. Clusters and selection.
+        t0 = time.perf_counter()
+        sel = self._select_cluster(rows[keep], cols[keep], zz[keep], Pw[keep], centre, contacts, info)
+        ms["cluster"] = (time.perf_counter() - t0) * 1e3
+        if sel is None:
+            return empty("no object cluster (everything left is too small or inconsistent)")
+        r_sel, c_sel, P_sel = rows[keep][sel], cols[keep][sel], Pw[keep][sel]
+        mask = np.zeros((H, W), bool)
+        mask[r_sel, c_sel] = True
+        if opt.fill_holes_px > 0:
+            # Pixels without depth (dropouts at grazing angles, specular spots) enclosed by the object
+            # belong to it in the image; never where the hand was rendered. points_world keeps depth only.
+            import cv2
+
+            k = np.ones((2 * opt.fill_holes_px + 1,) * 2, np.uint8)
+            closed = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_CLOSE, k).astype(bool)
+            add = closed & ~mask & no_depth & ~hand_px
+            mask |= add
+            info["n_filled"] = int(add.sum())
+        c = P_sel.mean(axis=0)
+        if opt.temporal:
+            self._prev_centroid = c
+            self._prev_radius = float(np.percentile(np.linalg.norm(P_sel - c, axis=1), 95))
+            self._age = 0
+        info["n_object"] = int(len(P_sel))
+        info["centroid_world"] = c.tolist()
+        ms["total"] = (time.perf_counter() - t_start) * 1e3
+        return SegmentResult(mask, P_sel, info)
+
+    # ---------------------------------------------------------------------------------
+    def _remove_planes(self, Pw: np.ndarray, keep: np.ndarray, centre: np.ndarray | None,
+                       info: dict) -> np.ndarray:
+        import open3d as o3d
+
+        opt = self.opt
+        keep = keep.copy()
+        for _ in range(opt.max_planes):
+            idx = np.flatnonzero(keep)
+            if len(idx) < opt.plane_min_points:
+                break
+            sub = idx[:: max(1, len(idx) // opt.plane_max_points)]
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Pw[sub]))
+            try:
+                model, inl = pc.segment_plane(opt.plane_distance_m, 3, opt.plane_iterations,
+                                              probability=0.9999, seed=0)
+            except TypeError:  # older Open3D without seed/probability
+                model, inl = pc.segment_plane(opt.plane_distance_m, 3, opt.plane_iterations)
+            model = np.asarray(model, dtype=np.float64)
+            nrm = np.linalg.norm(model[:3])
+            if not np.isfinite(nrm) or nrm < 1e-9 or len(inl) < 3:
+                break
+            n, off = model[:3] / nrm, model[3] / nrm
+            frac = len(inl) / len(sub)
+            inl_pts = Pw[sub][np.asarray(inl)]
+            # Minor in-plane standard deviation: a table/wall spreads both ways, a can's side or a box
+            # face held in the hand does not (0.02-0.03 m for the YCB objects).
+            ev = np.linalg.eigvalsh(np.cov((inl_pts - inl_pts.mean(0)).T)) if len(inl_pts) > 3 else np.zeros(3)
+            spread = float(np.sqrt(max(ev[1], 0.0)))
+            ref = centre if centre is not None else Pw[idx].mean(axis=0)
+            dist_c = float(ref @ n + off)
+            rec = {"fraction": round(frac, 3), "offset_m": round(abs(dist_c), 4), "extent_m": round(spread, 4)}
+            if frac < opt.plane_min_fraction or abs(dist_c) < opt.plane_min_offset_m or spread < opt.plane_min_extent_m:
+                rec["removed"] = False
+                info["planes"].append(rec)
+                break
+            # Remove the plane and everything beyond it (away from the grasp centre).
+            sd = (Pw[idx] @ n + off) * (1.0 if dist_c < 0 else -1.0)
+            drop = idx[sd > -opt.plane_distance_m * 2]
+            keep[drop] = False
+            rec["removed"] = True
+            rec["n_removed"] = int(len(drop))
+            info["planes"].append(rec)
+        return keep
+
+    def _select_cluster(self, rows: np.ndarray, cols: np.ndarray, zz: np.ndarray, Pw: np.ndarray,
+                        centre: np.ndarray | None, contacts: np.ndarray | None, info: dict) -> np.ndarray | None:
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        opt, cam = self.opt, self.cam
+        H, W = cam.height, cam.width
+        n = len(zz)
+        lab_img = np.full((H, W), -1, np.int64)
+        lab_img[rows, cols] = np.arange(n)
+        zimg = np.zeros((H, W))
+        zimg[rows, cols] = zz
+        f = max(cam.fx, cam.fy)
+        src, dst = [], []
+        for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+                     ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+            ia, ib = lab_img[a], lab_img[b]
+            za, zb = zimg[a], zimg[b]
+            thr = opt.jump_abs_m + opt.jump_px * np.minimum(za, zb) / f
+            e = (ia >= 0) & (ib >= 0) & (np.abs(za - zb) < thr)
+            src.append(ia[e])
+            dst.append(ib[e])
+        s, t = np.concatenate(src), np.concatenate(dst)
+        g = coo_matrix((np.ones(len(s), np.int8), (s, t)), shape=(n, n))
+        n_lab, lab = connected_components(g, directed=False)
+        sizes = np.bincount(lab, minlength=n_lab)
+        min_size = max(opt.min_cluster_px, int(np.ceil(opt.min_cluster_fraction * n)))
+        # Visible surface area per cluster (pixel footprint (z/fx)(z/fy)): resolution independent.
+        area = np.bincount(lab, weights=zz * zz / (cam.fx * cam.fy), minlength=n_lab)
+        # Primary candidates must be large; fragments (object seen between fingers) may only be merged.
+        big = np.flatnonzero(sizes >= opt.min_cluster_px)
+        small = (sizes[big] < min_size) | (area[big] < opt.min_cluster_area_m2)
+        if small.all():
+            info["n_clusters_kept"] = 0
+            return None
+        info["n_clusters"] = int(n_lab)
+        info["n_clusters_kept"] = int((~small).sum())
+        cent = np.stack([np.bincount(lab, weights=Pw[:, k], minlength=n_lab)[big] for k in range(3)], 1)
+        cent /= sizes[big, None]
+        score = np.zeros(len(big))
+        if contacts is not None and len(contacts):
+            d_con, _ = cKDTree(contacts).query(Pw)
+            dmin = np.full(n_lab, np.inf)
+            np.minimum.at(dmin, lab, d_con)
+            score += dmin[big]
+        if centre is not None:
+            score += np.linalg.norm(cent - centre, axis=1)
+        prev = self._prev_centroid if opt.temporal else None
+        if prev is not None:
+            score += np.linalg.norm(cent - prev, axis=1)
+        # Tiny remnants (hand edges, flying pixels) must not become the primary cluster.
+        score[small | (sizes[big] < opt.primary_min_ratio * sizes[big][~small].max())] = np.inf
+        if prev is not None:
+            gate = np.linalg.norm(cent - prev, axis=1) > self._prev_radius + opt.temporal_gate_m
+        else:
+            gate = np.zeros(len(big), bool)
+        if not np.isfinite(score).any():  # nothing to anchor to: the largest cluster
+            score = np.where(small, np.inf, -sizes[big].astype(np.float64))
+        order = np.argsort(score)
+        primary = big[order[0]]
+        chosen = {int(primary)}
+        members = [np.flatnonzero(lab == b) for b in big]
+        by_lab = {int(b): m for b, m in zip(big, members, strict=True)}
+        cand = [int(big[i]) for i in order[1:] if not gate[i]]
+        changed = True
+        while changed and cand:
+            changed = False
+            sel_idx = np.concatenate([by_lab[c] for c in chosen])
+            tree = cKDTree(Pw[sel_idx[:: max(1, len(sel_idx) // 3000)]])
+            for c in list(cand):
+                m = by_lab[c]
+                dist, _ = tree.query(Pw[m[:: max(1, len(m) // 300)]], distance_upper_bound=opt.merge_gap_m)
+                if np.isfinite(dist).any():
+                    chosen.add(c)
+                    cand.remove(c)
+                    changed = True
+        info["n_clusters_merged"] = len(chosen)
+        return np.isin(lab, list(chosen))
+
+
+def _points_or_none(p: np.ndarray | None, name: str) -> np.ndarray | None:
+    """(K, 3) finite float array, or None for None/empty; rows with NaN/Inf are dropped."""
+    if p is None:
+        return None
+    a = np.asarray(p, dtype=np.float64)
+    if a.size == 0:
+        return None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise InputError("points must be an (N, 3) array", field=name, expected="(N, 3) metres", got=a.shape)
+    a = a[np.all(np.isfinite(a), axis=1)]
+    return a if len(a) else None

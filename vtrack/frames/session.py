@@ -1,0 +1,315 @@
+"""Time-aligned, world-frame observations of a recorded session: the one front end of fusion, tracking
+and live.
+
+A :class:`SessionFrames` turns a session (RGB-D, tactile images, joint states, calibrations; no ground
+truth needed) into :class:`Frame` objects at the time base (the first camera's timestamps; without a
+camera, the first tactile stream's):
+
+- **vision**: each camera's nearest depth frame, subsampled by ``depth_stride`` (a strided image is a
+  camera with scaled intrinsics), segmented WITHOUT ground truth by
+  :class:`~vtrack.frames.segmentation.HandAwareSegmenter` (the URDF hand posed by forward kinematics is
+  rendered into the camera and removed, workspace crop around the fingertips, support planes, the
+  cluster nearest the tactile contacts), unprojected and moved to the world with ``T_world_camera``;
+- **touch**: each sensor's nearest tactile image through its calibrated tactile pipeline
+  (:class:`~vtrack.frames.touch.TouchSource`), contact points placed in the world by forward kinematics
+  (``T_world_sensor`` from the joint states interpolated at the frame time); object normals are minus the
+  gel normals; sensors that see no contact give gel-surface ``free_points`` (non-penetration);
+- **joints** ``q`` and the sensor poses.
+
+Oracle ablations (labelled, never defaults): ``tactile_source="gt"`` (simulated height maps) and
+``segmentation="gt"`` (the renderer's masks). Everything else never opens a ``gt/`` stream.
+
+Robustness: NaN joints drop touch and hand removal for that frame only; a frame without object pixels
+or without contact is returned with empty arrays, never an exception.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+from vtrack.frames.touch import Contact, TouchSource, gel_free_points
+from vtrack.geometry import se3
+from vtrack.geometry.camera import PinholeCamera
+from vtrack.tracking.frame import TrackingFrame
+
+SEGMENTATIONS = ("pipeline", "gt", "none")
+
+
+@dataclass
+class CameraView:
+    """One camera of a session: stream, intrinsics, extrinsics ``T_world_camera`` and its segmenter."""
+
+    name: str
+    stream: Any
+    cam: PinholeCamera
+    T_wc: np.ndarray
+    depth_scale: float
+    segmenter: Any = None
+    gt_mask: Any = None  # oracle ablation only
+    _strided: dict = field(default_factory=dict)
+
+    def strided(self, k: int, shape: tuple[int, int]) -> PinholeCamera:
+        """The camera of the image subsampled as ``image[::k, ::k]`` (pixel (r, c) -> (k r, k c))."""
+        if k not in self._strided:
+            c = self.cam
+            self._strided[k] = PinholeCamera(shape[1], shape[0], c.fx / k, c.fy / k, c.cx / k, c.cy / k)
+        return self._strided[k]
+
+
+@dataclass
+class Frame:
+    """World-frame observations at one time ``t`` (s); metres.
+
+    Attributes:
+        vision_points: (N, 3) segmented object points from depth.
+        vision_mask: per camera, the (h, w) object mask at the depth stride (for TSDF / the viewer).
+        touch_points / touch_normals / touch_penetration_mm / touch_sensor: contacts on the object, the
+            object's outward normals there, gel indentation (mm) and the sensor index of each point.
+        free_points: points on gels of sensors without contact (the object is not there).
+        sensor_poses: ``T_world_sensor`` per sensor (NaN when the joints are unknown).
+        q: joint positions (rad, the hand's joint order) or None.
+        contacts: per sensor, the contact in the SENSOR frame (see :class:`~vtrack.frames.touch.Contact`).
+    """
+
+    t: float
+    vision_points: np.ndarray
+    touch_points: np.ndarray
+    touch_normals: np.ndarray
+    touch_penetration_mm: np.ndarray
+    touch_sensor: np.ndarray
+    free_points: np.ndarray
+    sensor_poses: dict[str, np.ndarray]
+    q: np.ndarray | None = None
+    vision_mask: dict[str, np.ndarray] = field(default_factory=dict)
+    contacts: dict[str, Contact] = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    def tracking_frame(self) -> TrackingFrame:
+        """The tracker's input (:class:`~vtrack.tracking.frame.TrackingFrame`)."""
+        return TrackingFrame(
+            t=self.t,
+            vision_points=self.vision_points if len(self.vision_points) else None,
+            touch_points=self.touch_points if len(self.touch_points) else None,
+            touch_normals=self.touch_normals if len(self.touch_normals) else None,
+            free_points=self.free_points if len(self.free_points) else None,
+            info=dict(self.info),
+        )
+
+
+def _cat(parts: list[np.ndarray], width: int = 3) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros((0, width) if width else 0)
+
+
+class SessionFrames:
+    """Frames of a session (see module docstring); ``len()``, ``frame(i)``, iteration.
+
+    Args:
+        session: session directory or an open :class:`~vtrack.io.session.SessionReader`.
+        modalities: subset of ("vision", "touch").
+        tactile_source: ``pipeline`` (default) or ``gt`` (oracle ablation).
+        segmentation: ``pipeline`` (default), ``gt`` (oracle ablation) or ``none`` (all valid depth).
+        depth_stride: pixel stride of the depth images.
+        touch_stride: point stride of the tactile pipeline (working pixels).
+        max_frames: keep only the first frames (0 = all).
+        scene: override the session's embedded scene.
+    """
+
+    def __init__(self, session: str | Path | Any, modalities: tuple[str, ...] | list[str] = ("vision", "touch"), *,
+                 tactile_source: str = "pipeline", segmentation: str = "pipeline", depth_stride: int = 4,
+                 touch_stride: int = 3, max_frames: int = 0, scene: Any = None) -> None:
+        from vtrack.io.session import SessionReader, open_session
+
+        self.modalities = tuple(m.strip() for m in modalities)
+        bad = set(self.modalities) - {"vision", "touch"}
+        if bad or not self.modalities:
+            raise InputError("unknown modality", field="modalities", expected="vision and/or touch",
+                             got=list(self.modalities))
+        if segmentation not in SEGMENTATIONS:
+            raise InputError("unknown segmentation", field="segmentation", expected="pipeline | gt | none",
+                             got=segmentation)
+        self.reader = r = session if isinstance(session, SessionReader) else open_session(session)
+        self.path = Path(r.path)
+        self.scene = scene or r.scene(check_files=False)
+        self.tactile_source = tactile_source
+        self.segmentation = segmentation
+        self.depth_stride = max(1, int(depth_stride))
+        self.kin = None
+        if self.scene.hand is not None and "joints" in r and r["joints"].n:
+            from vtrack.kinematics.hand import HandKinematics
+
+            self.kin = HandKinematics.from_scene(self.scene)
+        self.touch: TouchSource | None = None
+        if "touch" in self.modalities:
+            self.touch = TouchSource(r, self.scene, tactile_source, point_stride=touch_stride)
+            if self.touch.sensors and self.kin is None:
+                raise InputError("touch needs the hand (scene.hand) and its joint states (a 'joints' stream)",
+                                 path=self.path, field="joints")
+        self.cams: list[CameraView] = []
+        for name, s in sorted(r.streams.items()):
+            if not name.startswith("camera/") or s.n == 0:
+                continue
+            a = s.attrs
+            try:
+                K = np.asarray(a["K"], dtype=np.float64)
+                cam = PinholeCamera(int(a["width"]), int(a["height"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+                T_wc = np.asarray(a["T_world_camera"], dtype=np.float64)
+            except (KeyError, TypeError, ValueError, IndexError) as e:
+                raise InputError(f"camera stream attrs incomplete ({e})", path=self.path, field=f"{name}.attrs",
+                                 expected="K, width, height, T_world_camera") from None
+            self.cams.append(CameraView(name.split("/", 1)[1], s, cam, T_wc, float(a.get("depth_scale", 0.001))))
+        if "vision" in self.modalities:
+            self._setup_segmentation()
+        if self.cams:
+            t = self.cams[0].stream.t
+        elif self.touch is not None and self.touch.sensors:
+            t = self.touch.times(self.touch.sensors[0])
+        else:
+            raise InputError("session has no camera or tactile stream to build frames from", path=self.path,
+                             expected="camera/<name> or tactile/<name> streams with frames")
+        if max_frames:
+            t = t[: int(max_frames)]
+        if len(t) == 0:
+            raise InputError("no frames", path=self.path)
+        self.times = np.asarray(t, dtype=np.float64)
+        self.q = self._joints_at(self.times)
+        self.sensor_poses = self._sensor_poses(self.q)
+
+    # ------------------------------------------------------------------ set-up
+    def _setup_segmentation(self) -> None:
+        for c in self.cams:
+            if self.segmentation == "gt":  # oracle ablation: the renderer's exact mask
+                gs = self.reader.streams.get(f"gt/camera/{c.name}")
+                if gs is not None and "mask" in gs.fields:
+                    c.gt_mask = gs
+                elif "mask" in c.stream.fields:  # sessions written before format 2
+                    c.gt_mask = c.stream
+                else:
+                    raise InputError("segmentation 'gt' (oracle) needs the simulator's masks", path=self.path,
+                                     field=f"gt/camera/{c.name}/mask")
+            elif self.segmentation == "pipeline":
+                from vtrack.frames.segmentation import HandAwareSegmenter
+
+                k = self.depth_stride
+                h, w = -(-c.cam.height // k), -(-c.cam.width // k)
+                c.segmenter = HandAwareSegmenter(self.kin, c.strided(k, (h, w)), c.T_wc)
+
+    def _joints_at(self, times: np.ndarray) -> np.ndarray | None:
+        if self.kin is None:
+            return None
+        js = self.reader["joints"]
+        q = js.sample("q", times, mode="linear")
+        return self.kin.reorder(q, js.attrs.get("joint_names"))
+
+    def _sensor_poses(self, q: np.ndarray | None) -> dict[str, np.ndarray]:
+        """``T_world_sensor`` (N, 4, 4) per mounted sensor at the frame times; NaN where joints are NaN."""
+        if self.kin is None or q is None:
+            return {}
+        ok = np.isfinite(q).all(1)
+        out = {s: np.full((len(q), 4, 4), np.nan) for s in self.kin.sensor_names}
+        if ok.any():
+            for s, P in self.kin.sensor_poses(q[ok]).items():
+                out[s][ok] = P
+        return out
+
+    def reset(self) -> None:
+        """Forget per-camera segmentation state (e.g. before re-running from the first frame)."""
+        for c in self.cams:
+            if c.segmenter is not None:
+                c.segmenter.reset()
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    # ------------------------------------------------------------------ per frame
+    def read(self, i: int) -> dict:
+        """Decoded arrays of frame ``i`` (disk IO + decompression; not part of the per-frame compute)."""
+        t = float(self.times[i])
+        raw: dict = {"i": i, "cams": [], "touch": []}
+        if "vision" in self.modalities:
+            k = self.depth_stride
+            for c in self.cams:
+                j = int(c.stream.index_at(t)[0])
+                d = np.asarray(c.stream["depth"][j])[::k, ::k]
+                m = None if c.gt_mask is None else np.asarray(c.gt_mask["mask"][j])[::k, ::k]
+                raw["cams"].append((c, d, m))
+        if self.touch is not None:
+            for s in self.touch.sensors:
+                if self.sensor_poses and s not in self.sensor_poses:
+                    continue
+                j = int(self.touch.streams[s].index_at(t)[0])
+                raw["touch"].append((s, self.touch.read(s, j)))
+        return raw
+
+    def build(self, raw: dict) -> Frame:
+        """World-frame observations from decoded arrays (the per-frame work a live pipeline does)."""
+        if "q" in raw:  # live: the newest joint state rather than the session's interpolated one
+            t = float(raw["t"])
+            q = None if raw["q"] is None else np.asarray(raw["q"], np.float64)
+            poses = {s: P[0] for s, P in self._sensor_poses(None if q is None else q[None]).items()}
+        else:
+            i = int(raw["i"])
+            t = float(self.times[i])
+            q = None if self.q is None else self.q[i]
+            poses = {s: P[i] for s, P in self.sensor_poses.items()}
+        info: dict = {}
+        tp, tn, pen, sid, free = [], [], [], [], []
+        contacts: dict[str, Contact] = {}
+        assert self.touch is not None or not raw["touch"]
+        for s, data in raw["touch"]:
+            T_ws = poses.get(s)
+            if T_ws is None or not np.all(np.isfinite(T_ws)):
+                continue
+            c: Contact = self.touch.contact(s, data)  # type: ignore[union-attr]
+            contacts[s] = c
+            if c.in_contact:
+                tp.append(se3.transform_points(T_ws, c.points))
+                tn.append(-se3.rotate_vectors(T_ws, c.normals))
+                pen.append(c.penetration_mm)
+                sid.append(np.full(len(c.points), self.touch.sensors.index(s)))  # type: ignore[union-attr]
+            elif c.valid:
+                w, h = self.touch.size[s]  # type: ignore[union-attr]
+                free.append(se3.transform_points(T_ws, gel_free_points(w, h, self.touch.mm_per_px[s])))  # type: ignore[union-attr]
+        touch_points = _cat(tp)
+        vis, masks = [], {}
+        for c, d, m in raw["cams"]:
+            info.setdefault("camera_origin", c.T_wc[:3, 3].copy())
+            cam = c.strided(self.depth_stride, d.shape)
+            z = cam.depth_to_meters(d, c.depth_scale).astype(np.float32)
+            z = np.where(np.isfinite(z) & (z > 0), z, 0.0).astype(np.float32)
+            if c.segmenter is not None:
+                sensor_pos = np.array([P[:3, 3] for P in poses.values() if np.all(np.isfinite(P))])
+                res = c.segmenter.segment(z, q, contacts_world=touch_points if len(touch_points) else None,
+                                          sensor_positions_world=sensor_pos if len(sensor_pos) else None)
+                mask = res.mask
+                if res.info.get("empty_reason"):
+                    info.setdefault("segmentation", {})[c.name] = res.info["empty_reason"]
+            elif m is not None:
+                mask = m > 0
+            else:
+                mask = z > 0
+            masks[c.name] = mask
+            pts, _ = cam.unproject(z, mask=mask, depth_scale=1.0)
+            if len(pts):
+                vis.append(se3.transform_points(c.T_wc, pts))
+        return Frame(t=t, vision_points=_cat(vis), touch_points=touch_points, touch_normals=_cat(tn),
+                     touch_penetration_mm=_cat(pen, 0), touch_sensor=_cat(sid, 0).astype(np.int64),
+                     free_points=_cat(free), sensor_poses=poses, q=q, vision_mask=masks, contacts=contacts,
+                     info=info)
+
+    def frame(self, i: int) -> tuple[Frame, float]:
+        """Frame ``i`` and the milliseconds spent building it from decoded arrays."""
+        raw = self.read(i)
+        t0 = time.perf_counter()
+        fr = self.build(raw)
+        return fr, (time.perf_counter() - t0) * 1e3
+
+    def __iter__(self) -> Iterator[tuple[Frame, float]]:
+        for i in range(len(self)):
+            yield self.frame(i)
