@@ -84,9 +84,16 @@ def test_from_scene_and_registry():
         scene = load_scene(path)
     except InputError as e:
         pytest.skip(f"default scene not loadable here: {e}")
-    tr = registry.build("tracking.known_shape", scene, voxel=0.004)
-    assert np.allclose(tr.T, scene.object.T_world_object.as_matrix())
-    slam = registry.build("tracking.slam", scene)
+    assert scene.object.T_world_object is None  # the default scene gives no pose: data or a user prior must
+    with pytest.raises(InputError, match="initial pose"):
+        registry.build("tracking.known_shape", scene, voxel=0.004)
+    T0 = np.eye(4)
+    T0[:3, 3] = [0.05, 0.0, 0.04]
+    tr = registry.build("tracking.known_shape", scene, T_init=T0, voxel=0.004)
+    assert np.allclose(tr.T, T0)
+    with pytest.raises(InputError, match="object frame"):
+        registry.build("tracking.slam", scene)
+    slam = registry.build("tracking.slam", scene, T_init=T0)
     assert slam.mode == "slam"
 
 
