@@ -57,7 +57,7 @@ Ground truth is never an input: the only inputs are the mesh and the observation
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -102,12 +102,9 @@ class GlobalRegOptions:
 
     @classmethod
     def from_dict(cls, opts: dict) -> GlobalRegOptions:
-        names = {f.name for f in fields(cls)}
-        unknown = set(opts) - names
-        if unknown:
-            raise InputError("unknown global registration option(s)", field=", ".join(sorted(unknown)),
-                             expected=f"some of {sorted(names)}")
-        return cls(**opts)
+        from vtrack.config import checked_fields
+
+        return cls(**checked_fields(cls, opts, "global registration"))
 
 
 @dataclass

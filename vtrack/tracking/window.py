@@ -30,7 +30,7 @@ the frame is flagged ``lost`` if it fails, never producing NaN.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -90,12 +90,9 @@ class TrackerOptions:
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
-        names = {f.name for f in fields(cls)}
-        unknown = set(opts) - names
-        if unknown:
-            raise InputError("unknown tracker option(s)", field=", ".join(sorted(unknown)),
-                             expected=f"some of {sorted(names)}")
-        o = cls(**opts)
+        from vtrack.config import checked_fields
+
+        o = cls(**checked_fields(cls, opts, "tracker"))
         if o.window < 1 or o.iterations < 1:
             raise InputError("window and iterations must be >= 1", field="window/iterations",
                              got=(o.window, o.iterations))

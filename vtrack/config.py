@@ -1,0 +1,21 @@
+"""Typed option dataclasses built from plain dicts (CLI, scene files, batch options) with clear errors."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any, TypeVar
+
+from vtrack.errors import InputError
+
+T = TypeVar("T")
+
+
+def checked_fields(cls: type[T], opts: dict[str, Any], what: str) -> dict[str, Any]:
+    """``opts`` unchanged if every key is a field of the dataclass ``cls``; else an InputError naming the
+    unknown keys (a typo in an option must not be silently ignored)."""
+    names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    unknown = set(opts) - names
+    if unknown:
+        raise InputError(f"unknown {what} option(s)", field=", ".join(sorted(unknown)),
+                         expected=f"some of {sorted(names)}")
+    return opts
