@@ -136,6 +136,10 @@ class SessionFrames:
                              got=segmentation)
         self.reader = r = session if isinstance(session, SessionReader) else open_session(session)
         self.path = Path(r.path)
+        if scene is None and r.scene_dict is None:
+            from vtrack.scene.schema import Scene
+
+            scene = Scene(name=self.path.name)  # a bare recording: cameras only, no hand, no tactile specs
         self.scene = scene or r.scene(check_files=False)
         self.tactile_source = tactile_source
         self.segmentation = segmentation
