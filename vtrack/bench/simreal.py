@@ -41,12 +41,6 @@ def ssim(a: np.ndarray, b: np.ndarray, sigma: float = 1.5) -> float:
     return float(s.mean())
 
 
-def press_depth_mm(ball_radius_mm: float, contact_radius_mm: float) -> float:
-    """Indentation depth of a ball whose visible contact circle has radius ``contact_radius_mm``."""
-    a = min(contact_radius_mm, 0.999 * ball_radius_mm)
-    return float(ball_radius_mm - np.sqrt(ball_radius_mm**2 - a**2))
-
-
 def _crop_box(press: Any, shape: tuple[int, int], scale: float = 1.0, k: float = 2.0) -> tuple[slice, slice]:
     H, W = shape
     cx, cy = press.center_xy_px[0] / scale, press.center_xy_px[1] / scale
@@ -69,7 +63,7 @@ def _frames(ps: Any, presses: list, scale: int) -> tuple[np.ndarray, list[tuple[
 
 def render_press(model: Any, ps: Any, press: Any, background: np.ndarray, scale: int = 1) -> np.ndarray:
     """Noise-free rendering (uint8 BGR) of a labelled real press from its ball geometry alone."""
-    from vtrack.sim.presses import ball_height
+    from vtrack.sim.presses import ball_height, press_depth_mm
 
     mpp = ps.mm_per_px * scale
     d = press_depth_mm(ps.ball_radius_mm, press.contact_radius_px * ps.mm_per_px)
@@ -105,7 +99,7 @@ def fit_lights(model: Any, ps: Any, presses: list, scale: int = 4, max_nfev: int
     bg_f = bg.astype(np.float32)
     crops = [(p, _crop_box(p, bg.shape[:2], scale), real.astype(np.float32)) for p, real in frames]
     heights = []
-    from vtrack.sim.presses import ball_height
+    from vtrack.sim.presses import ball_height, press_depth_mm
 
     mpp = ps.mm_per_px * scale
     for p, _, _ in crops:

@@ -68,6 +68,17 @@ class SessionGroundTruth:
         return cls(r.path, np.asarray(s.t, np.float64), np.asarray(s["T_world_object"][:], np.float64), mesh,
                    symmetric, Path(src) if src else None, None if T_so is None else np.asarray(T_so, np.float64))
 
+    @classmethod
+    def find(cls, gt: str | Path | None, session: str | Path) -> SessionGroundTruth | None:
+        """Ground truth to score a run on ``session``: the session ``gt`` when given (its absence is an
+        error), else the session's own ``gt/`` if it still has one, else None (a real or stripped recording)."""
+        if gt is not None:
+            return cls.load(gt)
+        try:
+            return cls.load(session)
+        except InputError:
+            return None
+
     def poses_at(self, times: np.ndarray) -> np.ndarray:
         from vtrack.io.poses import PoseTrack
 

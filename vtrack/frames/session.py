@@ -17,7 +17,8 @@ camera, the first tactile stream's):
 - **joints** ``q`` and the sensor poses.
 
 Oracle ablations (labelled, never defaults): ``tactile_source="gt"`` (simulated height maps) and
-``segmentation="gt"`` (the renderer's masks). Everything else never opens a ``gt/`` stream.
+``segmentation="gt"`` (the renderer's masks), both read through :mod:`vtrack.eval.oracle`; blind runs never
+open a ground-truth stream.
 
 Robustness: NaN joints drop touch and hand removal for that frame only; a frame without object pixels
 or without contact is returned with empty arrays, never an exception.
@@ -101,6 +102,15 @@ class Frame:
             free_points=self.free_points if len(self.free_points) else None,
             info=dict(self.info),
         )
+
+
+def upsample_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A frame's object mask (at the depth stride) at the full image size ``shape`` (nearest neighbour)."""
+    import cv2
+
+    if mask.shape == tuple(shape):
+        return mask
+    return cv2.resize(mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
 
 
 def _cat(parts: list[np.ndarray], width: int = 3) -> np.ndarray:
@@ -189,14 +199,9 @@ class SessionFrames:
     def _setup_segmentation(self) -> None:
         for c in self.cams:
             if self.segmentation == "gt":  # oracle ablation: the renderer's exact mask
-                gs = self.reader.streams.get(f"gt/camera/{c.name}")
-                if gs is not None and "mask" in gs.fields:
-                    c.gt_mask = gs
-                elif "mask" in c.stream.fields:  # sessions written before format 2
-                    c.gt_mask = c.stream
-                else:
-                    raise InputError("segmentation 'gt' (oracle) needs the simulator's masks", path=self.path,
-                                     field=f"gt/camera/{c.name}/mask")
+                from vtrack.eval.oracle import gt_mask_stream
+
+                c.gt_mask = gt_mask_stream(self.reader, c.name)
             elif self.segmentation == "pipeline":
                 from vtrack.frames.segmentation import HandAwareSegmenter
 
@@ -241,7 +246,11 @@ class SessionFrames:
             for c in self.cams:
                 j = int(c.stream.index_at(t)[0])
                 d = np.asarray(c.stream["depth"][j])[::k, ::k]
-                m = None if c.gt_mask is None else np.asarray(c.gt_mask["mask"][j])[::k, ::k]
+                m = None
+                if c.gt_mask is not None:
+                    from vtrack.eval.oracle import read_gt_mask
+
+                    m = read_gt_mask(c.gt_mask, j)[::k, ::k]
                 raw["cams"].append((c, d, m))
         if self.touch is not None:
             for s in self.touch.sensors:

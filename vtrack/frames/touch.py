@@ -9,7 +9,7 @@ Sources (``source``):
   sensor's calibrated :class:`~vtrack.tactile.pipeline.TactilePipeline` (calibration file from
   ``vtrack calibrate`` named in the scene's ``tactile[i].calibration``). A sensor without a calibration is
   an error that says how to make one.
-- ``"gt"``: the simulator's height maps ``gt/tactile/<sensor>`` (an ORACLE ablation, labelled as such in
+- ``"gt"``: the simulator's height maps, from :mod:`vtrack.eval.oracle` (an ORACLE ablation, labelled as such in
   every result; never the default).
 """
 
@@ -84,12 +84,9 @@ class TouchSource:
         self.streams = {}
         self.pipelines: dict[str, Any] = {}
         if source == "gt":
-            for s in self.sensors:
-                key = f"gt/tactile/{s}"
-                if key not in reader:
-                    raise InputError("tactile_source 'gt' (oracle) needs the simulator's height maps", path=reader.path,
-                                     field=key, expected="a synthetic session with ground truth")
-                self.streams[s] = reader[key]
+            from vtrack.eval.oracle import gt_tactile_streams
+
+            self.streams = gt_tactile_streams(reader, self.sensors)
             return
         from vtrack.tactile.pipeline import TactilePipeline
 
@@ -110,7 +107,9 @@ class TouchSource:
         """Decoded input(s) of frame(s) ``index`` (disk IO + decompression)."""
         st = self.streams[sensor]
         if self.source == "gt":
-            return st["height_mm"][index], st["contact"][index]
+            from vtrack.eval.oracle import read_gt_tactile
+
+            return read_gt_tactile(st, index)
         return st["image"][index]
 
     def contact(self, sensor: str, raw: Any) -> Contact:

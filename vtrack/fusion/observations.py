@@ -85,14 +85,6 @@ def _cloud_to_object(c: UnifiedCloud, T_world_object: np.ndarray) -> UnifiedClou
     return c.transform(se3.invert(T_world_object), frame="object")
 
 
-def _upsample_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    import cv2
-
-    if mask.shape == tuple(shape):
-        return mask
-    return cv2.resize(mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
-
-
 def observations_from_frames(frames: Any, built: list[tuple[int, Any]], poses: Any, *, vision_stride: int = 4,
                              max_vision_points: int = 4000, keep_depth: bool = True) -> SessionObservations:
     """Object-frame observations of already built frames.
@@ -105,6 +97,8 @@ def observations_from_frames(frames: Any, built: list[tuple[int, Any]], poses: A
         max_vision_points: random cap on points per camera frame (seeded).
         keep_depth: keep masked full-resolution depth images (TSDF input).
     """
+    from vtrack.frames.session import upsample_mask
+
     rng = np.random.default_rng(0)
     cam_names = [c.name for c in frames.cams] if "vision" in frames.modalities else []
     touch_names = list(frames.touch.sensors) if frames.touch is not None else []
@@ -122,7 +116,7 @@ def observations_from_frames(frames: Any, built: list[tuple[int, Any]], poses: A
                 continue
             j = int(c.stream.index_at(t)[0])
             depth = np.asarray(c.stream["depth"][j])
-            full = _upsample_mask(mask, depth.shape)
+            full = upsample_mask(mask, depth.shape)
             cl = from_rgbd(depth, c.cam, c.T_wc, mask=full, t=t, sensor_id=sid, depth_scale=c.depth_scale,
                            stride=vision_stride)
             if len(cl) > max_vision_points:

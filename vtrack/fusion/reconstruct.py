@@ -132,12 +132,7 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
     if method not in METHODS:
         raise InputError("unknown reconstruction method", field="method", expected=" or ".join(METHODS), got=method)
     out = Path(out_dir)
-    gt_data = None
-    try:
-        gt_data = SessionGroundTruth.load(gt if gt is not None else session_dir)
-    except InputError:
-        if gt is not None:
-            raise
+    gt_data = SessionGroundTruth.find(gt, session_dir)
     oracle = [n for n, v in (("tactile", tactile_source), ("segmentation", segmentation)) if v == "gt"]
     track_metrics: dict[str, Any] | None = None
     mesh_frame: Path | None = None

@@ -50,7 +50,7 @@ def strip_gt(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> di
         InputError: ``src`` is not a session, ``dst`` exists (and is not a replaceable session) or is
             inside ``src``.
     """
-    from vtrack.io.session import DATA, MANIFEST, open_session
+    from vtrack.io.session import DATA, MANIFEST, check_replaceable, open_session
 
     reader = open_session(src)  # validates the source
     src = Path(reader.path).resolve()
@@ -58,12 +58,10 @@ def strip_gt(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> di
     if dst == src or src in dst.parents:
         raise InputError("the stripped copy cannot be written inside the source session", path=dst,
                          field="--out", expected="a folder outside the session")
-    if dst.exists():
+    if dst.exists() or dst.is_symlink():
         if not overwrite:
             raise InputError("output folder exists (pass --force to replace a session folder)", path=dst)
-        if not (dst / MANIFEST).is_file() and any(dst.iterdir()):
-            raise InputError("refusing to replace a folder that is not a vtrack session", path=dst,
-                             field="--out", expected="a new folder, an empty one or a session")
+        check_replaceable(dst)  # the same rule as SessionWriter: never delete a user's files
         shutil.rmtree(dst)
     manifest = json.loads((src / MANIFEST).read_text())
     streams: dict[str, Any] = manifest.get("streams", {})

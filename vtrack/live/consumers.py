@@ -75,27 +75,20 @@ class TrackConsumer(Consumer):
         return stream in self.cams or stream in self.touch_streams or (stream == "joints" and self.sf.kin is not None)
 
     def _start(self, frame: Any) -> None:
-        from vtrack.tracking.run import build_tracker
+        from vtrack.tracking.run import build_tracker, centroid_frame, register_known_shape
 
         if self.mesh is not None:
             T0 = self.init_pose
             if T0 is None:
-                from vtrack.tracking.globalreg import global_register
-                from vtrack.tracking.sdf_grid import load_mesh_arrays
-
-                V, F = load_mesh_arrays(self.mesh)
-                hyps = global_register(V, F, [frame], symmetric=bool(self.sf.scene.object.symmetric))
-                if not hyps:
+                try:
+                    T0, _ = register_known_shape(self.mesh, [frame], bool(self.sf.scene.object.symmetric))
+                except InputError:  # nothing to register on yet: try the next frame
                     return
-                T0 = hyps[0].T_world_object
             self.tracker = build_tracker("known", self.mesh, T0, **self.tracker_opts)
         else:
-            P = [a for a in (frame.vision_points, frame.touch_points) if a is not None and len(a)]
-            if not P:
-                return
-            T0 = np.eye(4)
-            T0[:3, 3] = np.concatenate(P).mean(0)
-            self.tracker = build_tracker("slam", None, T0, **self.tracker_opts)
+            T0 = centroid_frame(frame)
+            if T0 is not None:
+                self.tracker = build_tracker("slam", None, T0, **self.tracker_opts)
 
     def process(self, ev: FrameEvent) -> None:
         if ev.stream == "joints":
@@ -123,9 +116,8 @@ class TrackConsumer(Consumer):
         if len(self.poses) > 1:
             from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
 
-            try:
-                gt = SessionGroundTruth.load(self.session)  # scoring only, after the run
-            except InputError:
+            gt = SessionGroundTruth.find(None, self.session)  # scoring only, after the run
+            if gt is None:
                 return out
             t = np.array([p[0] for p in self.poses])
             T = np.stack([p[1] for p in self.poses])
@@ -170,8 +162,7 @@ class ReconstructConsumer(Consumer):
         return stream in self.cams or (stream == "joints" and self.sf.kin is not None)
 
     def process(self, ev: FrameEvent) -> None:
-        import cv2
-
+        from vtrack.frames.session import upsample_mask
         from vtrack.geometry import se3
 
         if ev.stream == "joints":
@@ -182,8 +173,7 @@ class ReconstructConsumer(Consumer):
         k = self.sf.depth_stride
         depth = np.asarray(ev.data["depth"])
         fr = self.sf.build({"t": ev.t, "q": self.q, "cams": [(c, depth[::k, ::k], None)], "touch": []})
-        mask = cv2.resize(fr.vision_mask[c.name].astype(np.uint8), (depth.shape[1], depth.shape[0]),
-                          interpolation=cv2.INTER_NEAREST) > 0
+        mask = upsample_mask(fr.vision_mask[c.name], depth.shape)
         d = np.where(mask, depth.astype(np.float32) * c.depth_scale, 0.0).astype(np.float32)
         T_wo = np.eye(4) if self.poses is None else self.poses.at(np.array([ev.t]))[0]
         self.integrated += int(self.tsdf.integrate_depth(d, c.cam.K, se3.invert(c.T_wc) @ T_wo))

@@ -51,6 +51,13 @@ def contact_radius_mm(radius_mm: float, depth_mm: float) -> float:
     return float(np.sqrt(max(0.0, 2.0 * radius_mm * depth_mm - depth_mm**2)))
 
 
+def press_depth_mm(ball_radius_mm: float, contact_radius_mm: float) -> float:
+    """Indentation depth (mm) of a ball whose visible contact circle has radius ``contact_radius_mm``
+    (the inverse of :func:`contact_radius_mm`)."""
+    a = min(contact_radius_mm, 0.999 * ball_radius_mm)
+    return float(ball_radius_mm - np.sqrt(ball_radius_mm**2 - a**2))
+
+
 def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball_radius_mm: float | None = None,
                      mm_per_px: float, width: int, height: int, background: np.ndarray | None = None,
                      seed: int = 0, model: Any = None, depth_frac: tuple[float, float] = (0.15, 0.45),

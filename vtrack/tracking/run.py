@@ -75,15 +75,23 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
     raise InputError("unknown shape mode", field="shape", expected="known|slam", got=shape)
 
 
+def centroid_frame(frame: Any) -> np.ndarray | None:
+    """An object frame defined by the data: origin at the centroid of a tracking frame's object points
+    (segmented vision + contacts), world axes; None when the frame has no object point."""
+    P = [a for a in (frame.vision_points, frame.touch_points) if a is not None and len(a)]
+    if not P:
+        return None
+    T = np.eye(4)
+    T[:3, 3] = np.concatenate(P).mean(0)
+    return T
+
+
 def slam_origin(frames: Any, max_look: int = 10) -> tuple[np.ndarray, str]:
-    """The SLAM object frame from the data: origin at the centroid of the first frame's object points
-    (segmented vision + contacts; the first of ``max_look`` frames that has any), world axes."""
+    """The SLAM object frame from the first of ``max_look`` frames that has object points
+    (:func:`centroid_frame`)."""
     for i in range(min(max_look, len(frames))):
-        fr, _ = frames.frame(i)
-        P = [a for a in (fr.vision_points, fr.touch_points) if len(a)]
-        if P:
-            T = np.eye(4)
-            T[:3, 3] = np.concatenate(P).mean(0)
+        T = centroid_frame(frames.frame(i)[0].tracking_frame())
+        if T is not None:
             frames.reset()
             return T, f"centroid of frame {i}'s object points"
     frames.reset()
@@ -102,21 +110,30 @@ def resolve_mesh(mesh: str | Path | None, scene: Any) -> Path | None:
     return Path(m) if m is not None and Path(m).is_file() else None
 
 
-def known_shape_init(frames: Any, mesh: Path, symmetric: bool, n_frames: int = 3) -> tuple[np.ndarray, dict]:
-    """``T_world_object`` of a known mesh from the first frames by global registration (no prior)."""
+def register_known_shape(mesh: Path, tracking_frames: list, symmetric: bool) -> tuple[np.ndarray, dict]:
+    """``T_world_object`` of a known mesh from tracking frames by global registration (no prior)."""
     from vtrack.tracking.globalreg import global_register
     from vtrack.tracking.sdf_grid import load_mesh_arrays
 
     V, F = load_mesh_arrays(mesh)
     t0 = time.perf_counter()
-    tfs = [frames.frame(i)[0].tracking_frame() for i in range(min(n_frames, len(frames)))]
-    frames.reset()
-    hyps = global_register(V, F, tfs, symmetric=symmetric)
+    hyps = global_register(V, F, tracking_frames, symmetric=symmetric)
     if not hyps:
-        raise InputError("global registration found no pose of the mesh in the first frames", path=frames.path,
+        raise InputError("global registration found no pose of the mesh in the first frames", path=mesh,
                          field="--init-pose", expected="a pose prior (--init-pose) or more visible object")
     return hyps[0].T_world_object, {"init_seconds": time.perf_counter() - t0, "init_hypotheses": len(hyps),
                                     "init_score": float(hyps[0].score)}
+
+
+def known_shape_init(frames: Any, mesh: Path, symmetric: bool, n_frames: int = 3) -> tuple[np.ndarray, dict]:
+    """``T_world_object`` of a known mesh from the first ``n_frames`` frames of a session."""
+    t0 = time.perf_counter()
+    tfs = [frames.frame(i)[0].tracking_frame() for i in range(min(n_frames, len(frames)))]
+    frames.reset()
+    t_frames = time.perf_counter() - t0
+    T, info = register_known_shape(mesh, tfs, symmetric)
+    info["init_seconds"] += t_frames  # time to a first pose: building the frames + registration
+    return T, info
 
 
 def warm_up(shape: str = "known", method: str = "ours", write: bool = True, **_: Any) -> None:
@@ -181,7 +198,9 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     if (shape == "known" or method == "icp") and mesh_path is None:
         raise InputError("known-shape tracking needs the object mesh", path=frames.path, field="--mesh",
                          expected="--mesh PATH (object frame, m) or object.mesh in the scene; or use --shape slam")
-    gt_data = _ground_truth(gt, frames.path)
+    from vtrack.eval.session_gt import SessionGroundTruth
+
+    gt_data = SessionGroundTruth.find(gt, frames.path)
     oracle: list[str] = []
     init_info: dict[str, Any] = {}
     if init == "gt":
@@ -304,18 +323,6 @@ class _Relocalisation:
             return T, status
         self.tracker.reset(h.T_world_object)
         return h.T_world_object, "relocalised"
-
-
-def _ground_truth(gt: str | Path | None, session: Path) -> Any:
-    """Ground truth for scoring: ``gt`` (a session path) or the session's own ``gt/`` (None without)."""
-    from vtrack.eval.session_gt import SessionGroundTruth
-
-    if gt is not None:
-        return SessionGroundTruth.load(gt)
-    try:
-        return SessionGroundTruth.load(session)
-    except InputError:
-        return None
 
 
 def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
