@@ -342,3 +342,49 @@ class HandKinematics:
     def hand_mesh_links(self) -> list[str]:
         """Link name of each entry returned by :meth:`hand_meshes` (same order)."""
         return [link for link, meshes in self.link_meshes().items() for _ in meshes]
+
+
+_HAND_MESH_CACHE: dict[str, list] = {}
+
+
+def decimated_link_meshes(hk: HandKinematics, max_faces: int = 2500) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """Link-frame visual meshes of a hand, decimated to ``max_faces`` per part for per-frame rendering (the
+    simulator's ray casting, the segmenter's hand splatting); cached in memory and in ``cache_dir()`` per URDF."""
+    import hashlib
+
+    from vtrack.paths import cache_dir
+
+    key = str(hk.urdf_path)
+    if key in _HAND_MESH_CACHE:
+        return _HAND_MESH_CACHE[key]
+    digest = hashlib.sha1(hk.urdf_path.read_bytes() + str(max_faces).encode()).hexdigest()[:12]
+    disk = cache_dir() / "hand_meshes" / f"{hk.urdf_path.stem}-{digest}.npz"
+    out: dict[str, list] = {}
+    if disk.exists():
+        z = np.load(disk)
+        for k in sorted(z.files, key=lambda x: int(x.split("|")[1])):
+            link, i, part = k.split("|")
+            if part == "v":
+                out.setdefault(link, []).append((z[k], z[f"{link}|{i}|f"]))
+        _HAND_MESH_CACHE[key] = out
+        return out
+    import open3d as o3d
+
+    for link, meshes in hk.link_meshes().items():
+        for v, f in meshes:
+            if len(f) > max_faces:
+                m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
+                m = m.simplify_quadric_decimation(max_faces)
+                v, f = np.asarray(m.vertices), np.asarray(m.triangles, dtype=np.int32)
+            out.setdefault(link, []).append((v, f))
+    disk.parent.mkdir(parents=True, exist_ok=True)
+    arrays, i = {}, 0
+    for link, meshes in out.items():
+        for v, f in meshes:
+            arrays[f"{link}|{i}|v"], arrays[f"{link}|{i}|f"] = v, f
+            i += 1
+    tmp = disk.with_name(disk.stem + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(disk)
+    _HAND_MESH_CACHE[key] = out
+    return out

@@ -49,8 +49,6 @@ OCCLUSION_VIEWS: dict[str, tuple[float, float, float]] = {
     "heavy": (-1.0, 0.0, 0.0),
 }
 
-_HAND_MESH_CACHE: dict[str, list] = {}
-
 #: Ground-truth object mesh of a generated session (object frame, m), relative to the session folder.
 GT_MESH = "gt/object.ply"
 
@@ -58,48 +56,6 @@ GT_MESH = "gt/object.ply"
 def _log(progress: bool, msg: str) -> None:
     if progress:
         print(f"[generate] {msg}", file=sys.stderr, flush=True)
-
-
-def _decimated_link_meshes(hk, max_faces: int = 2500) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
-    """Link-frame visual meshes, decimated for fast per-frame BVH builds (cached per URDF)."""
-    import hashlib
-
-    from vtrack.paths import cache_dir
-
-    key = str(hk.urdf_path)
-    if key in _HAND_MESH_CACHE:
-        return _HAND_MESH_CACHE[key]
-    digest = hashlib.sha1(hk.urdf_path.read_bytes() + str(max_faces).encode()).hexdigest()[:12]
-    disk = cache_dir() / "hand_meshes" / f"{hk.urdf_path.stem}-{digest}.npz"
-    out: dict[str, list] = {}
-    if disk.exists():
-        z = np.load(disk)
-        for k in sorted(z.files, key=lambda x: int(x.split("|")[1])):
-            link, i, part = k.split("|")
-            if part == "v":
-                out.setdefault(link, []).append((z[k], z[f"{link}|{i}|f"]))
-        _HAND_MESH_CACHE[key] = out
-        return out
-    import open3d as o3d
-
-    for link, meshes in hk.link_meshes().items():
-        for v, f in meshes:
-            if len(f) > max_faces:
-                m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f))
-                m = m.simplify_quadric_decimation(max_faces)
-                v, f = np.asarray(m.vertices), np.asarray(m.triangles, dtype=np.int32)
-            out.setdefault(link, []).append((v, f))
-    disk.parent.mkdir(parents=True, exist_ok=True)
-    arrays, i = {}, 0
-    for link, meshes in out.items():
-        for v, f in meshes:
-            arrays[f"{link}|{i}|v"], arrays[f"{link}|{i}|f"] = v, f
-            i += 1
-    tmp = disk.with_name(disk.stem + ".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(disk)
-    _HAND_MESH_CACHE[key] = out
-    return out
 
 
 def _hand_world_meshes(link_meshes, poses: dict[str, np.ndarray], i: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -203,7 +159,7 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
         tactile_gt_stream,
         tactile_stream,
     )
-    from vtrack.kinematics.hand import HandKinematics
+    from vtrack.kinematics.hand import HandKinematics, decimated_link_meshes
     from vtrack.scene import load_scene
     from vtrack.scene.schema import SimSpec
     from vtrack.sim.grasp import plan_grasp
@@ -330,7 +286,7 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
 
         # 5. Cameras.
         t0 = time.perf_counter()
-        link_meshes = _decimated_link_meshes(hk) if cams else {}
+        link_meshes = decimated_link_meshes(hk) if cams else {}
         rgb_obj = object_colour(obj_name)
         for cam in cams:
             K = cam.intrinsics()
