@@ -61,10 +61,8 @@ class SessionGroundTruth:
         created = r.manifest.get("created", {})
         src = created.get("object_source")
         T_so = created.get("T_source_object")
-        try:
-            symmetric = bool(r.scene_dict.get("object", {}).get("symmetric", False)) if r.scene_dict else False
-        except AttributeError:
-            symmetric = False
+        obj = (r.scene_dict or {}).get("object") or {}
+        symmetric = bool(obj.get("symmetric", False)) if isinstance(obj, dict) else False
         return cls(r.path, np.asarray(s.t, np.float64), np.asarray(s["T_world_object"][:], np.float64), mesh,
                    symmetric, Path(src) if src else None, None if T_so is None else np.asarray(T_so, np.float64))
 
