@@ -302,7 +302,7 @@ def test_cloud_ply_timestamp_keeps_epoch_time(tmp_path):
 def test_sim_gel_heights_float32_raycast_within_1um():
     """sim/grasp.py gel_heights: Open3D float32 rays, float32 height maps vs the analytic float64 plane."""
     from vtrack.sim.grasp import gel_heights
-    from vtrack.sim.raycast import Raycaster
+    from vtrack.geometry.raycast import Raycaster
 
     # object: a large box whose -z face is the plane z = 0 of the object frame (outward winding, as the
     # simulator's mesh loader guarantees)
@@ -332,7 +332,7 @@ def test_sim_gel_heights_float32_raycast_within_1um():
 def test_sim_depth_render_float32_rays_near_and_at_10m():
     """sim/rgbd.py render_geometry casts float32 Open3D rays; the object is cast in its own frame (float64
     world->object change first), so an object 12.6 m from the origin renders as precisely as one at it."""
-    from vtrack.sim.raycast import Raycaster
+    from vtrack.geometry.raycast import Raycaster
     from vtrack.sim.rgbd import render_geometry
 
     V = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (0.0, 0.04)])

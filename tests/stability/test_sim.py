@@ -117,7 +117,7 @@ def test_gel_far_from_object_is_flat():
     import trimesh
 
     from vtrack.sim.grasp import gel_heights
-    from vtrack.sim.raycast import Raycaster
+    from vtrack.geometry.raycast import Raycaster
 
     m = trimesh.creation.icosphere(radius=0.03)
     rc = Raycaster([(m.vertices, m.faces)])

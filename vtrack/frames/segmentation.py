@@ -64,6 +64,8 @@ class SegmentationOptions:
     hand_dilate_px: int = 1  # ring around the rendered hand where pixels at the hand's depth are hand (FK slack)
     hand_sample_px: float = 1.5  # splat spacing in pixel footprints at the nearest hand depth (holes: ring)
     max_hand_samples: int = 400_000  # cap (full-resolution images); spacing grows beyond it
+    exact_silhouette: bool = True  # ray-cast the link meshes along the splat's edges (exact pixel-centre silhouette)
+    exact_jump_m: float = 0.01  # inner edges: rendered depth steps larger than this are re-cast too
     # 2. workspace crop
     crop: bool = True
     crop_scale: float = 1.6  # radius = crop_scale x hand extent around the grasp centre
@@ -79,6 +81,7 @@ class SegmentationOptions:
     plane_iterations: int = 60
     plane_max_points: int = 1500  # RANSAC subsample
     fill_holes_px: int = 1  # closing radius filling depth-less pixels enclosed by the mask (0 = off)
+    fill_hand_edge: bool = True  # depth-less pixels between the mask and the rendered hand join the mask
     # 4. clustering
     jump_abs_m: float = 0.004
     jump_px: float = 4.0  # allowed depth step between neighbours in pixel footprints (z / fx)
@@ -86,7 +89,9 @@ class SegmentationOptions:
     min_cluster_area_m2: float = 2e-4  # clusters seen smaller than this (2 cm^2) are remnants, not the object
     min_cluster_fraction: float = 0.005  # of the candidate pixels
     primary_min_ratio: float = 0.2  # primary cluster at least this fraction of the largest one
-    merge_gap_m: float = 0.025  # clusters closer than this (3D) to the selection are merged
+    # clusters closer than this (3D) to the selection are merged: a finger across the object cuts it in two
+    # with a gap of its width (Allegro fingertip 28 mm) plus the depth dropouts along both edges
+    merge_gap_m: float = 0.035
     # 5. temporal consistency
     temporal: bool = True
     temporal_gate_m: float = 0.05  # merged clusters' centroids within prev radius + gate of prev centroid
@@ -166,6 +171,7 @@ class HandAwareSegmenter:
         v = (np.arange(cam.height, dtype=np.float64) - cam.cy) / cam.fy
         self._rx, self._ry = np.meshgrid(u, v)  # x/z and y/z per pixel
         self._samples: dict[str, np.ndarray] | None = None
+        self._casters: dict[str, Any] | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -190,16 +196,29 @@ class HandAwareSegmenter:
         Tcw = self.T_camera_world
         Tcl = {k: Tcw @ (v[0] if v.ndim == 3 else v) for k, v in poses.items()}
         samples = self._hand_samples(np.array([T[2, 3] for T in Tcl.values()]))
-        P = np.concatenate([s @ Tcl[k][:3, :3].T + Tcl[k][:3, 3] for k, s in samples.items() if k in Tcl])
+        links = [k for k in samples if k in Tcl]
+        P = np.concatenate([samples[k] @ Tcl[k][:3, :3].T + Tcl[k][:3, 3] for k in links])
+        owner = np.repeat(np.arange(len(links)), [len(samples[k]) for k in links])
         z = P[:, 2]
         front = z > 1e-3
-        P, z = P[front], z[front]
+        P, z, owner = P[front], z[front], owner[front]
         u = np.rint(self.cam.fx * P[:, 0] / z + self.cam.cx).astype(np.int64)
         v = np.rint(self.cam.fy * P[:, 1] / z + self.cam.cy).astype(np.int64)
         ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
         zb = np.full(H * W, np.inf)
         np.minimum.at(zb, v[ok] * W + u[ok], z[ok])
         core = zb.reshape(H, W)
+        if self.opt.exact_silhouette and len(u):
+            # per-link pixel boxes (+1 px): a ray is cast only against the links whose box holds its pixel
+            lo_u = np.full(len(links), np.iinfo(np.int64).max)
+            lo_v, hi_u, hi_v = lo_u.copy(), np.full(len(links), -1), np.full(len(links), -1)
+            np.minimum.at(lo_u, owner, u)
+            np.minimum.at(lo_v, owner, v)
+            np.maximum.at(hi_u, owner, u)
+            np.maximum.at(hi_v, owner, v)
+            boxes = {k: (lo_u[i] - 1, hi_u[i] + 1, lo_v[i] - 1, hi_v[i] + 1) for i, k in enumerate(links)
+                     if hi_u[i] >= 0}
+            core = self._refine_silhouette(core, Tcl, boxes)
         zb = core
         r = int(self.opt.hand_dilate_px)
         if r > 0:
@@ -207,6 +226,56 @@ class HandAwareSegmenter:
 
             zb = cv2.erode(core.astype(np.float32), np.ones((2 * r + 1, 2 * r + 1), np.uint8)).astype(np.float64)
         return (core, zb) if with_core else zb
+
+    def _refine_silhouette(self, core: np.ndarray, Tcl: dict[str, np.ndarray],
+                           boxes: dict[str, tuple[int, int, int, int]]) -> np.ndarray:
+        """Ray-cast the hand meshes through the pixels along the splatted silhouette's edge.
+
+        A splat marks the pixel *nearest* to each surface sample, so the silhouette grows by up to half
+        a pixel (at stride 4, two full-resolution pixels: a thin object seen between two fingers loses a
+        quarter of its width), and may miss edge pixels between samples. The edge band (one pixel each
+        side) is re-decided exactly: a pixel is hand iff the ray through its centre hits a link mesh.
+        """
+        import cv2
+
+        fin = np.isfinite(core).astype(np.uint8)
+        if not fin.any():
+            return core
+        k3 = np.ones((3, 3), np.uint8)
+        band = cv2.dilate(fin, k3).astype(bool) & ~cv2.erode(fin, k3, borderValue=1).astype(bool)
+        # Inner edges too: where a finger crosses the palm or the object is seen between links, the splat
+        # bleeds the nearer link's depth over the farther surface the same way.
+        zf = np.where(fin, core, 0.0).astype(np.float32)
+        zmax = cv2.dilate(zf, k3)
+        zmin = cv2.erode(np.where(fin, zf, np.float32(1e6)), k3)
+        band |= fin.astype(bool) & (zmax - zmin > self.opt.exact_jump_m)
+        rows, cols = np.nonzero(band)
+        if not len(rows):
+            return core
+        casters = self._link_casters()
+        d_cam = np.stack([self._rx[rows, cols], self._ry[rows, cols], np.ones(len(rows))], axis=1)
+        t_best = np.full(len(rows), np.inf)
+        for link, (u0, u1, v0, v1) in boxes.items():
+            caster = casters.get(link)
+            inside = np.flatnonzero((cols >= u0) & (cols <= u1) & (rows >= v0) & (rows <= v1))
+            if caster is None or not len(inside):
+                continue
+            # rays into the link frame (rigid: the ray parameter stays the camera z, since d_cam.z = 1)
+            T = Tcl[link]
+            R, o = T[:3, :3], T[:3, 3]
+            t = caster.hit_distance(-(R.T @ o), d_cam[inside] @ R)
+            t_best[inside] = np.minimum(t_best[inside], t)
+        out = core.copy()
+        out[rows, cols] = t_best
+        return out
+
+    def _link_casters(self) -> dict[str, Any]:
+        if self._casters is None:
+            from vtrack.geometry.raycast import Raycaster
+            from vtrack.kinematics.hand import decimated_link_meshes
+
+            self._casters = {link: Raycaster(parts) for link, parts in decimated_link_meshes(self.kin).items()}
+        return self._casters
 
     # ---------------------------------------------------------------------------------
     def segment(self, depth_m: np.ndarray, q: np.ndarray | None, contacts_world: np.ndarray | None = None,
@@ -237,6 +306,7 @@ class HandAwareSegmenter:
         z = np.where(valid, z, 0.0)
         no_depth = ~valid
         hand_px = np.zeros((H, W), bool)
+        hand_core_px = np.zeros((H, W), bool)
         info: dict[str, Any] = {"n_valid": int(valid.sum()), "ms": {}}
         ms = info["ms"]
 
@@ -289,8 +359,14 @@ class HandAwareSegmenter:
             # edge is kept.
             # (Measured: shrinking the silhouette by its boundary pixels, or a min/max depth-range ring,
             # left hand remnants or cut object pixels touching the fingers; this rule scored best.)
-            hand = valid & ((z >= zh_core - opt.hand_margin_m) | (np.abs(z - zh) < opt.hand_margin_m))
+            ring = np.abs(z - zh) < opt.hand_margin_m
+            if opt.exact_silhouette:
+                # The exact silhouette has no splat holes, so inside it the rendered depth is trusted: an
+                # object in front of the palm next to a finger at its depth is not taken for that finger.
+                ring &= ~np.isfinite(zh_core)
+            hand = valid & ((z >= zh_core - opt.hand_margin_m) | ring)
             hand_px = np.isfinite(zh)
+            hand_core_px = np.isfinite(zh_core)
             info["n_hand_removed"] = int(hand.sum())
             info["n_hand_rendered"] = int(np.isfinite(zh).sum())
             valid &= ~hand
@@ -346,6 +422,17 @@ class HandAwareSegmenter:
             add = closed & ~mask & no_depth & ~hand_px
             mask |= add
             info["n_filled"] = int(add.sum())
+        if opt.fill_hand_edge and hand_core_px.any():
+            # Depth cameras drop the mixed pixels along an occluding edge. A dropped pixel touching both the
+            # object mask and the (exact) hand silhouette, but outside the silhouette, sees the object:
+            # the only surfaces there are the hand's and the object's. Never overrules a measured depth.
+            import cv2
+
+            k3 = np.ones((3, 3), np.uint8)
+            add = (cv2.dilate(mask.astype(np.uint8), k3).astype(bool) & ~mask & no_depth & ~hand_core_px
+                   & cv2.dilate(hand_core_px.astype(np.uint8), k3).astype(bool))
+            mask |= add
+            info["n_edge_filled"] = int(add.sum())
         c = P_sel.mean(axis=0)
         if opt.temporal:
             self._prev_centroid = c

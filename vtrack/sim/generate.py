@@ -164,7 +164,7 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
     from vtrack.scene.schema import SimSpec
     from vtrack.sim.grasp import plan_grasp
     from vtrack.sim.objects import load_object_mesh
-    from vtrack.sim.raycast import Raycaster
+    from vtrack.geometry.raycast import Raycaster
     from vtrack.sim.rgbd import add_depth_noise, object_colour, projected_window, render_geometry, shade_rgb
 
     t_start = time.perf_counter()

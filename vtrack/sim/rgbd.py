@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vtrack.sim.raycast import Raycaster
+from vtrack.geometry.raycast import Raycaster
 
 #: Sensor-noise constants (m) of the axial model above.
 AXIAL_A = 0.0012

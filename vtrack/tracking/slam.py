@@ -8,7 +8,7 @@ Alternates, per frame:
    out;
 2. **map**: the frame's points are moved into the object frame with the new pose and fused:
    - always into a surfel voxel map (running mean position + normal per voxel, numpy), from
-     which the grid is rebuilt every ``refresh_every`` frames as the signed point-to-plane
+     which the grid is updated (incrementally) every ``refresh_every`` frames as the signed point-to-plane
      distance to the nearest surfels within a band (``trunc``) - a TSDF-like SDF;
    - with ``mapper="neural"`` also into the fusion issue's
      :class:`vtrack.fusion.neural_sdf.NeuralSDFReconstructor` (trained ``train_ms`` per frame),
@@ -42,6 +42,7 @@ class SurfelMap:
         self.psum = np.zeros((0, 3))
         self.nsum = np.zeros((0, 3))
         self.w = np.zeros(0)
+        self.n_new = 0  # voxels created since the counter was last reset (the tracker's refresh policy)
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -58,18 +59,28 @@ class SurfelMap:
         P, N = P[ok], N[ok]
         if len(P) == 0:
             return
-        k = np.concatenate([self.keys, self._key(P)])
-        ps = np.concatenate([self.psum, P * weight])
-        ns = np.concatenate([self.nsum, N * weight])
-        ws = np.concatenate([self.w, np.full(len(P), weight)])
-        uk, inv = np.unique(k, return_inverse=True)
-        self.keys = uk
-        self.psum = np.zeros((len(uk), 3))
-        self.nsum = np.zeros((len(uk), 3))
-        self.w = np.zeros(len(uk))
-        np.add.at(self.psum, inv, ps)
-        np.add.at(self.nsum, inv, ns)
-        np.add.at(self.w, inv, ws)
+        # aggregate the new points per voxel (bincount: np.add.at is an order of magnitude slower) ...
+        uk, inv = np.unique(self._key(P), return_inverse=True)
+        m = len(uk)
+        ps = np.stack([np.bincount(inv, weights=P[:, c], minlength=m) for c in range(3)], 1) * weight
+        ns = np.stack([np.bincount(inv, weights=N[:, c], minlength=m) for c in range(3)], 1) * weight
+        ws = np.bincount(inv, minlength=m) * float(weight)
+        # ... then add into existing voxels in place and insert the new ones (keys stay sorted)
+        pos = np.searchsorted(self.keys, uk)
+        hit = pos < len(self.keys)
+        hit[hit] = self.keys[pos[hit]] == uk[hit]
+        ph = pos[hit]
+        self.psum[ph] += ps[hit]
+        self.nsum[ph] += ns[hit]
+        self.w[ph] += ws[hit]
+        new = ~hit
+        if new.any():
+            at = pos[new]
+            self.keys = np.insert(self.keys, at, uk[new])
+            self.psum = np.insert(self.psum, at, ps[new], axis=0)
+            self.nsum = np.insert(self.nsum, at, ns[new], axis=0)
+            self.w = np.insert(self.w, at, ws[new])
+            self.n_new += int(new.sum())
 
     def surfels(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Positions (K, 3), unit normals (K, 3; zero when unknown) and weights (K,)."""
@@ -103,7 +114,9 @@ class SLAMTracker(WindowTracker):
         mapper: ``surfel`` (numpy TSDF-like, default) or ``neural`` (fusion NeuralSDFReconstructor).
         extent: half-size of the map cube, m (centred on the first frame's points).
         map_voxel: surfel voxel, m; grid_voxel: SDF grid spacing, m; trunc: band, m.
-        refresh_every: rebuild the grid every this many frames (more often during the first 5).
+        refresh_every: update the grid every this many frames (more often during the first 5).
+        refresh_move: surfels that moved less than this (m) since the last update keep their band.
+        full_refresh_every: every this many updates the whole band is recomputed.
         map_points: vision points fused per frame.
         train_ms: neural mapper training budget per frame, ms.
         **opts: :class:`~vtrack.tracking.window.TrackerOptions` overrides.
@@ -113,7 +126,8 @@ class SLAMTracker(WindowTracker):
 
     def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.1, map_voxel: float = 0.002,
                  grid_voxel: float = 0.003, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
-                 train_ms: float = 40.0, **opts: Any) -> None:
+                 train_ms: float = 40.0, refresh_move: float = 0.0003, full_refresh_every: int = 8,
+                 **opts: Any) -> None:
         if mapper not in ("surfel", "neural"):
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=mapper)
         opts.setdefault("gate", 0.8 * trunc)
@@ -130,6 +144,11 @@ class SLAMTracker(WindowTracker):
         self._box: tuple[np.ndarray, np.ndarray] | None = None
         self._n_map_frames = 0
         self.ms_map: list[float] = []
+        self.refresh_move, self.full_refresh_every = float(refresh_move), int(full_refresh_every)
+        self._grid: np.ndarray | None = None
+        self._n_refresh = 0
+        self._ref_keys = np.zeros(0, np.int64)
+        self._ref_P = self._ref_N = np.zeros((0, 3))
 
     @classmethod
     def from_scene(cls, scene: Any, T_init: np.ndarray | None = None, **opts: Any) -> SLAMTracker:
@@ -227,7 +246,14 @@ class SLAMTracker(WindowTracker):
         self.neural.integrate(P, N, modality, origin=origin)
 
     def _refresh(self) -> None:
-        """Rebuild the tracking grid from the map (band of ``trunc`` around the surfels)."""
+        """Update the tracking grid from the map (signed point-to-plane distance in a ``trunc`` band).
+
+        Incremental: only voxels within the band of surfels that are new or have moved by more than
+        ``refresh_move`` (or turned by more than ~5 deg) since the last update are recomputed; every
+        ``full_refresh_every``-th update (and whenever the neural mapper drives the values) recomputes
+        the whole band, so weight-only drift never accumulates.
+        """
+        from scipy.ndimage import maximum_filter
         from scipy.spatial import cKDTree
 
         if len(self.map) < 10 or self._box is None:
@@ -235,41 +261,59 @@ class SLAMTracker(WindowTracker):
         if self.neural is not None:
             self.neural.step(time_budget_ms=self.train_ms * max(1, self.refresh_every))
         S, N, W = self.map.surfels()
+        keys = self.map.keys
         lo, hi = self._box
-        n = np.ceil((hi - lo) / self.grid_voxel).astype(int) + 1
-        axes = [lo[i] + self.grid_voxel * np.arange(n[i]) for i in range(3)]
-        # only voxels near surfels need a real value; the rest stay at +trunc ("unknown / free")
-        from scipy.ndimage import binary_dilation
-
-        occ = np.zeros(tuple(n), bool)
-        ijk = np.clip(np.round((S - lo) / self.grid_voxel).astype(np.int64), 0, n - 1)
-        occ[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
-        r = int(np.ceil(self.trunc / self.grid_voxel))
-        occ = binary_dilation(occ, structure=np.ones((3, 3, 3), bool), iterations=r)
-        flat = np.flatnonzero(occ)
-        bi = np.stack(np.unravel_index(flat, tuple(n)), -1)
-        X = np.stack([axes[0][bi[:, 0]], axes[1][bi[:, 1]], axes[2][bi[:, 2]]], -1)
-        k = min(4, len(S))
-        dist, idx = cKDTree(S).query(X, k=k, distance_upper_bound=self.trunc)
-        dist = dist.reshape(len(X), k)
-        idx = idx.reshape(len(X), k)
-        valid = np.isfinite(dist)
-        idx_c = np.where(valid, idx, 0)
-        wgt = np.where(valid, W[idx_c] / np.maximum(dist, 0.5 * self.map.voxel), 0.0)
-        diff = X[:, None, :] - S[idx_c]
-        nrm = N[idx_c]
-        has_n = np.linalg.norm(nrm, axis=-1) > 0.5
-        sd = np.where(has_n, np.sum(diff * nrm, -1), np.linalg.norm(diff, axis=-1))
-        wsum = wgt.sum(1)
-        val = np.where(wsum > 0, (wgt * sd).sum(1) / np.maximum(wsum, 1e-12), self.trunc)
-        val = np.clip(val, -self.trunc, self.trunc)
-        if self.neural is not None and self.neural.net is not None and self.neural.iterations > 50:
-            near = wsum > 0
-            nv, _ = self.neural.query(X[near], with_grad=False)
-            val[near] = np.clip(nv, -self.trunc, self.trunc)
-        grid = np.full(tuple(n), self.trunc, np.float32)
-        grid.reshape(-1)[flat] = val
-        self.sdf = SDFGrid(grid, lo, self.grid_voxel)
+        v = self.grid_voxel
+        n = np.ceil((hi - lo) / v).astype(int) + 1
+        neural = self.neural is not None and self.neural.net is not None and self.neural.iterations > 50
+        full = self._grid is None or neural or self._n_refresh % self.full_refresh_every == 0
+        self._n_refresh += 1
+        if full:
+            src = S
+        else:
+            pos = np.clip(np.searchsorted(self._ref_keys, keys), 0, max(len(self._ref_keys) - 1, 0))
+            old = self._ref_keys[pos] == keys if len(self._ref_keys) else np.zeros(len(keys), bool)
+            moved = ~old
+            if old.any():
+                dp = np.linalg.norm(S[old] - self._ref_P[pos[old]], axis=1)
+                dn = np.einsum("ij,ij->i", N[old], self._ref_N[pos[old]])
+                moved[old] = (dp > self.refresh_move) | (dn < 0.996)
+            # a moved surfel changes the band around its old and its new position
+            src = np.concatenate([S[moved], self._ref_P[pos[moved & old]]]) if moved.any() else S[:0]
+        self._ref_keys, self._ref_P, self._ref_N = keys.copy(), S, N
+        self.map.n_new = 0
+        grid = np.full(tuple(n), self.trunc, np.float32) if full else self._grid.copy()
+        if len(src):
+            r = int(np.ceil(self.trunc / v))
+            ijk = np.clip(np.round((src - lo) / v).astype(np.int64), 0, n - 1)
+            # band = cube of half-size r around the sources, on the sources' bounding box only
+            b0, b1 = np.maximum(ijk.min(0) - r, 0), np.minimum(ijk.max(0) + r + 1, n)
+            occ = np.zeros(tuple(b1 - b0), bool)
+            occ[tuple((ijk - b0).T)] = True
+            band = maximum_filter(occ, size=2 * r + 1)
+            bi = np.argwhere(band) + b0
+            X = lo + v * bi
+            k = min(4, len(S))
+            dist, idx = cKDTree(S).query(X, k=k, distance_upper_bound=self.trunc)
+            dist = dist.reshape(len(X), k)
+            idx = idx.reshape(len(X), k)
+            valid = np.isfinite(dist)
+            idx_c = np.where(valid, idx, 0)
+            wgt = np.where(valid, W[idx_c] / np.maximum(dist, 0.5 * self.map.voxel), 0.0)
+            diff = X[:, None, :] - S[idx_c]
+            nrm = N[idx_c]
+            has_n = np.linalg.norm(nrm, axis=-1) > 0.5
+            sd = np.where(has_n, np.sum(diff * nrm, -1), np.linalg.norm(diff, axis=-1))
+            wsum = wgt.sum(1)
+            val = np.where(wsum > 0, (wgt * sd).sum(1) / np.maximum(wsum, 1e-12), self.trunc)
+            val = np.clip(val, -self.trunc, self.trunc)
+            if neural:
+                near = wsum > 0
+                nv, _ = self.neural.query(X[near], with_grad=False)
+                val[near] = np.clip(nv, -self.trunc, self.trunc)
+            grid[bi[:, 0], bi[:, 1], bi[:, 2]] = val
+        self._grid = grid
+        self.sdf = SDFGrid(grid, lo, v)
 
     # -- outputs -------------------------------------------------------------------------
     def map_metrics(self) -> dict[str, float]:
