@@ -196,7 +196,7 @@ def test_exact_silhouette_matches_a_full_raycast(frames):
     is off along every edge, which cut a quarter off a can seen between two fingers)."""
     make, data = frames
     seg, splat = make(), make(_opts(exact_silhouette=False))
-    for depth, q, _ in data[:3]:
+    for _depth, q, _gt in data[:3]:
         ref = np.isfinite(_full_raycast_hand(seg, q))
         exact = np.isfinite(seg.render_hand_depth(seg.kin.link_poses(q), with_core=True)[0])
         rough = np.isfinite(splat.render_hand_depth(splat.kin.link_poses(q), with_core=True)[0])

@@ -301,8 +301,8 @@ def test_cloud_ply_timestamp_keeps_epoch_time(tmp_path):
 # ------------------------------------------------------------------------------------------------- sim
 def test_sim_gel_heights_float32_raycast_within_1um():
     """sim/grasp.py gel_heights: Open3D float32 rays, float32 height maps vs the analytic float64 plane."""
-    from vtrack.sim.grasp import gel_heights
     from vtrack.geometry.raycast import Raycaster
+    from vtrack.sim.grasp import gel_heights
 
     # object: a large box whose -z face is the plane z = 0 of the object frame (outward winding, as the
     # simulator's mesh loader guarantees)

@@ -116,8 +116,8 @@ def test_ik_unreachable_targets_respect_limits(hk):
 def test_gel_far_from_object_is_flat():
     import trimesh
 
-    from vtrack.sim.grasp import gel_heights
     from vtrack.geometry.raycast import Raycaster
+    from vtrack.sim.grasp import gel_heights
 
     m = trimesh.creation.icosphere(radius=0.03)
     rc = Raycaster([(m.vertices, m.faces)])

@@ -150,6 +150,7 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
         InputError: the scene has no hand / tactile sensors, bad overrides, unreadable meshes.
     """
     from vtrack.geometry import se3
+    from vtrack.geometry.raycast import Raycaster
     from vtrack.io.session import SessionWriter
     from vtrack.io.streams import (
         camera_gt_stream,
@@ -164,7 +165,6 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
     from vtrack.scene.schema import SimSpec
     from vtrack.sim.grasp import plan_grasp
     from vtrack.sim.objects import load_object_mesh
-    from vtrack.geometry.raycast import Raycaster
     from vtrack.sim.rgbd import add_depth_noise, object_colour, projected_window, render_geometry, shade_rgb
 
     t_start = time.perf_counter()

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtrack.geometry import se3
+from vtrack.geometry.raycast import Raycaster
 from vtrack.kinematics.hand import HandKinematics
 from vtrack.sim.objects import ObjectMesh
-from vtrack.geometry.raycast import Raycaster
 
 #: Allegro closing synergy (rad, joint_0.0 .. joint_15.0): open and closed postures, thumb opposed.
 # Both sweeps converge in front of the palm: fingers curl down and back, the thumb up and back.
