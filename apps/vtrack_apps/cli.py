@@ -27,7 +27,8 @@ app = typer.Typer(
 
 @app.callback()
 def _root(
-    threads: int = typer.Option(0, "--threads", help="torch/OpenMP threads (0 = library default)."),
+    threads: int = typer.Option(0, "--threads", help="threads of every numeric back-end: BLAS/OpenMP, OpenCV, "
+                                                     "torch (0 = library default; 1 for single-core speed figures)."),
     on_corrupt: str = typer.Option(None, "--on-corrupt",
                                    help="session frames whose data chunks are damaged: raise (default), "
                                         "skip them, or stop at the first"),
@@ -43,11 +44,9 @@ def _root(
         # The session reader reads this (vtrack.io.session.ON_CORRUPT_ENV), so every command honours it.
         os.environ["VTRACK_ON_CORRUPT"] = on_corrupt
     if threads > 0:
-        import os
+        from vtrack.threads import limit_threads
 
-        os.environ["OMP_NUM_THREADS"] = str(threads)
-        if "torch" in sys.modules:
-            sys.modules["torch"].set_num_threads(threads)
+        limit_threads(threads)
 
 
 def _register_commands() -> None:

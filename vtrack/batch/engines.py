@@ -18,8 +18,9 @@ import os
 import signal
 from typing import Any
 
-from vtrack.batch.worker import execute, init_local_worker, thread_env, warm_up
+from vtrack.batch.worker import execute, init_local_worker, warm_up
 from vtrack.errors import VtrackError
+from vtrack.threads import thread_env
 
 RAY_MISSING = ("the Ray engine needs the optional 'ray' package: pip install 'vtrack[distributed]' "
                "(or pip install 'ray>=2.30'), or use --engine local")

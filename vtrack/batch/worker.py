@@ -18,10 +18,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-#: Environment variables that cap BLAS/OpenMP threads; set before numpy/torch load in a worker.
-THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS",
-              "VECLIB_MAXIMUM_THREADS")
-
+from vtrack.threads import thread_env
 
 #: CPUs this process may use before any pinning (pinning narrows the mask of a reused worker).
 _ALL_CPUS: list[int] = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
@@ -46,10 +43,6 @@ def pin_to_slot(slot: int, threads: int) -> list[int]:
         except OSError:
             pass
     return cpus
-
-
-def thread_env(threads: int) -> dict[str, str]:
-    return {k: str(max(1, int(threads))) for k in THREAD_ENV}
 
 
 def init_local_worker(threads: int, driver_pid: int) -> None:

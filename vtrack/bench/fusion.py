@@ -1,8 +1,8 @@
 """``vtrack bench fusion``: reconstruction ablation (vision / touch / visuo-tactile x TSDF / neural SDF).
 
-Full mode: simulator sessions (``vtrack.sim.fixtures.tiny_session_path``, cached) of the default
-scene over the occlusion sweep (none / medium / heavy) for the soup can, plus two more YCB objects
-without occlusion; BLIND by default (poses from SLAM, segmentation and touch from the raw streams),
+Full mode: simulator sessions (``vtrack.sim.fixtures.ycb_session``, 2 s, cached) of the default
+scene holding each shared YCB object at occlusion none and medium, plus the soup can under heavy
+occlusion; BLIND by default (poses from SLAM, segmentation and touch from the raw streams),
 with GT-fed rows labelled ``[oracle]`` as an ablation. Extra operating points (TSDF voxel
 size, neural SDF iterations, online neural SDF at a 25 ms frame budget) on the unoccluded soup can.
 Quick mode (< 1 min): ray-cast observations (:mod:`vtrack.fusion.synthetic`, no simulator) of the
@@ -109,27 +109,28 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
 
 
 def _full(table: BenchTable, seconds: float) -> None:
-    from vtrack.paths import shared_data_dir
-    from vtrack.sim.fixtures import tiny_session_path
+    from vtrack.bench.tracking import ycb_objects
 
-    ycb = shared_data_dir() / "objects" / "ycb"
-    cases = [("005_tomato_soup_can", occ, None, None) for occ in ("none", "medium", "heavy")]
-    cases += [(name, "none", ycb / f"{name}.ply", None) for name in ("010_potted_meat_can", "006_mustard_bottle")]
+    # every shared YCB object at occlusion none / medium (the issue's targets), the default object also heavy
+    cases = [(name, occ, None) for name in ycb_objects() for occ in ("none", "medium")]
+    cases.append(("005_tomato_soup_can", "heavy", None))
     env = os.environ.get("VTRACK_BENCH_FUSION_CASES")
     if env:
         # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session)
         cases = []
         for item in env.split(";"):
             name, occ, sess = (item.split("|") + ["", ""])[:3]
-            cases.append((name, occ, ycb / f"{name}.ply" if name != "005_tomato_soup_can" else None,
-                          Path(sess) if sess else None))
-    for name, occ, mesh, sess in cases:
-        path = sess or tiny_session_path(occlusion=occ, seconds=seconds, object=mesh)
+            cases.append((name, occ, Path(sess) if sess else None))
+    from vtrack.sim.fixtures import ycb_session
+
+    for name, occ, sess in cases:
+        path = sess or ycb_session(name, occ, seconds)
         short = name.split("_", 1)[1]
         main = name == "005_tomato_soup_can"
         for blind in (True, False):
             obs, Vg, Fg, load_s, info = _session_observations(path, blind)
             tag = "" if blind else " [oracle: GT poses, masks, height maps]"
+            n0 = len(table.rows)
             for mods in MODS:
                 _run(table, obs, Vg, Fg, method="tsdf", mods=mods, setting="voxel=2mm" + tag, object_name=short,
                      occlusion=occ, load_s=load_s, voxel_size=0.002)
@@ -143,22 +144,41 @@ def _full(table: BenchTable, seconds: float) -> None:
                 for it in (300, 600):
                     _run(table, obs, Vg, Fg, method="neural_sdf", mods="vision+touch", setting=f"iters={it}",
                          object_name=short, occlusion=occ, load_s=load_s, n_iters=it)
+            for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
+                r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
+
+
+def _aggregate(table: BenchTable) -> None:
+    """Mean over the objects per (method, setting, occlusion) of the none/medium cases (the issue's targets)."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in table.rows:
+        if r["occlusion"] in ("none", "medium") and r["object"] != "all":
+            groups.setdefault((r["method"], r["setting"], r["occlusion"]), []).append(r)
+    for (method, setting, occ), rows in groups.items():
+        if len(rows) < 2:
+            continue
+        keys = ("fscore_1mm", "fscore_2mm", "fscore_5mm", "fscore_10mm", "precision", "recall", "chamfer_mm",
+                "s_session", "ms")
+        agg = {k: float(np.nanmean([float(r[k]) for r in rows])) for k in keys}
+        table.add(method=method, setting=setting, object="all", occlusion=occ, frames=sum(r["frames"] for r in rows),
+                  **agg, n_objects=len(rows), fscore_5mm_min=float(min(r["fscore_5mm"] for r in rows)))
 
 
 def run(quick: bool = False) -> BenchTable:
     """Run the fusion ablation; see the module docstring."""
-    import torch
 
-    torch.set_num_threads(1)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from vtrack.threads import limit_threads
+
+    limit_threads(1)  # after importing torch: caps its pool too
     table = BenchTable(stage="fusion", error_key="fscore_5mm", time_key="ms", higher_is_better=True, threads=1)
-    seconds = float(os.environ.get("VTRACK_BENCH_FUSION_SECONDS", "3"))
+    seconds = float(os.environ.get("VTRACK_BENCH_FUSION_SECONDS", "2"))
     if quick:
         _quick(table)
         table.notes.append("quick mode: ray-cast observations (vtrack.fusion.synthetic), soup can; 'heavy' = two "
                            "views on a 60 deg arc, 30 touch patches on the unseen side.")
     else:
         _full(table, seconds)
+        _aggregate(table)
         table.notes.append("full mode: simulator sessions of the default scene, BLIND by default (SLAM poses, "
                            "segmentation and touch from the raw streams; scored after first-frame alignment); "
                            "rows tagged [oracle] use GT poses, masks and height maps; every 2nd frame; cases: "

@@ -12,7 +12,6 @@ frame) plus ablation rows (hand removal off, crop off, temporal off) on the soup
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -112,21 +111,18 @@ def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, 
 
 
 def _session(obj_mesh: Path, occlusion: str, seconds: float) -> Path:
-    from vtrack.bench.tracking import bench_session
-    from vtrack.paths import default_scene_path
-    from vtrack.sim.fixtures import tiny_session_path
+    from vtrack.sim.fixtures import ycb_session
 
-    if obj_mesh.stem == "005_tomato_soup_can":  # the default scene's object: shared cached sessions
-        return tiny_session_path(occlusion=occlusion, seconds=seconds)
-    return bench_session(default_scene_path(), obj_mesh.stem, occlusion, 1.0, seconds)
+    return ycb_session(obj_mesh.stem, occlusion, seconds)
 
 
 def run(quick: bool = False) -> BenchTable:
     """Build the segmentation benchmark table (see module docstring)."""
     from vtrack.frames.segmentation import SegmentationOptions
     from vtrack.paths import shared_data_dir
+    from vtrack.threads import limit_threads
 
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    limit_threads(1)
     t_start = time.perf_counter()
     table = BenchTable(stage="segmentation", error_key="iou_median", time_key="ms", higher_is_better=True)
     meshes = sorted((shared_data_dir() / "objects" / "ycb").glob("*.ply"))

@@ -17,7 +17,6 @@ machine; the Pareto axis), per-stage medians,
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
@@ -28,16 +27,9 @@ HOLDOUT = "every:4:3"
 
 
 def _threads() -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    import cv2
+    from vtrack.threads import limit_threads
 
-    cv2.setNumThreads(1)
-    try:
-        import torch
-
-        torch.set_num_threads(1)
-    except Exception:
-        pass
+    limit_threads(1)
 
 
 def scaled_press_set(ps, factor: int):

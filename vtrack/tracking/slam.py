@@ -114,7 +114,9 @@ class SLAMTracker(WindowTracker):
         mapper: ``surfel`` (numpy TSDF-like, default) or ``neural`` (fusion NeuralSDFReconstructor).
         extent: half-size of the map cube, m (centred on the first frame's points).
         map_voxel: surfel voxel, m; grid_voxel: SDF grid spacing, m; trunc: band, m.
-        refresh_every: update the grid every this many frames (more often during the first 5).
+        refresh_every: update the grid at most every this many frames (every frame during the first 5) ...
+        refresh_growth: ... and only once the map has this many new surfels (fraction of the map) ...
+        refresh_max_every: ... or this many frames have passed.
         refresh_move: surfels that moved less than this (m) since the last update keep their band.
         full_refresh_every: every this many updates the whole band is recomputed.
         map_points: vision points fused per frame.
@@ -127,7 +129,7 @@ class SLAMTracker(WindowTracker):
     def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.1, map_voxel: float = 0.002,
                  grid_voxel: float = 0.003, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
                  train_ms: float = 40.0, refresh_move: float = 0.0003, full_refresh_every: int = 8,
-                 **opts: Any) -> None:
+                 refresh_growth: float = 0.01, refresh_max_every: int = 20, **opts: Any) -> None:
         if mapper not in ("surfel", "neural"):
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=mapper)
         opts.setdefault("gate", 0.8 * trunc)
@@ -145,8 +147,10 @@ class SLAMTracker(WindowTracker):
         self._n_map_frames = 0
         self.ms_map: list[float] = []
         self.refresh_move, self.full_refresh_every = float(refresh_move), int(full_refresh_every)
+        self.refresh_growth, self.refresh_max_every = float(refresh_growth), int(refresh_max_every)
         self._grid: np.ndarray | None = None
         self._n_refresh = 0
+        self._last_refresh = 0
         self._ref_keys = np.zeros(0, np.int64)
         self._ref_P = self._ref_N = np.zeros((0, 3))
 
@@ -194,8 +198,14 @@ class SLAMTracker(WindowTracker):
         if first or info.status in ("ok", "degenerate", "recovered"):
             self._integrate(frame, T)
         self._n_map_frames += 1
-        if first or self._n_map_frames <= 5 or self._n_map_frames % self.refresh_every == 0:
+        since = self._n_map_frames - self._last_refresh
+        # A map that no longer grows (the same faces seen again) needs no new grid: update it when the
+        # surface grew by refresh_growth since the last update, and at least every refresh_max_every frames.
+        grew = self.map.n_new >= self.refresh_growth * max(len(self.map), 1)
+        if (first or self._n_map_frames <= 5 or (since >= self.refresh_every and grew)
+                or since >= self.refresh_max_every):
             self._refresh()
+            self._last_refresh = self._n_map_frames
         dm = (time.perf_counter() - t1) * 1e3
         self.ms_map.append(dm)
         info.ms = (info.ms if not first else (time.perf_counter() - t0) * 1e3 - dm) + dm
