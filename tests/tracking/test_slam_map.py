@@ -53,6 +53,8 @@ def test_incremental_refresh_matches_a_full_rebuild(mustard_seq):
 
     inc = SLAMTracker(mustard_seq.gt[0], refresh_every=2, full_refresh_every=1000)
     run_sequence(inc, mustard_seq)
+    assert inc._n_refresh % inc.full_refresh_every != 0
+    inc._refresh()  # incremental: the surfels changed since the last update (a grown map or not)
     g_inc = _grid_of(inc)
     inc._n_refresh = 0  # next update is a full one, on the same map
     inc._refresh()

@@ -174,6 +174,21 @@ class HandAwareSegmenter:
         self._casters: dict[str, Any] | None = None
         self.reset()
 
+    def prepare(self, q: np.ndarray | None = None) -> None:
+        """Do the one-time set-up now (hand surface samples for the splat at the joints ``q``, the link
+        meshes' ray-casting scenes, Open3D) instead of in the first :meth:`segment` call, whose time would
+        otherwise carry it (about 1 s: it is not a per-frame cost)."""
+        import open3d  # noqa: F401  (plane removal)
+
+        if self.kin is None:
+            return
+        if q is not None and np.all(np.isfinite(q)):
+            Tcw = self.T_camera_world
+            poses = self.kin.link_poses(np.asarray(q, np.float64))
+            self._hand_samples(np.array([(Tcw @ v[0])[2, 3] for v in poses.values()]))
+        if self.opt.exact_silhouette:
+            self._link_casters()
+
     def reset(self) -> None:
         """Forget the previous object centroid/radius (new sequence or lost track)."""
         self._prev_centroid: np.ndarray | None = None

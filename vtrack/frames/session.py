@@ -127,13 +127,15 @@ class SessionFrames:
         segmentation: ``pipeline`` (default), ``gt`` (oracle ablation) or ``none`` (all valid depth).
         depth_stride: pixel stride of the depth images.
         touch_stride: point stride of the tactile pipeline (working pixels).
+        touch_downsample: working-resolution factor of the tactile pipeline (``auto``: from the image size).
         max_frames: keep only the first frames (0 = all).
         scene: override the session's embedded scene.
     """
 
     def __init__(self, session: str | Path | Any, modalities: tuple[str, ...] | list[str] = ("vision", "touch"), *,
                  tactile_source: str = "pipeline", segmentation: str = "pipeline", depth_stride: int = 4,
-                 touch_stride: int = 3, max_frames: int = 0, scene: Any = None) -> None:
+                 touch_stride: int = 3, max_frames: int = 0, scene: Any = None,
+                 touch_downsample: int | str = "auto") -> None:
         from vtrack.io.session import SessionReader, open_session
 
         self.modalities = tuple(m.strip() for m in modalities)
@@ -161,7 +163,8 @@ class SessionFrames:
             self.kin = HandKinematics.from_scene(self.scene)
         self.touch: TouchSource | None = None
         if "touch" in self.modalities:
-            self.touch = TouchSource(r, self.scene, tactile_source, point_stride=touch_stride)
+            self.touch = TouchSource(r, self.scene, tactile_source, point_stride=touch_stride,
+                                     downsample=touch_downsample)
             if self.touch.sensors and self.kin is None:
                 raise InputError("touch needs the hand (scene.hand) and its joint states (a 'joints' stream)",
                                  path=self.path, field="joints")
@@ -194,6 +197,13 @@ class SessionFrames:
         self.times = np.asarray(t, dtype=np.float64)
         self.q = self._joints_at(self.times)
         self.sensor_poses = self._sensor_poses(self.q)
+        q0 = None
+        if self.q is not None:
+            ok = np.flatnonzero(np.isfinite(self.q).all(1))
+            q0 = self.q[ok[0]] if len(ok) else None
+        for c in self.cams:
+            if c.segmenter is not None:
+                c.segmenter.prepare(q0)  # one-time set-up here, not in the first frame's time
 
     # ------------------------------------------------------------------ set-up
     def _setup_segmentation(self) -> None:

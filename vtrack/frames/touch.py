@@ -68,7 +68,7 @@ class TouchSource:
     """
 
     def __init__(self, reader: Any, scene: Any, source: str = "pipeline", point_stride: int = 3,
-                 sensors: list[str] | None = None) -> None:
+                 sensors: list[str] | None = None, downsample: int | str = "auto") -> None:
         if source not in TOUCH_SOURCES:
             raise InputError("unknown tactile source", field="tactile_source", expected="pipeline | gt (oracle)",
                              got=source)
@@ -97,7 +97,7 @@ class TouchSource:
                                  field=f"tactile[{i}].calibration",
                                  expected="a file from `vtrack calibrate PRESSSET --out calib.npz` (ball presses "
                                           "of this sensor; see docs/tactile.md)")
-            self.pipelines[s] = TactilePipeline._from_spec(spec, point_stride=self.point_stride)
+            self.pipelines[s] = TactilePipeline._from_spec(spec, point_stride=self.point_stride, downsample=downsample)
             self.streams[s] = reader[f"tactile/{s}"]
 
     def times(self, sensor: str) -> np.ndarray:
@@ -125,7 +125,7 @@ class TouchSource:
                 return _empty()
             P, N = TactilePipeline.contact_points(h, m, mmpp, self.point_stride)
         else:
-            fr = self.pipelines[sensor].process(raw)
+            fr = self.pipelines[sensor].process(raw, full_res=False)  # points only: no full-size maps
             if fr.quality != "ok":
                 return _empty(valid=False)
             P, N = fr.points, fr.normals

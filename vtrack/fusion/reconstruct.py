@@ -144,7 +144,8 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
         track_metrics, (times, est) = track_session(
             session_dir, out / "tracking", shape=shape, modalities=mods, mesh=mesh, gt=gt,
             tactile_source=tactile_source, segmentation=segmentation, write=True, return_poses=True,
-            keep_frames=kept, keep_step=frame_step, **{"touch_stride": touch_stride, **(track_opts or {})})
+            keep_frames=kept, keep_step=frame_step,
+            **{"touch_stride": touch_stride, "touch_downsample": "auto", **(track_opts or {})})
         frames, built = kept["frames"], kept["built"]
         track = PoseTrack(times, est)
         mesh_frame = Path(mesh) if mesh is not None else None

@@ -318,26 +318,28 @@ class TactilePipeline:
     def _to_full(self, a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         import cv2
 
-        if self.downsample == 1:
+        if self.downsample == 1 or a.shape[:2] == tuple(shape):
             return a
         H, W = shape
         if a.dtype == bool:
             return cv2.resize(a.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).view(bool)
         return cv2.resize(a, (W, H), interpolation=cv2.INTER_LINEAR)
 
-    def process(self, image_bgr: np.ndarray | str, image: np.ndarray | None = None) -> TactileFrame:
+    def process(self, image_bgr: np.ndarray | str, image: np.ndarray | None = None,
+                full_res: bool = True) -> TactileFrame:
         """Run the pipeline on one BGR image of this sensor (see :class:`TactileFrame`).
 
         ``process(image)`` uses this sensor; ``process(sensor_name, image)`` dispatches to the pipeline of
         another sensor of the scene (``from_scene`` builds one per sensor).
 
         Contact detection and point lifting run at the working resolution (points are spaced
-        ``downsample * point_stride`` image pixels); height and mask are returned at full resolution.
+        ``downsample * point_stride`` image pixels); height and mask are returned at full resolution, or
+        at the working resolution with ``full_res=False`` (consumers of the points only: saves two resizes).
         """
         if isinstance(image_bgr, str):
             if image is None:
                 raise InputError("process(sensor_name, image) needs an image", field="image")
-            return self.for_sensor(image_bgr).process(image)
+            return self.for_sensor(image_bgr).process(image, full_res=full_res)
         t0 = time.perf_counter()
         img, hw, gate, quality, drift = self._height_work(image_bgr)
         if self._bg_from_frame and hw.size and self._background_was_pressed(hw):
@@ -359,6 +361,8 @@ class TactilePipeline:
         pts, nrm = self.contact_points(hw, mask_w, s_work, self.point_stride)
         t3 = time.perf_counter()
         H, W = img.shape[:2]
+        if not full_res and self.slip is None:  # slip reads the full-resolution contact mask
+            H, W = hw.shape  # working-resolution maps: _to_full is then a no-op
         frame = TactileFrame(self._to_full(hw, (H, W)), self._to_full(mask_w, (H, W)), pts, nrm, stats,
                              timings_ms={"height": (t1 - t0) * 1e3, "contact": (t2 - t1) * 1e3,
                                          "points": (t3 - t2) * 1e3}, quality=quality, drift=drift)

@@ -158,7 +158,8 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
                   mesh: str | Path | None = None, init_pose: np.ndarray | None = None, init: str = "auto",
                   init_perturb: tuple[float, float] | None = None, gt: str | Path | None = None,
                   tactile_source: str = "pipeline", segmentation: str = "pipeline", max_frames: int = 0,
-                  seed: int = 0, depth_stride: int = 4, touch_stride: int = 3, write: bool = True,
+                  seed: int = 0, depth_stride: int = 4, touch_stride: int = 2, touch_downsample: int | str = 4,
+                  write: bool = True,
                   return_poses: bool = False, keep_frames: dict | None = None, keep_step: int = 1,
                   **opts: Any) -> Any:
     """Run a tracker over a session; return the metrics dict (also written to ``out_dir``).
@@ -180,6 +181,9 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
         return_poses: return ``(metrics, (times, T_world_object))`` instead of the metrics alone.
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
             ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing.
+        depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
+            working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
+            4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
         **opts: tracker options (:class:`~vtrack.tracking.window.TrackerOptions` fields, ...).
     """
     from vtrack.frames.session import SessionFrames
@@ -193,7 +197,7 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
         modalities = ("vision",)
     frames = SessionFrames(session_dir, modalities=modalities, tactile_source=tactile_source,
                            segmentation=segmentation, depth_stride=depth_stride, touch_stride=touch_stride,
-                           max_frames=max_frames)
+                           max_frames=max_frames, touch_downsample=touch_downsample)
     mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known" or method == "icp") else None
     if (shape == "known" or method == "icp") and mesh_path is None:
         raise InputError("known-shape tracking needs the object mesh", path=frames.path, field="--mesh",

@@ -127,7 +127,7 @@ class SLAMTracker(WindowTracker):
     mode = "slam"
 
     def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.1, map_voxel: float = 0.002,
-                 grid_voxel: float = 0.003, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
+                 grid_voxel: float = 0.004, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
                  train_ms: float = 40.0, refresh_move: float = 0.0003, full_refresh_every: int = 8,
                  refresh_growth: float = 0.01, refresh_max_every: int = 20, **opts: Any) -> None:
         if mapper not in ("surfel", "neural"):
