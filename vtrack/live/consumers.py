@@ -49,10 +49,12 @@ class TrackConsumer(Consumer):
     def __init__(self, session: str | Path, depth_stride: int = 4, mesh: str | Path | None = None,
                  init_pose: np.ndarray | None = None, **tracker_opts: Any) -> None:
         from vtrack.frames.session import SessionFrames
+        from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
 
         self.session = Path(session)
         try:
-            self.sf = SessionFrames(self.session, modalities=("vision", "touch"), depth_stride=depth_stride)
+            self.sf = SessionFrames(self.session, modalities=("vision", "touch"), depth_stride=depth_stride,
+                                    touch_stride=TRACK_TOUCH_STRIDE, touch_downsample=TRACK_TOUCH_DOWNSAMPLE)
         except InputError:  # e.g. a sensor without calibration: vision only, said in the result
             self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride)
         self.mesh = None if mesh is None else Path(mesh)
