@@ -112,3 +112,16 @@ def test_one_driver_per_output_folder(synthetic_sessions, tmp_path):
             run_batch("stats", synthetic_sessions[:1], tmp_path, workers=1)
     finally:
         os.close(fd)
+
+
+def test_unreadable_fault_plan_is_a_clear_error(tmp_path):
+    from vtrack.batch.runner import load_fault_plan
+    from vtrack.errors import InputError
+
+    with pytest.raises(InputError, match="fault plan"):
+        load_fault_plan(tmp_path / "missing.json")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(InputError, match="JSON object"):
+        load_fault_plan(tmp_path / "list.json")
+    (tmp_path / "ok.json").write_text('{"*": {"mode": "raise", "times": 1}}')
+    assert load_fault_plan(tmp_path / "ok.json") == {"*": {"mode": "raise", "times": 1}}

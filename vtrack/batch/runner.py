@@ -77,7 +77,15 @@ def load_fault_plan(plan: str | Path | dict | None) -> dict[str, dict[str, Any]]
         return {}
     if isinstance(plan, dict):
         return plan
-    return json.loads(Path(plan).read_text())
+    try:
+        data = json.loads(Path(plan).read_text())
+    except (OSError, ValueError) as e:
+        raise InputError("cannot read the fault plan", path=plan, field=FAULT_PLAN_ENV,
+                         expected="a JSON file {key: {mode, times, delay_s}}", got=type(e).__name__) from None
+    if not isinstance(data, dict):
+        raise InputError("the fault plan must be a JSON object", path=plan, field=FAULT_PLAN_ENV,
+                         expected="{key: {mode, times, delay_s}}", got=type(data).__name__)
+    return data
 
 
 def _fault_for(job: dict[str, Any], plan: dict[str, Any]) -> dict[str, Any] | None:
