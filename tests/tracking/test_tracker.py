@@ -114,3 +114,18 @@ def test_pose_metrics():
     assert s["drift_mm"] < 1e-6 and s["rot_drift_deg"] < 1e-3 and s["rot_drift_full_deg"] > 28
     with pytest.raises(InputError):
         add_s(T[:2], T, P)
+
+
+def test_icp_holds_its_pose_through_frames_without_points(mustard_mesh, mustard_seq):
+    """A hidden object (no depth points) must not send the baseline flying along its last velocity."""
+    from vtrack.tracking.frame import TrackingFrame
+    from vtrack.tracking.icp import ICPTracker
+
+    tr = ICPTracker(mustard_mesh, mustard_seq.gt[0])
+    run_sequence(tr, mustard_seq, frames=mustard_seq.frames[:10])
+    T_last = tr.T.copy()
+    t = mustard_seq.frames[9].t
+    for k in range(1, 61):  # two seconds with nothing seen
+        T = tr.step(TrackingFrame(t=t + k / 30.0, vision_points=np.zeros((0, 3))))
+    assert np.linalg.norm(T[:3, 3] - T_last[:3, 3]) < 1e-9
+    assert tr.history[-1].status == "no_data"

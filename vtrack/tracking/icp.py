@@ -78,6 +78,9 @@ class ICPTracker:
             info.inlier_frac = float(res.fitness)
             info.status = "ok" if res.fitness >= 0.5 else "lost"
         else:
+            # Nothing seen: hold the last pose (extrapolating a constant velocity through a long occlusion
+            # flew the baseline 2 m away on a hidden baseball); the velocity update below then resets it.
+            T = self.T.copy()
             info.status = "no_data"
         if self.t_last is not None and dt > 0:
             self.velocity = se3.se3_log(se3.invert(self.T) @ T) / dt
