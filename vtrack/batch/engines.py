@@ -16,6 +16,7 @@ import itertools
 import multiprocessing as mp
 import os
 import signal
+import time
 from typing import Any
 
 from vtrack.batch.worker import execute, init_local_worker, warm_up
@@ -53,7 +54,14 @@ class _Slot:
     def exit_codes(self) -> list[int | None]:
         for p in self.procs:
             p.join(timeout=1.0)
-        return [p.exitcode for p in self.procs]
+        # The pool's manager thread reaps the same dead worker: when its waitpid wins, our join returns
+        # with the code not yet stored (a loaded machine showed 'no exit code'); re-read it for a moment.
+        codes = [p.exitcode for p in self.procs]
+        deadline = time.monotonic() + 3.0
+        while any(c is None for c in codes) and time.monotonic() < deadline:
+            time.sleep(0.05)
+            codes = [p.exitcode for p in self.procs]
+        return codes
 
 
 class LocalEngine:
