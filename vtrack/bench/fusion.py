@@ -110,11 +110,11 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
 
 
 def _full(table: BenchTable, seconds: float) -> None:
-    from vtrack.bench.tracking import ycb_objects
+    from vtrack.sim.fixtures import DEFAULT_OBJECT, ycb_objects, ycb_session
 
     # every shared YCB object at occlusion none / medium (the issue's targets), the default object also heavy
     cases = [(name, occ, None) for name in ycb_objects() for occ in ("none", "medium")]
-    cases.append(("005_tomato_soup_can", "heavy", None))
+    cases.append((DEFAULT_OBJECT, "heavy", None))
     env = os.environ.get("VTRACK_BENCH_FUSION_CASES")
     if env:
         # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session)
@@ -122,12 +122,10 @@ def _full(table: BenchTable, seconds: float) -> None:
         for item in env.split(";"):
             name, occ, sess = (item.split("|") + ["", ""])[:3]
             cases.append((name, occ, Path(sess) if sess else None))
-    from vtrack.sim.fixtures import ycb_session
-
     for name, occ, sess in cases:
         path = sess or ycb_session(name, occ, seconds)
         short = name.split("_", 1)[1]
-        main = name == "005_tomato_soup_can"
+        main = name == DEFAULT_OBJECT
         for blind in (True, False):
             obs, Vg, Fg, load_s, info = _session_observations(path, blind)
             tag = "" if blind else " [oracle: GT poses, masks, height maps]"
@@ -149,22 +147,6 @@ def _full(table: BenchTable, seconds: float) -> None:
                 r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
 
 
-def _aggregate(table: BenchTable) -> None:
-    """Mean over the objects per (method, setting, occlusion) of the none/medium cases (the issue's targets)."""
-    groups: dict[tuple, list[dict]] = {}
-    for r in table.rows:
-        if r["occlusion"] in ("none", "medium") and r["object"] != "all":
-            groups.setdefault((r["method"], r["setting"], r["occlusion"]), []).append(r)
-    for (method, setting, occ), rows in groups.items():
-        if len(rows) < 2:
-            continue
-        keys = ("fscore_1mm", "fscore_2mm", "fscore_5mm", "fscore_10mm", "precision", "recall", "chamfer_mm",
-                "s_session", "ms")
-        agg = {k: float(np.nanmean([float(r[k]) for r in rows])) for k in keys}
-        table.add(method=method, setting=setting, object="all", occlusion=occ, frames=sum(r["frames"] for r in rows),
-                  **agg, n_objects=len(rows), fscore_5mm_min=float(min(r["fscore_5mm"] for r in rows)))
-
-
 def run(quick: bool = False) -> BenchTable:
     """Run the fusion ablation; see the module docstring."""
 
@@ -179,7 +161,15 @@ def run(quick: bool = False) -> BenchTable:
                            "views on a 60 deg arc, 30 touch patches on the unseen side.")
     else:
         _full(table, seconds)
-        _aggregate(table)
+        # the issue's aggregate: mean over the objects per (method, setting, occlusion), none / medium
+        table.add_group_means(
+            by=("method", "setting", "occlusion"),
+            means=("fscore_1mm", "fscore_2mm", "fscore_5mm", "fscore_10mm", "precision", "recall", "chamfer_mm",
+                   "s_session", "ms"),
+            sums=("frames",),
+            where=lambda r: r["occlusion"] in ("none", "medium") and r["object"] != "all",
+            label=lambda key, rows: {"object": "all", "n_objects": len(rows),
+                                     "fscore_5mm_min": float(min(r["fscore_5mm"] for r in rows))})
         table.notes.append("full mode: simulator sessions of the default scene, BLIND by default (SLAM poses, "
                            "segmentation and touch from the raw streams; scored after first-frame alignment); "
                            "rows tagged [oracle] use GT poses, masks and height maps; every 2nd frame; cases: "

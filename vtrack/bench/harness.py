@@ -93,6 +93,25 @@ class BenchTable:
     def add(self, **row: Any) -> None:
         self.rows.append(row)
 
+    def add_group_means(self, by: tuple[str, ...], means: tuple[str, ...], where: Callable[[dict], bool],
+                        label: Callable[[tuple, list[dict]], dict[str, Any]], sums: tuple[str, ...] = (),
+                        min_rows: int = 2) -> None:
+        """Append one row per group of the rows selected by ``where`` (grouped by the ``by`` columns):
+        NaN-ignoring means of ``means``, totals of ``sums``, plus what ``label(group, rows)`` returns
+        (e.g. ``object="all"``, a min or max). Groups smaller than ``min_rows`` are skipped."""
+        groups: dict[tuple, list[dict]] = {}
+        for r in self.rows:
+            if where(r):
+                groups.setdefault(tuple(r[k] for k in by), []).append(r)
+        for key, rows in groups.items():
+            if len(rows) < min_rows:
+                continue
+            row: dict[str, Any] = dict(zip(by, key, strict=True))
+            row.update({k: float(np.nanmean([float(r[k]) for r in rows])) for k in means})
+            row.update({k: sum(r[k] for r in rows) for k in sums})
+            row.update(label(key, rows))
+            self.add(**row)
+
     def pareto_mask(self) -> np.ndarray:
         """Rows not dominated in (time, error): nothing else is both faster and better."""
         from vtrack.viz.plots import pareto_front

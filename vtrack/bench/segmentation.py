@@ -51,7 +51,7 @@ def segmenter_for_session(reader: Any, cam: str, stride: int, options: Any = Non
 
 
 def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, options: Any = None,
-                     max_frames: int | None = None, use_hand: bool = True, q_noise_rad: float = 0.0,
+                     max_frames: int | None = None, q_noise_rad: float = 0.0,
                      min_visible: float = 0.1) -> dict[str, Any]:
     """Segment every camera frame of a session and score it against the GT mask.
 
@@ -87,7 +87,7 @@ def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, 
         depth = s["depth"][i][::stride, ::stride].astype(np.float32) * np.float32(scale)
         gt = gts[gtf][i][::stride, ::stride].astype(bool)
         q = None
-        if use_hand and joints is not None and seg.kin is not None:
+        if joints is not None and seg.kin is not None:
             q = seg.kin.reorder(joints.sample("q", np.array([t]), mode="linear")[0], joints.attrs.get("joint_names"))
             if q_noise_rad > 0:
                 q = q + rng.normal(0.0, q_noise_rad, q.shape)
@@ -110,46 +110,41 @@ def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, 
             "hidden_empty": np.asarray(hidden, bool), "frames": n}
 
 
-def _session(obj_mesh: Path, occlusion: str, seconds: float) -> Path:
-    from vtrack.sim.fixtures import ycb_session
-
-    return ycb_session(obj_mesh.stem, occlusion, seconds)
+def _scores(m: dict[str, Any]) -> dict[str, Any]:
+    """Table columns of one :func:`evaluate_session` result."""
+    return dict(frames=m["frames"], scored=len(m["iou"]), iou_median=_med(m["iou"]), iou_mean=_mean(m["iou"]),
+                iou_min=float(m["iou"].min()) if len(m["iou"]) else float("nan"), hand_left=_mean(m["hand_left"]),
+                hidden=len(m["hidden_empty"]), hidden_empty=_mean(m["hidden_empty"].astype(float)),
+                ms=_med(m["ms"]), ms_mean=_mean(m["ms"]))
 
 
 def run(quick: bool = False) -> BenchTable:
     """Build the segmentation benchmark table (see module docstring)."""
     from vtrack.frames.segmentation import SegmentationOptions
-    from vtrack.paths import shared_data_dir
+    from vtrack.sim.fixtures import DEFAULT_OBJECT, ycb_objects, ycb_session
     from vtrack.threads import limit_threads
 
     limit_threads(1)
     t_start = time.perf_counter()
     table = BenchTable(stage="segmentation", error_key="iou_median", time_key="ms", higher_is_better=True)
-    meshes = sorted((shared_data_dir() / "objects" / "ycb").glob("*.ply"))
-    if not meshes:
-        raise InputError("no YCB meshes", path=shared_data_dir() / "objects" / "ycb", expected="*.ply")
+    objects = ycb_objects()
     if quick:
-        meshes = [m for m in meshes if m.stem in ("005_tomato_soup_can", "006_mustard_bottle")] or meshes[:2]
+        objects = [o for o in objects if o in (DEFAULT_OBJECT, "006_mustard_bottle")] or objects[:2]
     seconds = 1.0 if quick else 2.0
     frames = 15 if quick else None
     per_occ: dict[str, list[float]] = {o: [] for o in OCCLUSIONS}
-    for mesh in meshes:
+    for obj in objects:
         for occ in OCCLUSIONS:
-            sess = _session(mesh, occ, seconds)
-            m = evaluate_session(sess, max_frames=frames)
+            m = evaluate_session(ycb_session(obj, occ, seconds), max_frames=frames)
             per_occ[occ] += m["iou"].tolist()
-            table.add(method="hand-aware", setting=f"{mesh.stem[4:]} {occ}", object=mesh.stem, occlusion=occ,
-                      frames=m["frames"], scored=len(m["iou"]), iou_median=_med(m["iou"]), iou_mean=_mean(m["iou"]),
-                      iou_min=float(m["iou"].min()) if len(m["iou"]) else float("nan"),
-                      hand_left=_mean(m["hand_left"]), hidden=len(m["hidden_empty"]),
-                      hidden_empty=_mean(m["hidden_empty"].astype(float)), ms=_med(m["ms"]), ms_mean=_mean(m["ms"]))
+            table.add(method="hand-aware", setting=f"{obj[4:]} {occ}", object=obj, occlusion=occ, **_scores(m))
     for occ, v in per_occ.items():
         a = np.asarray(v)
         table.add(method="hand-aware", setting=f"all objects {occ}", object="all", occlusion=occ, frames=len(a),
                   scored=len(a), iou_median=_med(a), iou_mean=_mean(a),
                   iou_min=float(a.min()) if len(a) else float("nan"), hand_left=float("nan"), ms=float("nan"))
     # Ablations on the default object: what each step buys.
-    can = next((m for m in meshes if m.stem == "005_tomato_soup_can"), meshes[0])
+    can = DEFAULT_OBJECT if DEFAULT_OBJECT in objects else objects[0]
     ablations = {"no hand removal": (SegmentationOptions(hand_removal=False), 0.0),
                  "splat silhouette only": (SegmentationOptions(exact_silhouette=False, fill_hand_edge=False), 0.0),
                  "FK error: joint noise 1 deg": (SegmentationOptions(), np.deg2rad(1.0)),
@@ -160,13 +155,10 @@ def run(quick: bool = False) -> BenchTable:
                  "dilate 2": (SegmentationOptions(hand_dilate_px=2), 0.0)}
     for name, (opts, q_noise) in ablations.items():
         for occ in ("none", "medium") if quick else OCCLUSIONS:
-            m = evaluate_session(_session(can, occ, seconds), options=opts, max_frames=frames,
+            m = evaluate_session(ycb_session(can, occ, seconds), options=opts, max_frames=frames,
                                  q_noise_rad=float(q_noise))
-            table.add(method=f"ablation: {name}", setting=f"{can.stem[4:]} {occ}", object=can.stem, occlusion=occ,
-                      frames=m["frames"], scored=len(m["iou"]), iou_median=_med(m["iou"]), iou_mean=_mean(m["iou"]),
-                      iou_min=float(m["iou"].min()) if len(m["iou"]) else float("nan"),
-                      hand_left=_mean(m["hand_left"]), hidden=len(m["hidden_empty"]),
-                      hidden_empty=_mean(m["hidden_empty"].astype(float)), ms=_med(m["ms"]), ms_mean=_mean(m["ms"]))
+            table.add(method=f"ablation: {name}", setting=f"{can[4:]} {occ}", object=can, occlusion=occ,
+                      **_scores(m))
     table.notes += [
         f"{'quick' if quick else 'full'} run, {time.perf_counter() - t_start:.0f} s wall; single thread; "
         f"{seconds:g} s sessions of the default scene (Allegro + 4 DIGIT, camera 640x480 at 30 Hz).",

@@ -26,12 +26,6 @@ from vtrack.bench.harness import BenchTable
 HOLDOUT = "every:4:3"
 
 
-def _threads() -> None:
-    from vtrack.threads import limit_threads
-
-    limit_threads(1)
-
-
 def scaled_press_set(ps, factor: int):
     """The press set with images, background and labels downscaled by ``factor`` (held in memory)."""
     import cv2
@@ -102,8 +96,9 @@ def run(quick: bool = False) -> BenchTable:
     from vtrack.paths import shared_data_dir
     from vtrack.tactile.calibration import TrainOptions, cached_calibration
     from vtrack.tactile.pressset import load_press_set
+    from vtrack.threads import limit_threads
 
-    _threads()
+    limit_threads(1)
     root = shared_data_dir() / "gelsight_ball_presses"
     if not (root / "labels.csv").is_file():
         raise InputError("tactile benchmark needs the shared GelSight press set", path=root)

@@ -15,8 +15,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-
 from vtrack.bench.harness import BenchTable
 from vtrack.errors import InputError
 
@@ -28,12 +26,6 @@ OPERATING_POINTS = {
 }
 
 MODES = {"vision": ("vision",), "touch": ("touch",), "visuo-tactile": ("vision", "touch")}
-
-
-def _threads() -> None:
-    from vtrack.threads import limit_threads
-
-    limit_threads(1)
 
 
 def _timed(tracker, seq, drop=()):
@@ -82,24 +74,13 @@ def _synth_rows(table: BenchTable, quick: bool) -> None:
                           drift_mm=float(err.mean() * 1e3), drift_max_mm=float(err.max() * 1e3))
 
 
-def ycb_objects() -> list[str]:
-    """Names of the shared YCB objects (``shared/data/objects/ycb/*.ply``)."""
-    from vtrack.paths import shared_data_dir
-
-    names = sorted(p.stem for p in (shared_data_dir() / "objects" / "ycb").glob("*.ply"))
-    if not names:
-        raise InputError("no YCB meshes in the shared data", path=shared_data_dir() / "objects" / "ycb",
-                         expected="*.ply")
-    return names
-
-
 def session_cases(quick: bool) -> list[tuple[str, str, str, float, Path]]:
     """(object, occlusion, setting, depth noise, session dir) of the full benchmark.
 
     Every shared YCB object at occlusion none and medium (2 s sessions, the segmentation benchmark's),
     plus the default object under heavy occlusion (5 s) and heavy occlusion with 3x depth noise (2 s).
     """
-    from vtrack.sim.fixtures import DEFAULT_OBJECT, tiny_session_path, ycb_session
+    from vtrack.sim.fixtures import DEFAULT_OBJECT, tiny_session_path, ycb_objects, ycb_session
 
     cases = [(o, occ, 1.0, ycb_session(o, occ, 2.0)) for o in ycb_objects() for occ in ("none", "medium")]
     cases.append((DEFAULT_OBJECT, "heavy", 1.0, tiny_session_path(occlusion="heavy", seconds=5.0)))
@@ -115,7 +96,6 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
 
     oracle = dict(init="gt", tactile_source="gt", segmentation="gt")
     cases = session_cases(quick)
-    per_occ: dict[tuple[str, str], list[dict]] = {}
     for obj, occ, setting, noise, sess in cases:
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
         runs = [("known/" + m + " [blind]", dict(shape="known", mesh=mesh, modalities=mods))
@@ -136,19 +116,14 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                       ms=m["cpu_ms_per_frame_mean"], wall_ms=m["ms_per_frame_mean"], drift_mm=m["drift_mm"],
                       add_s_mm=m["add_s_mm"], motion_err_mm=m["motion_err_mm"], rot_drift_deg=m["rot_drift_deg"],
                       drift_max_mm=m["drift_max_mm"], frames=m["frames"], poses_per_s=m["poses_per_s"])
-            if noise == 1.0 and occ in ("none", "medium"):
-                per_occ.setdefault((name, occ), []).append(m)
     # the issue's aggregate: every YCB object, occlusion none and medium (means over objects)
-    for (name, occ), ms in per_occ.items():
-        def avg(k: str, ms: list = ms) -> float:
-            return float(np.mean([x[k] for x in ms]))
-
-        table.add(method=name, setting=f"all {len(ms)} objects {occ}", data="sim", object="all", occlusion=occ,
-                  noise=1.0, ms=avg("cpu_ms_per_frame_mean"), wall_ms=avg("ms_per_frame_mean"),
-                  drift_mm=avg("drift_mm"), add_s_mm=avg("add_s_mm"), motion_err_mm=avg("motion_err_mm"),
-                  rot_drift_deg=avg("rot_drift_deg"), drift_max_mm=float(np.max([x["drift_max_mm"] for x in ms])),
-                  frames=int(np.sum([x["frames"] for x in ms])),
-                  poses_per_s=avg("poses_per_s"))
+    table.add_group_means(
+        by=("method", "occlusion"),
+        means=("ms", "wall_ms", "drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "poses_per_s"),
+        sums=("frames",), min_rows=1,
+        where=lambda r: r.get("data") == "sim" and r["noise"] == 1.0 and r["occlusion"] in ("none", "medium"),
+        label=lambda key, rows: {"setting": f"all {len(rows)} objects {key[1]}", "data": "sim", "object": "all",
+                                 "noise": 1.0, "drift_max_mm": float(max(r["drift_max_mm"] for r in rows))})
     # operating points on the heavy-occlusion default scene (blind known shape)
     obj, occ, setting, noise, sess = next(c for c in cases if c[1] == "heavy")
     mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
@@ -165,7 +140,9 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
 
 def run(quick: bool = False) -> BenchTable:
     """Build the tracking benchmark table (see module docstring)."""
-    _threads()
+    from vtrack.threads import limit_threads
+
+    limit_threads(1)
     table = BenchTable(stage="tracking", error_key="drift_mm", time_key="ms", threads=1)
     t0 = time.perf_counter()
     _synth_rows(table, quick)

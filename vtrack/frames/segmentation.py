@@ -188,10 +188,8 @@ class HandAwareSegmenter:
         if self.kin is None:
             return
         if q is not None and np.all(np.isfinite(q)):
-            Tcw = self.T_camera_world
-            poses = self.kin.link_poses(np.asarray(q, np.float64))
-            self._hand_samples(np.array([(Tcw @ v[0])[2, 3] for v in poses.values()]))
-        if self.opt.exact_silhouette:
+            self.render_hand_depth(self.kin.link_poses(np.asarray(q, np.float64)))  # samples + ray casters
+        elif self.opt.exact_silhouette:
             self._link_casters()
 
     def reset(self) -> None:
@@ -379,16 +377,16 @@ class HandAwareSegmenter:
             # edge is kept.
             # (Measured: shrinking the silhouette by its boundary pixels, or a min/max depth-range ring,
             # left hand remnants or cut object pixels touching the fingers; this rule scored best.)
+            hand_px = np.isfinite(zh)
+            hand_core_px = np.isfinite(zh_core)
             ring = np.abs(z - zh) < opt.hand_margin_m
             if opt.exact_silhouette:
                 # The exact silhouette has no splat holes, so inside it the rendered depth is trusted: an
                 # object in front of the palm next to a finger at its depth is not taken for that finger.
-                ring &= ~np.isfinite(zh_core)
+                ring &= ~hand_core_px
             hand = valid & ((z >= zh_core - opt.hand_margin_m) | ring)
-            hand_px = np.isfinite(zh)
-            hand_core_px = np.isfinite(zh_core)
             info["n_hand_removed"] = int(hand.sum())
-            info["n_hand_rendered"] = int(np.isfinite(zh).sum())
+            info["n_hand_rendered"] = int(hand_px.sum())
             valid &= ~hand
         ms["hand"] = (time.perf_counter() - t0) * 1e3
         if not valid.any():

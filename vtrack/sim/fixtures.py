@@ -69,6 +69,18 @@ def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str
     return path
 
 
+def ycb_objects() -> list[str]:
+    """Names of the shared YCB objects (``shared/data/objects/ycb/*.ply``), sorted."""
+    from vtrack.errors import InputError
+    from vtrack.paths import shared_data_dir
+
+    names = sorted(p.stem for p in (shared_data_dir() / "objects" / "ycb").glob("*.ply"))
+    if not names:
+        raise InputError("no YCB meshes in the shared data", path=shared_data_dir() / "objects" / "ycb",
+                         expected="*.ply")
+    return names
+
+
 def ycb_session(name: str, occlusion: str = "none", seconds: float = 2.0, depth_noise: float | None = None) -> Path:
     """Cached session of the default scene holding the shared YCB object ``name`` (e.g. ``006_mustard_bottle``);
     the default object's sessions are the tests' ones. Used by the benchmarks."""

@@ -148,7 +148,6 @@ class SLAMTracker(WindowTracker):
         self.ms_map: list[float] = []
         self.refresh_move, self.full_refresh_every = float(refresh_move), int(full_refresh_every)
         self.refresh_growth, self.refresh_max_every = float(refresh_growth), int(refresh_max_every)
-        self._grid: np.ndarray | None = None
         self._n_refresh = 0
         self._last_refresh = 0
         self._ref_keys = np.zeros(0, np.int64)
@@ -276,7 +275,7 @@ class SLAMTracker(WindowTracker):
         v = self.grid_voxel
         n = np.ceil((hi - lo) / v).astype(int) + 1
         neural = self.neural is not None and self.neural.net is not None and self.neural.iterations > 50
-        full = self._grid is None or neural or self._n_refresh % self.full_refresh_every == 0
+        full = neural or self._n_refresh % self.full_refresh_every == 0  # the first update is a full one
         self._n_refresh += 1
         if full:
             src = S
@@ -292,7 +291,7 @@ class SLAMTracker(WindowTracker):
             src = np.concatenate([S[moved], self._ref_P[pos[moved & old]]]) if moved.any() else S[:0]
         self._ref_keys, self._ref_P, self._ref_N = keys.copy(), S, N
         self.map.n_new = 0
-        grid = np.full(tuple(n), self.trunc, np.float32) if full else self._grid.copy()
+        grid = np.full(tuple(n), self.trunc, np.float32) if full else self.sdf.values.copy()
         if len(src):
             r = int(np.ceil(self.trunc / v))
             ijk = np.clip(np.round((src - lo) / v).astype(np.int64), 0, n - 1)
@@ -322,7 +321,6 @@ class SLAMTracker(WindowTracker):
                 nv, _ = self.neural.query(X[near], with_grad=False)
                 val[near] = np.clip(nv, -self.trunc, self.trunc)
             grid[bi[:, 0], bi[:, 1], bi[:, 2]] = val
-        self._grid = grid
         self.sdf = SDFGrid(grid, lo, v)
 
     # -- outputs -------------------------------------------------------------------------
