@@ -74,11 +74,12 @@ def test_bad_input_raises():
 
 @pytest.fixture(scope="module")
 def digit_press_calibration(tmp_path_factory, shared_data):
-    from vtrack.sim.presses import render_press_set
+    from vtrack.sim.presses import SIM_PRESSES, render_press_set
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.pressset import load_press_set
 
-    d = render_press_set("digit", tmp_path_factory.mktemp("ps") / "digit", n=30, mm_per_px=MPP, width=W,
+    # as many presses as the simulator's own sensor calibrations, over the whole gel (edges included)
+    d = render_press_set("digit", tmp_path_factory.mktemp("ps") / "digit", n=SIM_PRESSES, mm_per_px=MPP, width=W,
                          height=H, seed=5)
     ps = load_press_set(d)
     train, test = ps.split("every:4:3")
@@ -90,12 +91,17 @@ def test_simulated_press_set_calibrates(digit_press_calibration):
     from vtrack.tactile.pipeline import TactilePipeline
 
     ps, calib, test = digit_press_calibration
-    assert len(ps.presses) == 30 and ps.shape == (H, W) and ps.ball_radius_mm == 3.0
+    assert len(ps.presses) == 60 and ps.shape == (H, W) and ps.ball_radius_mm == 3.0
+    # presses reach the gel's edges (partial circles): what the sessions' large contacts need
+    edge = [p for p in ps.presses if min(p.center_xy_px[0], W - p.center_xy_px[0], p.center_xy_px[1],
+                                         H - p.center_xy_px[1]) < p.contact_radius_px]
+    assert len(edge) >= 5
     res = evaluate_presses(ps, test, TactilePipeline(calib).height)
-    # measured: 8.2 deg held-out median normal error (MLP; the elastomer blur rounds the ball edge)
+    # measured: 6.6 deg held-out median normal error (MLP; the elastomer blur rounds the ball edge)
     assert res["summary"]["normal_err_deg_median"] < 11.0
     # the pipeline inverting optical-model images (not its own Lambertian/inverse model) recovers the
-    # indentation depth: measured median |depth error| 13 % of the true depth
+    # indentation depth: measured median |depth error| 20 % of the true depth (13 % on presses away from
+    # the edges; a press cut by the border loses part of its slopes)
     rel = [abs(r["max_depth_mm"] - r["true_depth_mm"]) / r["true_depth_mm"] for r in res["presses"]]
     assert float(np.median(rel)) < 0.25
 

@@ -125,8 +125,8 @@ def run(quick: bool = False) -> BenchTable:
             s = sets[scale]
             test = [p for p in s.presses if p.index in {q.index for q in test_full}][:n_test]
             _row(table, s, calib, test, method, setting, ds, "dct", repeat)
-    # Poisson solvers on one operating point (MLP h32 or the quick MLP, 320x240 images, full working res)
-    method, setting, opts = calibs[-1] if quick else ("mlp", "h32", TrainOptions(mlp_hidden=32))
+    # Poisson solvers on one operating point (the default MLP h64 or the quick MLP, 320x240 images, full res)
+    method, setting, opts = calibs[-1] if quick else ("mlp", "h64", TrainOptions(mlp_hidden=64))
     calib = cached_calibration(ps, method, HOLDOUT, opts)
     s = sets[2]
     test = [p for p in s.presses if p.index in {q.index for q in test_full}][:n_test]

@@ -19,7 +19,7 @@ def _complete(path: Path) -> bool:
 
 
 #: Bump when the simulator's output format or content changes (cached sessions are then regenerated).
-SIM_CACHE_VERSION = 2
+SIM_CACHE_VERSION = 3
 
 #: The default scene's object (its sessions are shared by tests and benchmarks).
 DEFAULT_OBJECT = "005_tomato_soup_can"

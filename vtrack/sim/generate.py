@@ -220,6 +220,12 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
     # The embedded scene says what a user would know: the object's name and symmetry, but neither its
     # shape nor its pose (both are ground truth, under gt/). Known-shape runs take the mesh from --mesh.
     sd["object"].update({"name": obj_name, "mesh": None, "scale": 1.0, "T_world_object": None})
+    if object_mesh is not None:
+        # an override mesh does not inherit the scene object's symmetry (it decides ADD-S vs ADD in scoring
+        # and the hypotheses of global registration): measure it
+        from vtrack.eval.pose_metrics import is_rotationally_symmetric
+
+        sd["object"]["symmetric"] = is_rotationally_symmetric(obj.vertices, obj.faces)
     if sd.get("pipeline", {}).get("tracking") == "known_shape":
         sd["pipeline"]["tracking"] = "slam"
     for c in sd.get("cameras", []):

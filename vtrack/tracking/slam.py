@@ -51,20 +51,22 @@ class SurfelMap:
         ijk = np.floor(P / self.voxel).astype(np.int64) + (1 << 20)
         return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
 
-    def integrate(self, points: np.ndarray, normals: np.ndarray, weight: float = 1.0) -> None:
-        """Fuse object-frame points with unit normals (NaN/zero normal = unknown direction)."""
+    def integrate(self, points: np.ndarray, normals: np.ndarray, weight: float | np.ndarray = 1.0) -> None:
+        """Fuse object-frame points with unit normals (NaN/zero normal = unknown direction) and a weight
+        (scalar or per point)."""
         P = np.asarray(points, np.float64).reshape(-1, 3)
         N = np.nan_to_num(np.asarray(normals, np.float64).reshape(-1, 3))
-        ok = np.isfinite(P).all(1)
-        P, N = P[ok], N[ok]
+        w = np.broadcast_to(np.asarray(weight, np.float64), (len(P),))
+        ok = np.isfinite(P).all(1) & np.isfinite(w) & (w > 0)
+        P, N, w = P[ok], N[ok], w[ok]
         if len(P) == 0:
             return
         # aggregate the new points per voxel (bincount: np.add.at is an order of magnitude slower) ...
         uk, inv = np.unique(self._key(P), return_inverse=True)
         m = len(uk)
-        ps = np.stack([np.bincount(inv, weights=P[:, c], minlength=m) for c in range(3)], 1) * weight
-        ns = np.stack([np.bincount(inv, weights=N[:, c], minlength=m) for c in range(3)], 1) * weight
-        ws = np.bincount(inv, minlength=m) * float(weight)
+        ps = np.stack([np.bincount(inv, weights=P[:, c] * w, minlength=m) for c in range(3)], 1)
+        ns = np.stack([np.bincount(inv, weights=N[:, c] * w, minlength=m) for c in range(3)], 1)
+        ws = np.bincount(inv, weights=w, minlength=m)
         # ... then add into existing voxels in place and insert the new ones (keys stay sorted)
         pos = np.searchsorted(self.keys, uk)
         hit = pos < len(self.keys)
@@ -112,7 +114,8 @@ class SLAMTracker(WindowTracker):
     Args:
         T_init: initial ``T_world_object``; it defines the object frame of the map.
         mapper: ``surfel`` (numpy TSDF-like, default) or ``neural`` (fusion NeuralSDFReconstructor).
-        extent: half-size of the map cube, m (centred on the first frame's points).
+        extent: minimum half-size of the map cube, m (centred on the first frame's points; grows to hold
+            them turned any way plus box_margin, and later points; see :meth:`_ensure_box`).
         map_voxel: surfel voxel, m; grid_voxel: SDF grid spacing, m; trunc: band, m.
         refresh_every: update the grid at most every this many frames (every frame during the first 5) ...
         refresh_growth: ... and only once the map has this many new surfels (fraction of the map) ...
@@ -126,10 +129,11 @@ class SLAMTracker(WindowTracker):
 
     mode = "slam"
 
-    def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.1, map_voxel: float = 0.002,
+    def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.06, map_voxel: float = 0.002,
                  grid_voxel: float = 0.004, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
                  train_ms: float = 40.0, refresh_move: float = 0.0003, full_refresh_every: int = 8,
-                 refresh_growth: float = 0.01, refresh_max_every: int = 20, **opts: Any) -> None:
+                 refresh_growth: float = 0.01, refresh_max_every: int = 20, grazing_cos: float = 0.0,
+                 touch_map_weight: float = 3.0, box_margin: float = 0.03, **opts: Any) -> None:
         if mapper not in ("surfel", "neural"):
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=mapper)
         opts.setdefault("gate", 0.8 * trunc)
@@ -137,6 +141,9 @@ class SLAMTracker(WindowTracker):
         self.trunc, self.extent, self.grid_voxel = float(trunc), float(extent), float(grid_voxel)
         self.refresh_every, self.map_points, self.train_ms = int(refresh_every), int(map_points), float(train_ms)
         self.mapper = mapper
+        self.grazing_cos, self.touch_map_weight = float(grazing_cos), float(touch_map_weight)
+        self.box_margin = float(box_margin)
+        self._box_grew = False
         import open3d  # noqa: F401  (normal estimation; imported now so the first frame is not charged for it)
 
         self.map = SurfelMap(map_voxel)
@@ -224,10 +231,18 @@ class SLAMTracker(WindowTracker):
             cam = None if cam is None else np.asarray(cam, np.float64)
             Nw = estimate_normals(V, cam, T[:3, 3] if self._box is None else
                                   se3.transform_points(T, (0.5 * (self._box[0] + self._box[1]))[None])[0])
+            wv = 1.0
+            if cam is not None and self.grazing_cos > 0:
+                # depth at grazing incidence is the noisiest and most biased (mixed pixels on the silhouette):
+                # weight a point by the cosine between its normal and the ray, drop it below grazing_cos
+                ray = cam[None] - V
+                cos = np.einsum("ij,ij->i", Nw, ray) / np.maximum(np.linalg.norm(ray, axis=1), 1e-9)
+                keep = cos > self.grazing_cos
+                V, Nw, wv = V[keep], Nw[keep], cos[keep]
             Vo = se3.transform_points(Tinv, V)
             No = se3.rotate_vectors(Tinv, Nw)
             self._ensure_box(Vo)
-            self.map.integrate(Vo, No, 1.0)
+            self.map.integrate(Vo, No, wv)
             if self.neural is not None or self.mapper == "neural":
                 self._neural_integrate(Vo, No, 0, None if cam is None else se3.transform_points(Tinv, cam[None])[0])
         P = frame.touch_points
@@ -238,14 +253,39 @@ class SLAMTracker(WindowTracker):
             Po = se3.transform_points(Tinv, P[ok])
             No = se3.rotate_vectors(Tinv, np.nan_to_num(np.asarray(N, np.float64)[ok]))
             self._ensure_box(Po)
-            self.map.integrate(Po, No, 3.0)  # touch is more precise than depth
+            self.map.integrate(Po, No, self.touch_map_weight)  # touch is more precise than depth
             if self.mapper == "neural":
                 self._neural_integrate(Po, No, 1, None)
 
     def _ensure_box(self, P: np.ndarray) -> None:
-        if self._box is None and len(P):
-            c = np.median(P, axis=0)
-            self._box = (c - self.extent, c + self.extent)
+        """Map bounds (object frame) that hold every fused point with a ``box_margin`` to spare.
+
+        The first frame sets a cube around its points' centre, big enough for them turned any way
+        (half-size = their radius + margin, at least ``extent``); later points outside it grow the box and
+        force a full grid update. A fixed cube clipped the long objects: a mustard bottle's far end lay
+        outside, read the clamped boundary values of the grid and pulled the pose 1.2 mm per frame along
+        its axis.
+        """
+        P = P[np.isfinite(P).all(1)]
+        if not len(P):
+            return
+        m = self.box_margin
+        if self._box is None:
+            c = 0.5 * (np.percentile(P, 1, axis=0) + np.percentile(P, 99, axis=0))
+            half = max(self.extent, float(np.percentile(np.linalg.norm(P - c, axis=1), 99.5)) + m)
+            self._box = (c - half, c + half)
+            return
+        lo, hi = self._box
+        plo, phi = np.percentile(P, 0.5, axis=0), np.percentile(P, 99.5, axis=0)
+        if (plo < lo + self.trunc).any() or (phi > hi - self.trunc).any():
+            # snap the growth to whole grid voxels so the old grid's samples stay on the new lattice
+            v = self.grid_voxel
+            grow_lo = np.ceil(np.maximum(lo + self.trunc - plo, 0) / v) * v
+            grow_hi = np.ceil(np.maximum(phi - (hi - self.trunc), 0) / v) * v
+            grow_lo = np.where(grow_lo > 0, grow_lo + np.ceil(m / v) * v, 0.0)
+            grow_hi = np.where(grow_hi > 0, grow_hi + np.ceil(m / v) * v, 0.0)
+            self._box = (lo - grow_lo, hi + grow_hi)
+            self._box_grew = True
 
     def _neural_integrate(self, P: np.ndarray, N: np.ndarray, modality: int, origin) -> None:
         if self.neural is None:
@@ -275,7 +315,8 @@ class SLAMTracker(WindowTracker):
         v = self.grid_voxel
         n = np.ceil((hi - lo) / v).astype(int) + 1
         neural = self.neural is not None and self.neural.net is not None and self.neural.iterations > 50
-        full = neural or self._n_refresh % self.full_refresh_every == 0  # the first update is a full one
+        full = neural or self._box_grew or self._n_refresh % self.full_refresh_every == 0  # first one is full
+        self._box_grew = False
         self._n_refresh += 1
         if full:
             src = S
