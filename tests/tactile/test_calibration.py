@@ -99,3 +99,28 @@ def test_lambertian_fallback_is_resolution_independent():
     c = lambertian_calibration(bg, 0.1)
     assert c.shape == (30, 40) and c.method == "ps"
     json.dumps(c.info)
+
+
+def test_drift_offset_is_the_flat_gel_mode_not_pulled_by_a_large_contact():
+    """A contact covering ~45 % of the gel must neither be taken for illumination drift nor hide a real one.
+    (The median did both: a large object pressed on a DIGIT lost up to half its depth.)"""
+    from vtrack.tactile.calibration import drift_offset
+
+    rng = np.random.default_rng(0)
+    H, W = 240, 320
+    bg = np.clip(rng.normal(120, 8, (H, W, 3)), 0, 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:H, 0:W]
+    rho = np.sqrt((xx - W / 2) ** 2 / (0.45 * W) ** 2 + (yy - H / 2) ** 2 / (0.45 * H) ** 2)
+    contact = rho < 1
+    assert 0.35 < contact.mean() < 0.65
+    # smooth shading (10..40 grey levels) over the contact, as a large shallow indenter gives
+    shading = np.where(contact, 10.0 + 30.0 * (1.0 - rho), 0.0)[..., None] * np.array([1.0, -0.6, 0.8])
+    noise = rng.normal(0, 1.0, (H, W, 3))
+    for drift in (np.zeros(3), np.array([5.0, -3.0, 4.0])):
+        img = np.clip(bg + shading + drift + noise, 0, 255).round().astype(np.uint8)
+        off, level = drift_offset(img, bg)
+        assert np.abs(off - drift).max() < 1.0, (drift, off)
+        assert 0.5 < level < 6.0  # noise level from adjacent pixels, not inflated by the contact
+    # most of the gel deformed: no flat reference, no compensation
+    full = np.clip(bg + rng.uniform(10, 40, (H, W, 1)) * np.array([1.0, -0.6, 0.8]), 0, 255).astype(np.uint8)
+    assert np.all(drift_offset(full, bg)[0] == 0)
