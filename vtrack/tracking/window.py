@@ -57,7 +57,7 @@ class TrackerOptions:
     sigma_touch: float = 0.001      #: contact point-to-surface noise, m (patch edges are ~0.3 mm off)
     sigma_normal: float = 1.0       #: contact normal disagreement (unit vectors); weak on purpose
     sigma_free: float = 0.001       #: non-penetration, m
-    touch_one_sided: bool = False   #: contact points only need to be inside/on the surface (depth = lower bound)
+    sigma_touch_inside: float = 0.0  #: sigma of contact points INSIDE the surface, m (0: sigma_touch; inf: one-sided)
     free_margin: float = 0.0        #: free gel points must stay this far outside, m
     free_gate: float = 0.003        #: ignore free gel points predicted deeper than this inside, m
     kernel_vision: float = 1.5      #: robust kernel width in sigmas
@@ -345,9 +345,10 @@ class WindowTracker:
                 sig, kern = o.sigma_vision, o.kernel_vision
             elif kind == "t":
                 sig, kern = o.sigma_touch, o.kernel_touch
-                if o.touch_one_sided:
-                    r = np.maximum(r, 0.0)
-                    Jk = Jk * (r > 0)[:, None]
+                if o.sigma_touch_inside > 0:
+                    # contacts read from tactile images lie too shallow (their depth is a lower bound): a point
+                    # inside the surface is weak evidence, one outside it strong
+                    sig = np.where(r < 0, o.sigma_touch_inside, o.sigma_touch)
             else:
                 sig, kern = o.sigma_free, 1e9
                 r = np.minimum(r - o.free_margin, 0.0)
