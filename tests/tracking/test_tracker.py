@@ -129,3 +129,37 @@ def test_icp_holds_its_pose_through_frames_without_points(mustard_mesh, mustard_
         T = tr.step(TrackingFrame(t=t + k / 30.0, vision_points=np.zeros((0, 3))))
     assert np.linalg.norm(T[:3, 3] - T_last[:3, 3]) < 1e-9
     assert tr.history[-1].status == "no_data"
+
+
+def test_shallow_contacts_do_not_push_with_one_sided_touch():
+    """Contacts from tactile images lie too shallow (a lower bound on depth). Read two-sided they push the
+    object away from the finger; one-sided (sigma_touch_inside = inf, the SLAM default) they cost nothing
+    while inside the surface and still hold the object once it leaves them outside."""
+    import trimesh
+
+    from vtrack.tracking.frame import TrackingFrame
+    from vtrack.tracking.sdf_grid import SDFGrid
+    from vtrack.tracking.window import WindowTracker
+
+    s = trimesh.creation.icosphere(subdivisions=4, radius=0.03)
+    grid = SDFGrid.from_arrays(np.asarray(s.vertices), np.asarray(s.faces), voxel=0.002)
+    rng = np.random.default_rng(0)
+    # a patch of contacts on the +x side, 1.5 mm inside the sphere (as a too-shallow height map gives)
+    d = rng.normal(size=(60, 3)) * 0.15 + np.array([1.0, 0.0, 0.0])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    inside = d * (0.03 - 0.0015)
+    N = d.copy()
+
+    def run(points, **opts):
+        tr = WindowTracker(grid, np.eye(4), {"sigma_touch": 0.001, **opts})
+        for k in range(5):
+            T = tr.step(TrackingFrame(t=k / 30.0, touch_points=points, touch_normals=N))
+        return T[:3, 3]
+
+    two = run(inside)
+    one = run(inside, sigma_touch_inside=float("inf"))
+    assert two[0] < -0.0008  # measured: pushed 1.5 mm away from the finger
+    assert np.linalg.norm(one) < 1e-4  # no pull from points already inside
+    # points 1.5 mm OUTSIDE the surface still pull the object to them, one-sided or not
+    out = run(d * (0.03 + 0.0015), sigma_touch_inside=float("inf"))
+    assert out[0] > 0.0008
