@@ -51,22 +51,23 @@ class SurfelMap:
         ijk = np.floor(P / self.voxel).astype(np.int64) + (1 << 20)
         return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
 
-    def integrate(self, points: np.ndarray, normals: np.ndarray, weight: float | np.ndarray = 1.0) -> None:
-        """Fuse object-frame points with unit normals (NaN/zero normal = unknown direction) and a weight
-        (scalar or per point)."""
+    def integrate(self, points: np.ndarray, normals: np.ndarray, weight: float = 1.0) -> None:
+        """Fuse object-frame points with unit normals (NaN/zero normal = unknown direction); a weight <= 0
+        fuses nothing."""
+        if not weight > 0:
+            return
         P = np.asarray(points, np.float64).reshape(-1, 3)
         N = np.nan_to_num(np.asarray(normals, np.float64).reshape(-1, 3))
-        w = np.broadcast_to(np.asarray(weight, np.float64), (len(P),))
-        ok = np.isfinite(P).all(1) & np.isfinite(w) & (w > 0)
-        P, N, w = P[ok], N[ok], w[ok]
+        ok = np.isfinite(P).all(1)
+        P, N = P[ok], N[ok]
         if len(P) == 0:
             return
         # aggregate the new points per voxel (bincount: np.add.at is an order of magnitude slower) ...
         uk, inv = np.unique(self._key(P), return_inverse=True)
         m = len(uk)
-        ps = np.stack([np.bincount(inv, weights=P[:, c] * w, minlength=m) for c in range(3)], 1)
-        ns = np.stack([np.bincount(inv, weights=N[:, c] * w, minlength=m) for c in range(3)], 1)
-        ws = np.bincount(inv, weights=w, minlength=m)
+        ps = np.stack([np.bincount(inv, weights=P[:, c], minlength=m) for c in range(3)], 1) * weight
+        ns = np.stack([np.bincount(inv, weights=N[:, c], minlength=m) for c in range(3)], 1) * weight
+        ws = np.bincount(inv, minlength=m) * float(weight)
         # ... then add into existing voxels in place and insert the new ones (keys stay sorted)
         pos = np.searchsorted(self.keys, uk)
         hit = pos < len(self.keys)
