@@ -382,6 +382,56 @@ def test_calibrate_blank_presses_refused(tmp_path, fill) -> None:
     assert not (tmp_path / "c.npz").exists()
 
 
+@pytest.mark.parametrize("fill", [0, 255, "background"])
+def test_calibrate_unlabelled_junk_presses_refused(tmp_path, fill) -> None:
+    """No labels.csv: black, white or no-contact presses -> every one dropped with its reason, exit 2."""
+    import cv2
+
+    root = _press_set(tmp_path, None if fill == "background" else fill)
+    (root / "labels.csv").unlink()
+    if fill == "background":
+        bg = cv2.imread(str(root / "background.png"))
+        for p in root.glob("press_*.png"):
+            cv2.imwrite(str(p), bg)
+    err = refused(["calibrate", root, "--out", tmp_path / "c.npz", "--method", "lut"], str(root), "usable presses")
+    assert ("blank" in err) if fill != "background" else ("no contact" in err)
+    assert not (tmp_path / "c.npz").exists() and not (tmp_path / "labels.auto.csv").exists()
+
+
+def test_calibrate_with_wrong_labels_is_not_written(tmp_path) -> None:
+    """Labels that do not match the images (mirrored, shuffled) give ~40 deg held-out normal error: the
+    calibration is refused with the numbers instead of written (it used to be written with exit 0)."""
+    import csv
+
+    root = _press_set(tmp_path, None)
+    rows = list(csv.reader(open(root / "labels.csv")))
+    perm = np.random.default_rng(0).permutation(len(rows) - 1)
+    with open(root / "labels.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(rows[0])
+        for i, r in enumerate(rows[1:]):
+            q = rows[1 + perm[i]]
+            w.writerow([r[0], 640 - float(q[1]), 480 - float(q[2]), q[3]])
+    err = refused(["calibrate", root, "--out", tmp_path / "c.npz", "--method", "lut"], "c.npz", "not written",
+                  "held-out normal error")
+    assert float(err.split("normal error ")[1].split(" deg")[0]) > 15.0
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_calibrate_unlabelled_writes_auto_labels_and_review(tmp_path) -> None:
+    root = _press_set(tmp_path, None)
+    (root / "labels.csv").unlink()
+    out = tmp_path / "out" / "c.npz"
+    code, stdout, err = run(["calibrate", root, "--out", out, "--method", "lut", "--review", tmp_path / "s.png"])
+    assert code == 0, err
+    assert out.is_file() and (tmp_path / "s.png").is_file()
+    lines = (out.parent / "labels.auto.csv").read_text().splitlines()
+    assert len(lines) == 49 and "auto labels: 48 presses used, 0 dropped" in stdout
+    from vtrack.tactile.calibration import Calibration
+
+    assert Calibration.load(out).info["labels"] == "auto"
+
+
 @pytest.mark.parametrize("kind", ["grey", "grey_as_colour", "not_an_image"])
 def test_tactile_grey_or_junk_image_refused(tmp_path, kind) -> None:
     import cv2

@@ -2,7 +2,8 @@
 
 A press set is a folder holding
 - ``background.png``: a no-contact frame (BGR, as ``cv2.imread`` returns it);
-- the press images named in ``labels.csv`` with columns ``file,center_x_px,center_y_px,contact_radius_px``
+- the press images, and optionally ``labels.csv`` (without it the contact circles are detected
+  automatically, :mod:`vtrack.tactile.autolabel`) with columns ``file,center_x_px,center_y_px,contact_radius_px``
   (x = column, y = row, origin top-left; the radius is the visible contact circle, not the ball);
 - ``meta.json`` with ``sensor``, ``mm_per_px`` and ``ball_radius_mm``.
 
@@ -47,6 +48,8 @@ class PressSet:
     mm_per_px: float
     ball_radius_mm: float
     background_file: str = "background.png"
+    labels_source: str = "hand"  # hand (labels.csv) | auto (vtrack.tactile.autolabel)
+    detections: list = field(default_factory=list, repr=False)  # autolabel Detections (auto sets only)
     _cache: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @property
@@ -204,16 +207,35 @@ def resolve_meta(root: Path, meta_file: str | Path | None = None, **overrides) -
 
 
 def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sensor: str | None = None,
-                   mm_per_px: float | None = None, ball_radius_mm: float | None = None) -> PressSet:
-    """Load a press-set folder (see module docstring). Images are read on first use."""
+                   mm_per_px: float | None = None, ball_radius_mm: float | None = None,
+                   labels: str = "hand_or_auto", autolabel_opts=None) -> PressSet:
+    """Load a press-set folder (see module docstring). Images are read on first use.
+
+    ``labels``: ``hand`` (``labels.csv`` required), ``auto`` (contact circles detected by
+    :mod:`vtrack.tactile.autolabel`, any ``labels.csv`` ignored) or ``hand_or_auto`` (hand labels when
+    ``labels.csv`` exists, else automatic). An automatically labelled set carries its detections (used and
+    dropped, with reasons) in ``PressSet.detections``; fewer than ``MIN_PRESSES`` usable presses is an error.
+    """
     root = Path(path)
     if not root.is_dir():
         raise InputError("press-set folder not found", path=root,
-                         expected="folder with labels.csv, background.png and press images")
-    labels = root / "labels.csv"
-    if not labels.is_file():
-        raise InputError("labels.csv not found in the press set", path=labels)
+                         expected="folder with background.png and press images (labels.csv optional)")
+    if labels not in ("hand", "auto", "hand_or_auto"):
+        raise InputError("unknown label source", field="labels", expected="hand | auto | hand_or_auto", got=labels)
     meta = resolve_meta(root, meta_file, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
+    if not (root / "background.png").is_file():
+        raise InputError("background.png not found in the press set", path=root / "background.png")
+    csv_path = root / "labels.csv"
+    if labels == "auto" or (labels == "hand_or_auto" and not csv_path.is_file()):
+        return _auto_press_set(root, meta, autolabel_opts)
+    if not csv_path.is_file():
+        raise InputError("labels.csv not found in the press set", path=csv_path)
+    presses = read_labels(csv_path)
+    return PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"])
+
+
+def read_labels(labels: Path) -> list[Press]:
+    """Presses of a ``labels.csv`` (hand labels; see module docstring)."""
     presses: list[Press] = []
     with open(labels, newline="") as f:
         reader = csv.DictReader(f)
@@ -231,9 +253,28 @@ def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sen
             presses.append(Press(row["file"], (cx, cy), r, index=i))
     if not presses:
         raise InputError("labels.csv has no presses", path=labels)
-    if not (root / "background.png").is_file():
-        raise InputError("background.png not found in the press set", path=root / "background.png")
-    return PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"])
+    return presses
+
+
+def _auto_press_set(root: Path, meta: dict, opts) -> PressSet:
+    from vtrack.tactile.autolabel import MIN_PRESSES, auto_label
+
+    dets = auto_label(root, meta["ball_radius_mm"] / meta["mm_per_px"], opts)
+    presses = [Press(d.file, (d.center_x_px, d.center_y_px), d.contact_radius_px, index=i)
+               for i, d in enumerate(x for x in dets if x.ok)]
+    if len(presses) < MIN_PRESSES:
+        reasons: dict[str, int] = {}
+        for d in dets:
+            if not d.ok:
+                key = d.reason.split(" (")[0]
+                reasons[key] = reasons.get(key, 0) + 1
+        why = "; ".join(f"{n} x {k}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
+        raise InputError(f"only {len(presses)} usable presses of {len(dets)} (dropped: {why})", path=root,
+                         expected=f">= {MIN_PRESSES} ball presses with a clear contact")
+    ps = PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"])
+    ps.labels_source = "auto"
+    ps.detections = dets
+    return ps
 
 
 def sphere_truth(press: Press, shape: tuple[int, int], ball_radius_px: float

@@ -46,37 +46,73 @@ def register(app: typer.Typer) -> None:
         mlp_hidden: int = typer.Option(32, "--mlp-hidden", help="MLP hidden width"),
         mlp_epochs: int = typer.Option(12, "--mlp-epochs", help="MLP training epochs"),
         downsample: int = typer.Option(1, "--downsample", help="working-resolution factor for the evaluation"),
+        labels: str = typer.Option("hand_or_auto", "--labels",
+                                   help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"),
+        review: Path = typer.Option(None, "--review", help="auto labels: draw every detected circle into this PNG"),
     ) -> None:
-        """Learn colour(+position) -> surface normal from ball presses; report held-out errors."""
+        """Learn colour(+position) -> surface normal from ball presses; report held-out errors.
+
+        Without labels.csv the contact circles are detected automatically (labels.auto.csv is written beside
+        --out, with the reason for every dropped press). A calibration whose held-out normal error exceeds
+        15 deg is not written (exit 2).
+        """
         from vtrack.errors import InputError
+        from vtrack.tactile.autolabel import write_auto_labels
+        from vtrack.tactile.calibrate_set import MAX_NORMAL_ERR_DEG, calibrate_press_set
         from vtrack.tactile.calibration import METHODS, TrainOptions, calibrate
         from vtrack_apps.output import print_table, write_json
 
         if method not in METHODS:
             raise InputError("unknown calibration method", field="--method", expected=" | ".join(METHODS),
                              got=method)
-        ps = _load_set(pressset, meta, sensor, mm_per_px, ball_radius_mm)
-        train, test = ps.split(holdout)
         opts = TrainOptions(lut_bins=lut_bins, mlp_hidden=mlp_hidden, mlp_epochs=mlp_epochs)
-        methods = [method] + ([m for m in METHODS if m != method] if compare else [])
+        run = calibrate_press_set(pressset, method=method, holdout=holdout, opts=opts, labels=labels,
+                                  meta_file=meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
+        ps, train, test = run.press_set, run.train, run.test
+        auto_csv = None
+        if ps.labels_source == "auto":
+            auto_csv = write_auto_labels(out.parent / "labels.auto.csv", ps.detections)
+            dropped = [d for d in ps.detections if not d.ok]
+            typer.echo(f"auto labels: {len(ps.presses)} presses used, {len(dropped)} dropped -> {auto_csv}")
+            for d in dropped:
+                typer.echo(f"  dropped {d.file}: {d.reason}")
+            if run.edge_trials:
+                print_table("edge placement (held-out, chosen by fitted ball radius)", run.edge_trials)
+            if review is not None:
+                from vtrack.tactile.autolabel import review_sheet
+
+                typer.echo(f"wrote {review_sheet(ps.root, ps.detections, review)}")
+        elif review is not None:
+            typer.echo("--review: hand labels used (labels.csv), nothing detected to review")
         results = []
-        for m in methods:
-            calib = calibrate(ps, m, train, opts)
+        for m in [method] + ([m for m in METHODS if m != method] if compare else []):
+            calib = run.calib if m == method else calibrate(ps, m, train, opts)
             calib.info["holdout"] = holdout
-            if m == method:
-                calib.save(out)
+            calib.info["labels"] = ps.labels_source
             row = {"method": m, "train_seconds": calib.info["train_seconds"],
                    "height_noise_mm": calib.info["height_noise_mm"]}
             if test:
-                row.update(_eval(ps, calib, test, "dct", downsample)["summary"])
+                row.update(run.held_out if m == method else _eval(ps, calib, test, "dct", downsample)["summary"])
             results.append(row)
         report = {"press_set": str(ps.root), **ps.meta(), "out": str(out), "method": method, "holdout": holdout,
-                  "train_files": [p.file for p in train], "test_files": [p.file for p in test],
-                  "results": results}
-        print_table(f"calibrate {ps.root.name} ({len(train)} train / {len(test)} held out)", results)
-        typer.echo(f"wrote {out}")
+                  "labels": ps.labels_source, "labels_auto_csv": str(auto_csv) if auto_csv else None,
+                  "edge_trials": run.edge_trials, "train_files": [p.file for p in train],
+                  "test_files": [p.file for p in test], "results": results}
+        print_table(f"calibrate {ps.root.name} ({len(train)} train / {len(test)} held out, "
+                    f"{ps.labels_source} labels)", results)
         if json_out:
             write_json(json_out, report)
+        if not run.plausible:
+            h = run.held_out
+            raise InputError(f"calibration not written: held-out normal error {h['normal_err_deg_median']:.1f} deg "
+                             f"(radius error {h['radius_abs_err_pct_median']:.1f} %) is implausible", path=out,
+                             expected=f"<= {MAX_NORMAL_ERR_DEG:g} deg: check the presses, labels and meta")
+        if not test:
+            typer.echo("warning: nothing held out (--holdout none): the calibration's accuracy is unchecked")
+        run.calib.info["holdout"] = holdout
+        run.calib.info["labels"] = ps.labels_source
+        run.calib.save(out)
+        typer.echo(f"wrote {out}")
 
     tac = typer.Typer(help="Tactile pipeline: press evaluation, single images.", no_args_is_help=True)
     app.add_typer(tac, name="tactile")

@@ -1,0 +1,146 @@
+"""Automatic contact labels and calibration without hand labels (issue #21), with the bad-input gates."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vtrack.errors import InputError
+from vtrack.tactile.autolabel import auto_label, detect_contact, review_sheet, write_auto_labels
+from vtrack.tactile.pressset import load_press_set
+
+
+def _unlabelled_copy(src: Path, dst: Path) -> Path:
+    """The shared GelSight presses as a user would hand them in: images + background + meta, no labels."""
+    dst.mkdir(parents=True)
+    for p in src.glob("*.png"):
+        shutil.copy(p, dst / p.name)
+    (dst / "meta.json").write_text(json.dumps({"sensor": "gelsight", "mm_per_px": 0.0295, "ball_radius_mm": 2.0}))
+    return dst
+
+
+def _sim_press(shape=(240, 320), centres=((160.0, 120.0),), a_mm=1.2, R=2.0, mpp=0.0634, seed=0):
+    """A press image of the independent optical model with known contact circles (px)."""
+    from vtrack.sim.presses import ball_height, press_depth_mm
+    from vtrack.sim.tactile_optics import OpticalModel
+
+    model = OpticalModel.for_sensor("gelsight_mini", seed)
+    rng = np.random.default_rng(seed)
+    bg = np.full(shape + (3,), 0, np.uint8)
+    bg[:] = (150, 140, 130)
+    bg = (bg.astype(np.float32) + np.linspace(-20, 20, shape[1])[None, :, None]).astype(np.uint8)
+    d = press_depth_mm(R, a_mm)
+    h = np.zeros(shape, np.float32)
+    for c in centres:
+        h = np.maximum(h, ball_height(shape, c, R, d, mpp))
+    img = model.render(h, mpp, bg, rng, 1.0)
+    back = model.render(np.zeros(shape, np.float32), mpp, bg, rng, 1.0)
+    return img, back, a_mm / mpp, R / mpp
+
+
+def test_detects_simulated_press_circle():
+    img, bg, a_px, R_px = _sim_press()
+    d = detect_contact(img, bg, R_px, "p.png")
+    assert d.ok, d.reason
+    assert np.hypot(d.center_x_px - 160.0, d.center_y_px - 120.0) < 1.0
+    assert abs(d.contact_radius_px / a_px - 1.0) < 0.08, (d.contact_radius_px, a_px)
+
+
+def test_partial_press_at_the_border_kept_and_mostly_outside_dropped():
+    img, bg, a_px, R_px = _sim_press(centres=((320 - 8.0, 120.0),))  # ~60 % of the circle in view
+    d = detect_contact(img, bg, R_px)
+    assert d.ok, d.reason
+    assert abs(d.center_x_px - 312.0) < 2.5 and abs(d.contact_radius_px / a_px - 1.0) < 0.12
+    img, bg, a_px, R_px = _sim_press(centres=((320 + 0.6 * 19, 120.0),))  # under a third in view
+    d = detect_contact(img, bg, R_px)
+    assert not d.ok and ("circle" in d.reason or "contact" in d.reason)
+
+
+def test_two_contacts_no_contact_blank_saturated_and_too_large_are_dropped():
+    img, bg, _, R_px = _sim_press(centres=((90.0, 120.0), (230.0, 120.0)))
+    assert "more than one contact" in detect_contact(img, bg, R_px).reason
+    _, bg, _, R_px = _sim_press()
+    _, noisy_bg, _, _ = _sim_press(a_mm=0.01, seed=3)  # another no-contact frame: camera noise only
+    assert detect_contact(noisy_bg, bg, R_px).reason.startswith("no contact")
+    assert detect_contact(np.zeros_like(bg), bg, R_px).reason.startswith("blank")
+    sat = bg.copy()
+    sat[:60] = 255
+    assert detect_contact(sat, bg, R_px).reason.startswith("saturated")
+    img, bg, a_px, _ = _sim_press(a_mm=1.6)
+    # the same press with a ball said to be much smaller than its contact: wrong meta, not a press of that ball
+    assert "larger than the ball" in detect_contact(img, bg, 0.6 * a_px).reason
+
+
+def test_auto_labels_agree_with_hand_labels_on_shared_gelsight(shared_data):
+    """Measured: 48/48 used; centre median 2.0 px (hand labels are integers); radius median +5 %."""
+    ps = load_press_set(shared_data / "gelsight_ball_presses", labels="hand")
+    dets = {d.file: d for d in auto_label(ps.root, ps.ball_radius_px)}
+    assert all(d.ok for d in dets.values()), [d.reason for d in dets.values() if not d.ok]
+    c = np.array([np.hypot(dets[p.file].center_x_px - p.center_xy_px[0],
+                           dets[p.file].center_y_px - p.center_xy_px[1]) for p in ps.presses])
+    r = np.array([dets[p.file].contact_radius_px / p.contact_radius_px - 1.0 for p in ps.presses])
+    assert np.median(c) < 2.5 and np.percentile(c, 90) < 5.0, np.percentile(c, [50, 90])
+    assert abs(np.median(r)) < 0.07 and np.percentile(np.abs(r), 90) < 0.10, np.percentile(r, [10, 50, 90])
+
+
+def test_calibration_from_auto_labels_meets_hand_label_accuracy(shared_data, tmp_path):
+    """Calibrate the shared set WITHOUT labels.csv, evaluate the held-out presses against the HAND labels.
+
+    Measured: edge placement 0.5 chosen; 0.73 % radius / 2.94 deg (hand labels: 0.72 % / 3.19 deg);
+    issue #21 target <= 3 % / <= 4 deg.
+    """
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+    from vtrack.tactile.evaluation import evaluate_presses
+    from vtrack.tactile.pipeline import TactilePipeline
+
+    root = _unlabelled_copy(shared_data / "gelsight_ball_presses", tmp_path / "mine")
+    run = calibrate_press_set(root)
+    assert run.press_set.labels_source == "auto" and len(run.press_set.presses) == 48
+    assert len(run.edge_trials) == 3 and sum(t["chosen"] for t in run.edge_trials) == 1
+    hand = load_press_set(shared_data / "gelsight_ball_presses", labels="hand")
+    test = [p for p in hand.presses if p.file in {q.file for q in run.test}]
+    assert len(test) == 12
+    s = evaluate_presses(hand, test, TactilePipeline(run.calib).height)["summary"]
+    assert s["radius_abs_err_pct_median"] <= 3.0 and s["normal_err_deg_median"] <= 4.0, s
+    assert run.plausible
+
+
+def test_auto_label_files_and_review_sheet(shared_data, tmp_path):
+    import cv2
+
+    root = _unlabelled_copy(shared_data / "gelsight_ball_presses", tmp_path / "mine")
+    for i in range(3):  # a few bad presses among good ones are dropped with their reason, not fatal
+        cv2.imwrite(str(root / f"press_{i:02d}.png"), np.zeros((480, 640, 3), np.uint8))
+    ps = load_press_set(root)
+    assert ps.labels_source == "auto" and len(ps.presses) == 45
+    csv_path = write_auto_labels(tmp_path / "out" / "labels.auto.csv", ps.detections)
+    lines = csv_path.read_text().splitlines()
+    assert lines[0].startswith("file,center_x_px,center_y_px,contact_radius_px") and len(lines) == 49
+    assert sum(",0,blank" in ln for ln in lines) == 3
+    sheet = review_sheet(root, ps.detections, tmp_path / "sheet.png", tile_px=100, cols=8)
+    img = cv2.imread(str(sheet))
+    assert img.shape[1] == 800 and img.shape[0] == 6 * (75 + 16)
+    red = (img[..., 2] > 200) & (img[..., 1] < 50) & (img[..., 0] < 50)
+    green = (img[..., 1] > 150) & (img[..., 2] < 50) & (img[..., 0] < 50)
+    assert red.sum() > 20 and green.sum() > 500
+
+
+def test_too_few_usable_presses_names_the_reasons(shared_data, tmp_path):
+    import cv2
+
+    root = _unlabelled_copy(shared_data / "gelsight_ball_presses", tmp_path / "mine")
+    bg = cv2.imread(str(root / "background.png"))
+    for i, p in enumerate(sorted(root.glob("press_*.png"))):
+        if i >= 4:
+            cv2.imwrite(str(p), bg)  # no contact
+    with pytest.raises(InputError, match=r"only 4 usable presses of 48 \(dropped: 44 x no contact"):
+        load_press_set(root)
+    with pytest.raises(InputError, match="labels"):
+        load_press_set(root, labels="nonsense")
+    with pytest.raises(InputError, match="labels.csv not found"):
+        load_press_set(root, labels="hand")
+
