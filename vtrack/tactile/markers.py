@@ -94,6 +94,28 @@ def rigid_2d(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
     return ang, cd - R @ cs
 
 
+def robust_rigid_2d(src: np.ndarray, dst: np.ndarray, iters: int = 3, min_tol_px: float = 0.3
+                    ) -> tuple[float, np.ndarray]:
+    """:func:`rigid_2d` with trimming: matches whose residual exceeds ``max(min_tol_px, 3 x median)`` are
+    dropped and the fit repeated. A worn gel gives wrong matches (dust dots that never move, two markers
+    merged into one blob, a marker matched to its neighbour's blob); least squares alone lets them drag the
+    shear by tenths of a pixel."""
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    keep = np.ones(len(src), bool)
+    ang, t = rigid_2d(src, dst)
+    for _ in range(iters):
+        if keep.sum() < 3:
+            break
+        c, s = np.cos(ang), np.sin(ang)
+        res = np.linalg.norm(src @ np.array([[c, s], [-s, c]]) + t - dst, axis=1)
+        new = res <= max(min_tol_px, 3.0 * float(np.median(res[keep])))
+        if new.sum() < 3 or (new == keep).all():
+            break
+        keep = new
+        ang, t = rigid_2d(src[keep], dst[keep])
+    return ang, t
+
+
 class MarkerTracker:
     """Track markers frame to frame: each reference marker is matched to the nearest detection around its
     last known position (gated by ``max_step_px``); lost markers keep their last position and are re-found
@@ -141,7 +163,7 @@ class MarkerTracker:
         if tracked.any():
             # rigid fit of the tracked markers, evaluated at the centroid of ALL reference markers: missing
             # markers then do not bias the shear through the rotation part of the field
-            ang, t = rigid_2d(ref[tracked], cur[tracked])
+            ang, t = robust_rigid_2d(ref[tracked], cur[tracked])
             c0 = ref.mean(0)
             R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
             shear = R @ c0 + t - c0
