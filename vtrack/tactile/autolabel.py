@@ -42,11 +42,11 @@ class AutoLabelOptions:
 
     blob_frac: float = 0.3  # rough blob: change above this fraction of the peak
     min_peak: float = 24.0  # weakest peak change (grey levels) still called a press
-    noise_factor: float = 6.0  # ... and at least this many times the frame's noise level
+    noise_factor: float = 3.0  # ... and this many times the frame's (unblurred) noise level
     min_radius_frac: float = 0.2  # contact radius below this x ball radius: too shallow to calibrate
     max_radius_frac: float = 1.1  # contact radius above this x ball radius: not this ball (or wrong pitch)
     min_coverage: float = 0.5  # fraction of the circle's rays with a usable edge (inside the image)
-    max_fit_rms_frac: float = 0.08  # circle-fit RMS residual, as a fraction of the radius (>= 1 px)
+    max_fit_rms_frac: float = 0.08  # circle-fit RMS residual, as a fraction of the radius (>= 1.5 px)
     max_saturated: float = 0.02  # fraction of pixels at 0 or 255 beyond the background's
     second_blob_frac: float = 0.35  # a second blob this large (area vs the first) -> two contacts
     n_rays: int = 180
@@ -195,7 +195,7 @@ def detect_contact(image: np.ndarray, background: np.ndarray, ball_radius_px: fl
     if cov < o.min_coverage:
         det.reason = (f"contact edge found on {100 * cov:.0f} % of the circle (off the image or not round; "
                       f"need {100 * o.min_coverage:.0f} %)")
-    elif not np.isfinite(rms) or rms > max(1.0, o.max_fit_rms_frac * r):
+    elif not np.isfinite(rms) or rms > max(1.5, o.max_fit_rms_frac * r):
         det.reason = f"contact is not circular (fit residual {rms:.1f} px)"
     elif r < o.min_radius_frac * ball_radius_px:
         det.reason = (f"too shallow (contact radius {r:.1f} px < {o.min_radius_frac:g} x ball radius "

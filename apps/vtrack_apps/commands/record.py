@@ -91,3 +91,34 @@ def register(app: typer.Typer) -> None:
         stats = record_tactile(out, cams, joints=js, seconds=seconds, max_frames=frames, flush_every=flush_every,
                                overwrite=force, scene=_base_scene(scene), realtime=not no_realtime)
         print_table(f"recorded {out}", stats.to_dict())
+
+    @rec.command("presses")
+    def presses(
+        camera: str = typer.Option(..., "--camera", help="device index, /dev/videoN, serial:S or a video file"),
+        out: Path = typer.Option(..., "--out", help="press-set folder to write"),
+        sensor: str = typer.Option("digit", "--sensor", help="digit | gelsight_mini | gelsight"),
+        ball_radius_mm: float = typer.Option(..., "--ball-radius-mm", help="radius of the ball you press, mm"),
+        mm_per_px: float = typer.Option(None, "--mm-per-px", help="gel pixel pitch, mm (default: sensor preset)"),
+        n: int = typer.Option(30, "--n", help="presses to record"),
+        background_frames: int = typer.Option(15, "--background-frames", help="untouched frames at the start"),
+        frames: int = typer.Option(None, "--frames", help="stop after this many frames"),
+        force: bool = typer.Option(False, "--force", help="write into a non-empty folder"),
+    ) -> None:
+        """Record a ball-press calibration set with a live read-out; then run `vtrack calibrate OUT`."""
+        from vtrack.errors import InputError
+        from vtrack.io.recorders.presets import SENSOR_PRESETS
+        from vtrack.io.recorders.presses import record_presses
+        from vtrack_apps.output import print_table
+
+        if sensor not in SENSOR_PRESETS:
+            raise InputError("unknown tactile sensor type", field="--sensor", expected=" | ".join(SENSOR_PRESETS),
+                             got=sensor)
+        pitch = mm_per_px if mm_per_px is not None else SENSOR_PRESETS[sensor].mm_per_px
+        if mm_per_px is None:
+            typer.echo(f"pixel pitch: {pitch} mm/px (nominal {sensor} preset; pass --mm-per-px if you know yours)")
+        rep = record_presses(camera, out, sensor=sensor, ball_radius_mm=ball_radius_mm, mm_per_px=pitch,
+                             n_presses=n, background_frames=background_frames, max_frames=frames, overwrite=force,
+                             echo=typer.echo)
+        print_table(f"recorded presses {out}", rep.to_dict())
+        if rep.presses_saved < 5:
+            typer.echo(f"warning: only {rep.presses_saved} presses: calibrate needs at least 5")
