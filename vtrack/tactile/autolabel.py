@@ -11,8 +11,8 @@ itself, the way a person would click it:
 3. the edge: along rays from the centre, the radius where the change FALLS fastest (the ball's rim: inside it
    the gel follows the steep sphere, outside it relaxes to flat); rays that leave the image are skipped,
    so presses cut by the image border still get a circle from their visible arc;
-4. a robust algebraic circle fit (Kasa, outliers beyond 2.5 median residuals dropped), iterated twice from
-   the refined centre.
+4. a robust algebraic circle fit (Kasa, ``fit_sphere`` in 2-D, outliers beyond 2.5 median residuals
+   dropped), iterated twice from the refined centre.
 
 Each detection is checked for plausibility against the ball (a contact circle is never larger than the
 ball), the image (saturation, blank frame, most of the circle outside the image), the fit (edge rays found,
@@ -72,27 +72,14 @@ class Detection:
         return not self.reason
 
 
-def _circle_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
-    """Algebraic (Kasa) least-squares circle through points: (cx, cy, r); r = nan if degenerate."""
-    if len(x) < 3:
-        return float("nan"), float("nan"), float("nan")
-    mx, my = float(x.mean()), float(y.mean())
-    u, v = x - mx, y - my  # centred: conditioning
-    A = np.column_stack([2 * u, 2 * v, np.ones_like(u)])
-    sol, *_ = np.linalg.lstsq(A, u * u + v * v, rcond=None)
-    cu, cv, c = sol
-    r2 = c + cu * cu + cv * cv
-    if not np.isfinite(r2) or r2 <= 0:
-        return float("nan"), float("nan"), float("nan")
-    return float(cu + mx), float(cv + my), float(np.sqrt(r2))
-
-
 def _robust_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, float, np.ndarray]:
-    """Circle fit with outlier rejection: (cx, cy, r, rms, kept mask)."""
+    """Algebraic circle fit (:func:`~vtrack.tactile.evaluation.fit_sphere` in 2-D) with outlier rejection:
+    (cx, cy, r, rms, kept mask); r is not finite for a degenerate set. Needs >= 3 points."""
+    from vtrack.tactile.evaluation import fit_sphere
+
     keep = np.ones(len(x), bool)
-    cx = cy = r = float("nan")
     for _ in range(4):
-        cx, cy, r = _circle_fit(x[keep], y[keep])
+        (cx, cy), r = fit_sphere(np.column_stack([x[keep], y[keep]]))
         if not np.isfinite(r):
             return cx, cy, r, float("nan"), keep
         res = np.abs(np.hypot(x - cx, y - cy) - r)
@@ -188,7 +175,7 @@ def detect_contact(image: np.ndarray, background: np.ndarray, ball_radius_px: fl
         cx2, cy2, r2, rms, keep = _robust_circle(ex, ey)
         if not np.isfinite(r2):
             break
-        cov = float(good.sum() and keep.sum() / o.n_rays)
+        cov = float(keep.sum() / o.n_rays)
         cx, cy, r = cx2, cy2, r2
     det.center_x_px, det.center_y_px, det.contact_radius_px = cx, cy, r
     det.coverage, det.fit_rms_px = cov, rms

@@ -40,58 +40,54 @@ class CalibrationRun:
         return self.held_out is None or self.held_out["normal_err_deg_median"] <= MAX_NORMAL_ERR_DEG
 
 
-def _held_out(ps, calib, test) -> dict[str, float]:
-    from vtrack.tactile.evaluation import evaluate_presses
-    from vtrack.tactile.pipeline import TactilePipeline
-
-    return evaluate_presses(ps, test, TactilePipeline(calib).height)["summary"]
-
-
 def calibrate_press_set(root, *, method: str = "mlp", holdout: str | None = "every:4:3", opts=None,
                         labels: str = "hand_or_auto", edge_weights: tuple[float, ...] = EDGE_WEIGHTS,
                         meta_file=None, sensor: str | None = None, mm_per_px: float | None = None,
-                        ball_radius_mm: float | None = None) -> CalibrationRun:
+                        ball_radius_mm: float | None = None, downsample: int | str = "auto") -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
 
     With automatic labels, each of ``edge_weights`` is tried and the one whose held-out reconstructions best
     match the ball radius (median |fitted radius - ball radius|) is kept. Raises InputError when the split
     leaves nothing to train on; the plausibility of the result is :attr:`CalibrationRun.plausible`.
+    ``downsample``: working-resolution factor of the held-out evaluation (``auto``: the pipeline's default).
     """
     from vtrack.tactile.autolabel import AutoLabelOptions
     from vtrack.tactile.calibration import calibrate
+    from vtrack.tactile.evaluation import evaluate_calibration
     from vtrack.tactile.pressset import load_press_set
 
-    def load(w: float | None):
-        return load_press_set(root, meta_file, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm,
-                              labels=labels, autolabel_opts=None if w is None else AutoLabelOptions(edge_weight=w))
+    def held_out(ps, calib, test) -> dict[str, float]:
+        return evaluate_calibration(ps, calib, test, downsample=downsample)["summary"]
 
-    ps = load(None)
+    def load(w: float):
+        return load_press_set(root, meta_file, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm,
+                              labels=labels, autolabel_opts=AutoLabelOptions(edge_weight=w))
+
+    if not edge_weights:
+        raise InputError("no edge placement to try", field="edge_weights", expected="at least one value")
+    mid = edge_weights[len(edge_weights) // 2]
+    ps = load(mid)  # the hand-labelled set, or the auto-labelled one at the middle placement (reused below)
     if ps.labels_source != "auto":
         train, test = ps.split(holdout)
         calib = calibrate(ps, method, train, opts)
-        return CalibrationRun(calib, ps, train, test, _held_out(ps, calib, test) if test else None)
+        return CalibrationRun(calib, ps, train, test, held_out(ps, calib, test) if test else None)
+    train, test = ps.split(holdout)
+    if not test:  # nothing held out: no basis for choosing, keep the middle placement
+        calib = calibrate(ps, method, train, opts)
+        calib.info["autolabel_edge_weight"] = mid
+        return CalibrationRun(calib, ps, train, test, None, [])
     runs: list[CalibrationRun] = []
     trials = []
     for w in edge_weights:
-        ps_w = load(w)
+        ps_w = ps if w == mid else load(w)
         train, test = ps_w.split(holdout)
-        if not test:
-            # nothing held out: no basis for choosing, keep the middle placement
-            w = edge_weights[len(edge_weights) // 2]
-            ps_w = load(w)
-            train, test = ps_w.split(holdout)
-            calib = calibrate(ps_w, method, train, opts)
-            calib.info["autolabel_edge_weight"] = w
-            return CalibrationRun(calib, ps_w, train, test, None, [])
         calib = calibrate(ps_w, method, train, opts)
         calib.info["autolabel_edge_weight"] = w
-        summ = _held_out(ps_w, calib, test)
+        summ = held_out(ps_w, calib, test)
         trials.append({"edge_weight": w, "n_presses": len(ps_w.presses),
                        "radius_abs_err_pct_median": summ["radius_abs_err_pct_median"],
                        "normal_err_deg_median": summ["normal_err_deg_median"]})
         runs.append(CalibrationRun(calib, ps_w, train, test, summ))
-    if not runs:
-        raise InputError("no edge placement to try", field="edge_weights", expected="at least one value")
     # a placement that drops many presses (e.g. rims put beyond the ball radius) is judged on fewer, easier
     # presses: only placements keeping >= 80 % of the best-kept count compete
     n_max = max(len(r.press_set.presses) for r in runs)

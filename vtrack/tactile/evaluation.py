@@ -17,10 +17,15 @@ from vtrack.tactile.pressset import Press, PressSet, sphere_truth
 
 
 def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Algebraic least-squares sphere fit: (centre (3,), radius) of (N, 3) points; N >= 4, not coplanar."""
+    """Algebraic least-squares sphere (3-D) or circle (2-D) fit: (centre (D,), radius) of (N, D) points.
+
+    Needs N >= D + 1 points not all on one hyperplane; a degenerate set gives radius ``inf``.
+    """
     P = np.asarray(points, np.float64)
-    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 4 or not np.isfinite(P).all():
-        raise InputError("sphere fit needs >= 4 finite 3-D points", field="points", got=np.shape(P))
+    if P.ndim != 2 or P.shape[1] not in (2, 3) or len(P) < P.shape[1] + 1 or not np.isfinite(P).all():
+        raise InputError("sphere/circle fit needs >= D+1 finite 2-D or 3-D points", field="points",
+                         got=np.shape(P))
+    D = P.shape[1]
     mu = P.mean(0)
     Q = P - mu
     scale = max(np.abs(Q).max(), 1e-12)
@@ -28,8 +33,8 @@ def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     A = np.column_stack([2 * Q, np.ones(len(Q))])
     b = (Q * Q).sum(1)
     sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c = sol[:3]
-    r2 = sol[3] + c @ c
+    c = sol[:D]
+    r2 = sol[D] + c @ c
     if not np.isfinite(r2) or r2 <= 0:
         return mu, float("inf")
     return c * scale + mu, float(np.sqrt(r2) * scale)
@@ -102,3 +107,12 @@ def evaluate_presses(ps: PressSet, presses: list[Press], reconstruct, *, label: 
     }
     return {**(label or {}), "sensor": ps.sensor, "mm_per_px": ps.mm_per_px, "ball_radius_mm": ps.ball_radius_mm,
             "image_size_hw": list(ps.shape), "summary": summary, "presses": rows}
+
+
+def evaluate_calibration(ps: PressSet, calib, presses: list[Press], *, solver: str = "dct",
+                         downsample: int | str = "auto", label: dict[str, Any] | None = None) -> dict[str, Any]:
+    """:func:`evaluate_presses` of a calibration run through the tactile pipeline (``solver``, ``downsample``)."""
+    from vtrack.tactile.pipeline import TactilePipeline
+
+    pipe = TactilePipeline(calib, solver=solver, downsample=downsample)
+    return evaluate_presses(ps, presses, pipe.height, label=label)

@@ -20,12 +20,10 @@ def _load_set(pressset: Path, meta: Path | None, sensor: str | None, mm_per_px: 
 
 
 def _eval(ps, calib, presses, solver: str, downsample: int) -> dict:
-    from vtrack.tactile.evaluation import evaluate_presses
-    from vtrack.tactile.pipeline import TactilePipeline
+    from vtrack.tactile.evaluation import evaluate_calibration
 
-    pipe = TactilePipeline(calib, solver=solver, downsample=downsample)
     label = {"press_set": str(ps.root), "method": calib.method, "solver": solver, "downsample": downsample}
-    return evaluate_presses(ps, presses, pipe.height, label=label)
+    return evaluate_calibration(ps, calib, presses, solver=solver, downsample=downsample, label=label)
 
 
 def register(app: typer.Typer) -> None:
@@ -67,7 +65,8 @@ def register(app: typer.Typer) -> None:
                              got=method)
         opts = TrainOptions(lut_bins=lut_bins, mlp_hidden=mlp_hidden, mlp_epochs=mlp_epochs)
         run = calibrate_press_set(pressset, method=method, holdout=holdout, opts=opts, labels=labels,
-                                  meta_file=meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
+                                  meta_file=meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm,
+                                  downsample=downsample)
         ps, train, test = run.press_set, run.train, run.test
         auto_csv = None
         if ps.labels_source == "auto":
@@ -109,9 +108,7 @@ def register(app: typer.Typer) -> None:
                              expected=f"<= {MAX_NORMAL_ERR_DEG:g} deg: check the presses, labels and meta")
         if not test:
             typer.echo("warning: nothing held out (--holdout none): the calibration's accuracy is unchecked")
-        run.calib.info["holdout"] = holdout
-        run.calib.info["labels"] = ps.labels_source
-        run.calib.save(out)
+        run.calib.save(out)  # its info (holdout, labels) was set in the results loop above
         typer.echo(f"wrote {out}")
 
     tac = typer.Typer(help="Tactile pipeline: press evaluation, single images.", no_args_is_help=True)

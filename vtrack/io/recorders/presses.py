@@ -64,6 +64,7 @@ def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm:
     import cv2
 
     from vtrack.io.recorders.tactile import TactileCamera, open_capture
+    from vtrack.sim.presses import press_depth_mm  # ball geometry only (no renderer)
     from vtrack.tactile.autolabel import Detection, detect_contact, write_auto_labels
 
     if not (np.isfinite(ball_radius_mm) and ball_radius_mm > 0 and np.isfinite(mm_per_px) and mm_per_px > 0):
@@ -105,8 +106,7 @@ def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm:
         margin = min(d.center_x_px, d.center_y_px, W - 1 - d.center_x_px, H - 1 - d.center_y_px)
         if margin < d.contact_radius_px:
             warn.append("off-centre: contact cut by the image border")
-        a_mm = min(d.contact_radius_px * mm_per_px, 0.999 * ball_radius_mm)
-        depth = ball_radius_mm - np.sqrt(ball_radius_mm**2 - a_mm**2)
+        depth = press_depth_mm(ball_radius_mm, d.contact_radius_px * mm_per_px)
         cv2.imwrite(str(out / name), img)
         dets.append(d)
         rep.presses_saved += 1
