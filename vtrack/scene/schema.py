@@ -171,7 +171,12 @@ SensorType = Literal["gelsight", "gelsight_mini", "digit", "dome"]
 
 
 class TactileSpec(_Model):
-    """A vision-based tactile sensor (image size in px, scale in mm/px, gel in mm)."""
+    """A vision-based tactile sensor (image size in px, scale in mm/px, gel in mm).
+
+    For a known ``type`` (:data:`vtrack.tactile.sensors.SENSOR_PRESETS`) omitted ``width``/``height``,
+    ``mm_per_px``, ``gel_thickness_mm`` and ``rate_hz`` come from the preset (the stored image size; the
+    nominal pitch rescaled to the given size), so ``{name: index, type: digit}`` is a complete entry.
+    """
 
     name: str
     type: SensorType
@@ -180,6 +185,23 @@ class TactileSpec(_Model):
     mm_per_px: float = Field(gt=0, le=2.0)
     gel_thickness_mm: float = Field(3.0, gt=0, le=50.0)
     rate_hz: float = Field(60.0, gt=0, le=10000.0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset_defaults(cls, data):
+        from vtrack.tactile.sensors import SENSOR_PRESETS
+
+        p = SENSOR_PRESETS.get(data.get("type")) if isinstance(data, dict) else None
+        if p is None:
+            return data
+        out = dict(data)
+        if "width" not in out and "height" not in out:
+            out["width"], out["height"] = p.stored_size
+        if "mm_per_px" not in out and isinstance(out.get("width"), int) and isinstance(out.get("height"), int):
+            out["mm_per_px"] = p.pitch_at(out["width"], out["height"])
+        out.setdefault("gel_thickness_mm", p.gel_thickness_mm)
+        out.setdefault("rate_hz", p.fps)
+        return out
     calibration: Path | None = Field(None, description="calibration file from `vtrack calibrate`")
     background: Path | None = Field(None, description="no-contact image")
     contact_threshold_mm: float = Field(0.05, gt=0, le=5.0)

@@ -62,7 +62,8 @@ def press_depth_mm(ball_radius_mm: float, contact_radius_mm: float) -> float:
 
 
 def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball_radius_mm: float | None = None,
-                     mm_per_px: float, width: int, height: int, background: np.ndarray | None = None,
+                     mm_per_px: float | None = None, width: int | None = None, height: int | None = None,
+                     background: np.ndarray | None = None,
                      seed: int = 0, model: Any = None, depth_frac: tuple[float, float] = (0.15, 0.45),
                      noise: float = 1.0) -> Path:
     """Render ``n`` ball presses at random positions/depths and write a press set (see module docstring).
@@ -71,7 +72,8 @@ def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball
         sensor_type: digit | gelsight | gelsight_mini (optical preset; also ``meta.json`` ``sensor``).
         out_dir: folder to (over)write: ``background.png``, ``press_XX.png``, ``labels.csv``, ``meta.json``.
         ball_radius_mm: ball radius (default per sensor type, :data:`BALL_RADIUS_MM`).
-        mm_per_px, width, height: pixel pitch (mm) and image size (px).
+        mm_per_px, width, height: pixel pitch (mm) and image size (px); default: the sensor type's preset
+            (:data:`vtrack.tactile.sensors.SENSOR_PRESETS`: stored size, nominal pitch at that size).
         background: real no-contact BGR frame of (height, width) (default: the generator's choice).
         seed: press positions/depths and camera noise; also the unit's optical jitter when ``model`` is None.
         model: an :class:`~vtrack.sim.tactile_optics.OpticalModel` (default ``for_sensor(sensor_type, seed)``).
@@ -87,6 +89,14 @@ def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball
 
     if n < 4:
         raise InputError("a press set needs at least 4 presses", field="n", expected=">= 4", got=n)
+    if width is None or height is None or mm_per_px is None:
+        from vtrack.tactile.sensors import sensor_preset
+
+        preset = sensor_preset(sensor_type, "sensor_type")
+        if width is None or height is None:
+            width, height = preset.stored_size
+        if mm_per_px is None:
+            mm_per_px = preset.pitch_at(width, height)
     if not (width > 0 and height > 0 and np.isfinite(mm_per_px) and mm_per_px > 0):
         raise InputError("bad sensor geometry", field="width/height/mm_per_px", expected="> 0",
                          got=(width, height, mm_per_px))

@@ -22,6 +22,10 @@ from vtrack.errors import InputError
 EDGE_WEIGHTS = (0.5, 0.75, 1.0)
 #: Held-out median normal error above which a calibration is not written (deg).
 MAX_NORMAL_ERR_DEG = 15.0
+#: Methods ``method="auto"`` chooses among by cross-validation on the training presses.
+AUTO_METHODS = ("mlp", "lut", "ps")
+#: Folds of that cross-validation (each fold's presses are predicted by a model trained on the others).
+CV_FOLDS = 3
 
 
 @dataclass
@@ -34,10 +38,57 @@ class CalibrationRun:
     test: list
     held_out: dict[str, float] | None  # evaluate_presses summary on the held-out presses (None: no hold-out)
     edge_trials: list[dict[str, Any]] = field(default_factory=list)  # auto labels: one row per edge weight
+    cv: list[dict[str, Any]] = field(default_factory=list)  # method="auto": one cross-validation row per method
 
     @property
     def plausible(self) -> bool:
         return self.held_out is None or self.held_out["normal_err_deg_median"] <= MAX_NORMAL_ERR_DEG
+
+
+def cross_validate(ps, method: str, presses: list, opts=None, *, folds: int = CV_FOLDS,
+                   downsample: int | str = "auto") -> dict[str, Any]:
+    """K-fold cross-validation of ``method`` over ``presses`` (interleaved folds: press i is in fold i % k).
+
+    Every press is predicted once by a model trained on the other folds; the per-press errors are pooled
+    (medians over all presses, not means of fold medians, so a small fold does not weigh more). Returns the
+    row ``{"method", "folds", "n_presses", "radius_abs_err_pct_median", "normal_err_deg_median",
+    "train_seconds"}`` - the errors a user can expect from this method on new presses of this sensor.
+    """
+    import numpy as np
+
+    from vtrack.tactile.calibration import calibrate
+    from vtrack.tactile.evaluation import evaluate_calibration
+
+    k = min(folds, len(presses))
+    if k < 2:
+        raise InputError("too few presses to cross-validate", field="presses", expected=">= 2", got=len(presses))
+    rows, secs = [], 0.0
+    for f in range(k):
+        test = presses[f::k]
+        train = [p for i, p in enumerate(presses) if i % k != f]
+        calib = calibrate(ps, method, train, opts)
+        secs += calib.info["train_seconds"]
+        rows += evaluate_calibration(ps, calib, test, downsample=downsample)["presses"]
+    return {"method": method, "folds": k, "n_presses": len(rows),
+            "radius_abs_err_pct_median": float(np.median([abs(r["radius_err_pct"]) for r in rows])),
+            "normal_err_deg_median": float(np.median([r["normal_err_deg_median"] for r in rows])),
+            "train_seconds": secs / k}
+
+
+def choose_method(ps, presses: list, opts=None, *, methods: tuple[str, ...] = AUTO_METHODS,
+                  folds: int = CV_FOLDS, downsample: int | str = "auto") -> tuple[str, list[dict[str, Any]]]:
+    """The method of ``methods`` with the lowest cross-validated median normal error on ``presses`` (the
+    training presses: the held-out ones stay unseen, so their errors remain an honest check of the choice),
+    and the cross-validation rows (``chosen`` marks the winner). Normals are what a calibration learns;
+    the fitted radius follows from integrating them, so a tie (within 0.25 deg) goes to the smaller radius
+    error."""
+    rows = [cross_validate(ps, m, presses, opts, folds=folds, downsample=downsample) for m in methods]
+    best_n = min(r["normal_err_deg_median"] for r in rows)
+    best = min((r for r in rows if r["normal_err_deg_median"] <= best_n + 0.25),
+               key=lambda r: r["radius_abs_err_pct_median"])
+    for r in rows:
+        r["chosen"] = r is best
+    return best["method"], rows
 
 
 def calibrate_press_set(root, *, method: str = "mlp", holdout: str | None = "every:4:3", opts=None,
@@ -46,11 +97,45 @@ def calibrate_press_set(root, *, method: str = "mlp", holdout: str | None = "eve
                         ball_radius_mm: float | None = None, downsample: int | str = "auto") -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
 
+    ``method="auto"``: the method is chosen among :data:`AUTO_METHODS` by :func:`choose_method`
+    (cross-validation on the training presses only); the rows are :attr:`CalibrationRun.cv`.
+
     With automatic labels, each of ``edge_weights`` is tried and the one whose held-out reconstructions best
     match the ball radius (median |fitted radius - ball radius|) is kept. Raises InputError when the split
     leaves nothing to train on; the plausibility of the result is :attr:`CalibrationRun.plausible`.
     ``downsample``: working-resolution factor of the held-out evaluation (``auto``: the pipeline's default).
     """
+    from vtrack.tactile.calibration import METHODS
+
+    if method != "auto" and method not in METHODS:
+        raise InputError("unknown calibration method", field="method", expected=" | ".join(METHODS + ("auto",)),
+                         got=method)
+    run = _labelled_run(root, method="mlp" if method == "auto" else method, holdout=holdout, opts=opts,
+                        labels=labels, edge_weights=edge_weights, meta_file=meta_file, sensor=sensor,
+                        mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm, downsample=downsample)
+    if method != "auto":
+        return run
+    if len(run.train) < 2 * CV_FOLDS:  # too few presses to split: keep the default method, say so
+        run.calib.info["method_choice"] = f"default (only {len(run.train)} training presses to cross-validate)"
+        return run
+    chosen, run.cv = choose_method(run.press_set, run.train, opts, downsample=downsample)
+    if chosen != run.calib.method:
+        from vtrack.tactile.calibration import calibrate
+        from vtrack.tactile.evaluation import evaluate_calibration
+
+        info = {k: v for k, v in run.calib.info.items() if k == "autolabel_edge_weight"}
+        run.calib = calibrate(run.press_set, chosen, run.train, opts)
+        run.calib.info.update(info)
+        if run.test:
+            run.held_out = evaluate_calibration(run.press_set, run.calib, run.test, downsample=downsample)["summary"]
+    run.calib.info["method_choice"] = "cross-validation"
+    run.calib.info["cv"] = run.cv
+    return run
+
+
+def _labelled_run(root, *, method, holdout, opts, labels, edge_weights, meta_file, sensor, mm_per_px,
+                  ball_radius_mm, downsample) -> CalibrationRun:
+    """:func:`calibrate_press_set` for one fixed method (edge placement chosen for auto labels)."""
     from vtrack.tactile.autolabel import AutoLabelOptions
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import evaluate_calibration

@@ -5,7 +5,9 @@ A press set is a folder holding
 - the press images, and optionally ``labels.csv`` (without it the contact circles are detected
   automatically, :mod:`vtrack.tactile.autolabel`) with columns ``file,center_x_px,center_y_px,contact_radius_px``
   (x = column, y = row, origin top-left; the radius is the visible contact circle, not the ball);
-- ``meta.json`` with ``sensor``, ``mm_per_px`` and ``ball_radius_mm``.
+- ``meta.json`` with ``sensor``, ``mm_per_px`` and ``ball_radius_mm``. ``mm_per_px`` may be left out for a
+  known sensor type (:data:`vtrack.tactile.sensors.SENSOR_PRESETS`): the preset's nominal pitch, rescaled to the
+  background's size, is used and flagged (``PressSet.mm_per_px_source == "preset"``).
 
 When the folder is read-only and has no ``meta.json``, the metadata comes (in order of precedence) from
 explicit overrides (CLI flags), a ``--meta`` JSON file, ``meta.json`` in the folder, or a preset shipped in
@@ -49,6 +51,8 @@ class PressSet:
     ball_radius_mm: float
     background_file: str = "background.png"
     labels_source: str = "hand"  # hand (labels.csv) | auto (vtrack.tactile.autolabel)
+    #: where mm_per_px came from: "given" (meta/flags) | "preset" (the sensor type's nominal pitch, unverified)
+    mm_per_px_source: str = "given"
     detections: list = field(default_factory=list, repr=False)  # autolabel Detections (auto sets only)
     _cache: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -190,6 +194,17 @@ def resolve_meta(root: Path, meta_file: str | Path | None = None, **overrides) -
     if meta_file is not None:
         meta.update(_read_meta_file(Path(meta_file)))
     meta.update({k: v for k, v in overrides.items() if v is not None})
+    meta["mm_per_px_source"] = "given"
+    if "mm_per_px" not in meta and "sensor" in meta:
+        # a known sensor type without a measured pitch: its preset's nominal pitch at this image size (flagged)
+        from vtrack.tactile.sensors import SENSOR_PRESETS
+
+        preset = SENSOR_PRESETS.get(str(meta["sensor"]))
+        bg = root / "background.png"
+        if preset is not None and bg.is_file():
+            h, w = read_bgr(bg).shape[:2]
+            meta["mm_per_px"] = preset.pitch_at(w, h)
+            meta["mm_per_px_source"] = "preset"
     missing = [k for k in META_FIELDS if k not in meta]
     if missing:
         raise InputError("press-set metadata missing (add meta.json, pass --meta FILE or the flags "
@@ -231,7 +246,8 @@ def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sen
     if not csv_path.is_file():
         raise InputError("labels.csv not found in the press set", path=csv_path)
     presses = read_labels(csv_path)
-    return PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"])
+    return PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"],
+                    mm_per_px_source=meta["mm_per_px_source"])
 
 
 def read_labels(labels: Path) -> list[Press]:
@@ -271,7 +287,8 @@ def _auto_press_set(root: Path, meta: dict, opts) -> PressSet:
         why = "; ".join(f"{n} x {k}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
         raise InputError(f"only {len(presses)} usable presses of {len(dets)} (dropped: {why})", path=root,
                          expected=f">= {MIN_PRESSES} ball presses with a clear contact")
-    ps = PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"])
+    ps = PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"],
+                  mm_per_px_source=meta["mm_per_px_source"])
     ps.labels_source = "auto"
     ps.detections = dets
     return ps

@@ -106,8 +106,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Record a ball-press calibration set with a live read-out; then run `vtrack calibrate OUT`."""
         from vtrack.errors import InputError
-        from vtrack.io.recorders.presets import SENSOR_PRESETS
         from vtrack.io.recorders.presses import record_presses
+        from vtrack.tactile.sensors import SENSOR_PRESETS
         from vtrack_apps.output import print_table
 
         if sensor not in SENSOR_PRESETS:

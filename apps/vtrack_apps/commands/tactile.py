@@ -32,7 +32,9 @@ def register(app: typer.Typer) -> None:
         pressset: Path = typer.Argument(..., help=_PRESS_HELP),
         out: Path = typer.Option(..., "--out", help="calibration file to write (.npz)"),
         json_out: Path = typer.Option(None, "--json", help="write the calibration report (JSON)"),
-        method: str = typer.Option("mlp", "--method", help="lut | lut_raw | mlp | ps"),
+        method: str = typer.Option("mlp", "--method",
+                                   help="lut | lut_raw | mlp | ps | auto (chosen by cross-validation on the "
+                                        "training presses)"),
         holdout: str = typer.Option("every:4:3", "--holdout",
                                     help="every:K[:OFF] | idx:1,5 | files:a.png,b.png | last:N | none"),
         compare: bool = typer.Option(False, "--compare", help="also train and evaluate every other method"),
@@ -60,14 +62,17 @@ def register(app: typer.Typer) -> None:
         from vtrack.tactile.calibration import METHODS, TrainOptions, calibrate
         from vtrack_apps.output import print_table, write_json
 
-        if method not in METHODS:
-            raise InputError("unknown calibration method", field="--method", expected=" | ".join(METHODS),
-                             got=method)
+        if method not in METHODS + ("auto",):
+            raise InputError("unknown calibration method", field="--method",
+                             expected=" | ".join(METHODS + ("auto",)), got=method)
         opts = TrainOptions(lut_bins=lut_bins, mlp_hidden=mlp_hidden, mlp_epochs=mlp_epochs)
         run = calibrate_press_set(pressset, method=method, holdout=holdout, opts=opts, labels=labels,
                                   meta_file=meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm,
                                   downsample=downsample)
         ps, train, test = run.press_set, run.train, run.test
+        if ps.mm_per_px_source == "preset":
+            typer.echo(f"warning: mm_per_px not given: using the {ps.sensor} preset's nominal {ps.mm_per_px:.4f} mm/px "
+                       f"at {ps.shape[1]}x{ps.shape[0]} px (unverified; pass --mm-per-px or add it to meta.json)")
         auto_csv = None
         if ps.labels_source == "auto":
             auto_csv = write_auto_labels(out.parent / "labels.auto.csv", ps.detections)
@@ -83,19 +88,25 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"wrote {review_sheet(ps.root, ps.detections, review)}")
         elif review is not None:
             typer.echo("--review: hand labels used (labels.csv), nothing detected to review")
+        if run.cv:
+            print_table(f"method choice ({run.cv[0]['folds']}-fold cross-validation on the {len(train)} training "
+                        "presses: the errors to expect on new presses)", run.cv)
+        method = run.calib.method
         results = []
         for m in [method] + ([m for m in METHODS if m != method] if compare else []):
             calib = run.calib if m == method else calibrate(ps, m, train, opts)
             calib.info["holdout"] = holdout
             calib.info["labels"] = ps.labels_source
+            calib.info["mm_per_px_source"] = ps.mm_per_px_source
             row = {"method": m, "train_seconds": calib.info["train_seconds"],
                    "height_noise_mm": calib.info["height_noise_mm"]}
             if test:
                 row.update(run.held_out if m == method else _eval(ps, calib, test, "dct", downsample)["summary"])
             results.append(row)
-        report = {"press_set": str(ps.root), **ps.meta(), "out": str(out), "method": method, "holdout": holdout,
+        report = {"press_set": str(ps.root), **ps.meta(), "mm_per_px_source": ps.mm_per_px_source,
+                  "out": str(out), "method": method, "holdout": holdout,
                   "labels": ps.labels_source, "labels_auto_csv": str(auto_csv) if auto_csv else None,
-                  "edge_trials": run.edge_trials, "train_files": [p.file for p in train],
+                  "edge_trials": run.edge_trials, "cv": run.cv, "train_files": [p.file for p in train],
                   "test_files": [p.file for p in test], "results": results}
         print_table(f"calibrate {ps.root.name} ({len(train)} train / {len(test)} held out, "
                     f"{ps.labels_source} labels)", results)

@@ -327,7 +327,7 @@ class RosSessionBuilder:
 
     def _scene_entry(self, stream: str, v: dict) -> None:
         from vtrack.io.importers.scene_build import camera_entry, tactile_entry
-        from vtrack.io.recorders.presets import guess_sensor_type
+        from vtrack.tactile.sensors import guess_sensor_type
 
         if stream.startswith("camera/"):
             name = stream.split("/", 1)[1]

@@ -30,7 +30,7 @@ def camera_entry(name: str, K: np.ndarray, width: int, height: int, T_world_came
 def tactile_entry(name: str, sensor_type: str, width: int, height: int, rate_hz: float,
                   mm_per_px: float | None = None) -> dict[str, Any]:
     """A scene ``tactile`` entry; scale and gel thickness default to the sensor type's preset."""
-    from vtrack.io.recorders.presets import SENSOR_PRESETS
+    from vtrack.tactile.sensors import SENSOR_PRESETS
 
     p = SENSOR_PRESETS.get(sensor_type, SENSOR_PRESETS["digit"])
     return {"name": name, "type": sensor_type, "width": int(width), "height": int(height),

@@ -8,7 +8,7 @@ stalls the others. When the writer falls behind, the oldest queued frames are dr
 Sources: a device index (``0``), a device path (``/dev/video2``), ``serial:<S>`` (resolved through
 ``/dev/v4l/by-id/*<S>*``, which is how DIGIT and GelSight Mini serials appear on Linux), or a
 video file (for tests and replays). For devices the resolution and frame rate are set from the
-sensor type (:data:`~vtrack.io.recorders.presets.SENSOR_PRESETS`).
+sensor type (:data:`~vtrack.tactile.sensors.SENSOR_PRESETS`).
 
 Clock: devices are stamped with ``time.time()`` at frame arrival (s, same clock as ROS stamps);
 video files with the file's own frame times (``CAP_PROP_POS_MSEC``) offset to the start time.
@@ -30,7 +30,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.io.recorders.base import RecordingStats, StatusLine, StopFlag
 from vtrack.io.recorders.joints import JointSource
-from vtrack.io.recorders.presets import SENSOR_PRESETS
+from vtrack.tactile.sensors import SENSOR_PRESETS
 
 
 @dataclass
@@ -91,6 +91,15 @@ def open_capture(cam: TactileCamera) -> tuple[Any, bool]:
     return cap, is_file
 
 
+def _rotation(cam: TactileCamera, frame: np.ndarray) -> int:
+    """Clockwise degrees to store ``frame`` by: the camera's own setting, else the preset's (only when the
+    frame still has the camera's landscape format, so an already rotated video is left alone)."""
+    if cam.rotate is not None:
+        return cam.rotate
+    p = SENSOR_PRESETS.get(cam.type)
+    return p.rotate_deg if (p is not None and p.rotate_deg and frame.shape[1] > frame.shape[0]) else 0
+
+
 def _rotate(img: np.ndarray, deg: int) -> np.ndarray:
     import cv2
 
@@ -134,11 +143,7 @@ class _Reader(threading.Thread):
                 else:
                     t = time.time()
                 k += 1
-                if self.cam.rotate is None:
-                    rot = 90 if (self.cam.type == "digit" and frame.shape[1] > frame.shape[0]) else 0
-                else:
-                    rot = self.cam.rotate
-                frame = _rotate(frame, rot)
+                frame = _rotate(frame, _rotation(self.cam, frame))
                 if self.is_file and not self.realtime:
                     # Not a live stream: wait for the writer instead of dropping.
                     while not self.halt.is_set():
@@ -171,11 +176,7 @@ def _probe(cam: TactileCamera) -> np.ndarray:
     cap.release()
     if not ok or frame is None:
         raise InputError("camera delivered no frame", field=cam.name, got=cam.source)
-    if cam.rotate is None:
-        rot = 90 if (cam.type == "digit" and frame.shape[1] > frame.shape[0]) else 0
-    else:
-        rot = cam.rotate
-    return _rotate(frame, rot)
+    return _rotate(frame, _rotation(cam, frame))
 
 
 def tactile_scene(cams: list[TactileCamera], shapes: dict[str, tuple[int, int]], base: dict | None = None

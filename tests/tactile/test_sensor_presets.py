@@ -1,0 +1,73 @@
+"""Sensor presets (issue #21 item 4): one table used by scenes, press sets / calibrate, the simulator and the
+recorder."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from vtrack.errors import InputError
+from vtrack.tactile.sensors import SENSOR_PRESETS, sensor_preset
+
+
+def test_presets_pitch_scales_with_image_size_and_orientation():
+    mini = SENSOR_PRESETS["gelsight_mini"]
+    assert mini.pitch_at(320, 240) == pytest.approx(0.0634)
+    assert mini.pitch_at(640, 480) == pytest.approx(0.0317)  # same field of view, twice the pixels
+    digit = SENSOR_PRESETS["digit"]
+    assert digit.stored_size == (240, 320)  # stored portrait
+    assert digit.pitch_at(240, 320) == pytest.approx(digit.pitch_at(320, 240)) == pytest.approx(0.09)
+    with pytest.raises(InputError, match="unknown tactile sensor type"):
+        sensor_preset("geltouch")
+    with pytest.raises(InputError, match="image size must be positive"):
+        digit.pitch_at(0, 10)
+
+
+def test_scene_tactile_entry_defaults_from_the_preset():
+    from pydantic import ValidationError
+
+    from vtrack.scene.schema import TactileSpec
+
+    t = TactileSpec(name="index", type="digit")
+    assert (t.width, t.height, t.mm_per_px, t.gel_thickness_mm, t.rate_hz) == (240, 320, 0.09, 3.0, 60.0)
+    t = TactileSpec(name="m", type="gelsight_mini", width=640, height=480)
+    assert t.mm_per_px == pytest.approx(0.0317) and t.rate_hz == 25.0
+    t = TactileSpec(name="g", type="gelsight", mm_per_px=0.03, width=640, height=480, rate_hz=15)
+    assert t.mm_per_px == 0.03 and t.rate_hz == 15  # given values win
+    with pytest.raises(ValidationError, match="width"):
+        TactileSpec(name="d", type="dome")  # no preset: the size must be given
+
+
+def test_press_set_without_pitch_uses_the_flagged_preset_pitch(shared_data, tmp_path):
+    from vtrack.tactile.pressset import load_press_set
+
+    src = shared_data / "gelsight_ball_presses"
+    root = tmp_path / "mine"
+    root.mkdir()
+    for p in list(src.glob("press_0*.png"))[:6] + [src / "background.png", src / "labels.csv"]:
+        shutil.copy(p, root / p.name)
+    (root / "meta.json").write_text(json.dumps({"sensor": "gelsight", "ball_radius_mm": 2.0}))
+    ps = load_press_set(root)
+    assert ps.mm_per_px == pytest.approx(0.0295) and ps.mm_per_px_source == "preset"
+    ps = load_press_set(root, mm_per_px=0.03)
+    assert ps.mm_per_px == 0.03 and ps.mm_per_px_source == "given"
+    (root / "meta.json").write_text(json.dumps({"sensor": "my_sensor", "ball_radius_mm": 2.0}))
+    with pytest.raises(InputError, match="mm_per_px"):
+        load_press_set(root)  # unknown type and no pitch: nothing to fall back on
+
+
+def test_simulated_press_set_defaults_to_the_preset_geometry(tmp_path):
+    import cv2
+
+    from vtrack.sim.presses import render_press_set
+    from vtrack.tactile.pressset import load_press_set
+
+    root = render_press_set("digit", tmp_path / "d", n=4, seed=1)
+    bg = cv2.imread(str(root / "background.png"))
+    assert bg.shape == (320, 240, 3)
+    ps = load_press_set(root)
+    assert ps.mm_per_px == pytest.approx(0.09) and ps.mm_per_px_source == "given"
+    assert np.isfinite([p.contact_radius_px for p in ps.presses]).all()

@@ -1,0 +1,84 @@
+"""Sensor presets: what vtrack knows about each vision-based tactile sensor type before calibration.
+
+One table (:data:`SENSOR_PRESETS`) used by the recorder (camera format), the scene schema (default image size,
+scale and gel of a ``tactile`` entry), ``vtrack calibrate`` / press sets (nominal pixel pitch when the user
+does not know theirs) and the simulator (image size and pitch of simulated units). Image sizes are given as
+the camera delivers them (``width`` x ``height``, px) and as vtrack stores them (:attr:`SensorPreset.stored_size`;
+DIGIT is stored portrait, the way it is mounted). ``mm_per_px`` is a **nominal** gel scale at the native
+width: a unit's own calibration (or ``--mm-per-px``) replaces it, and anything computed from it is flagged.
+
+Sources: DIGIT QVGA 320x240 at 60 fps (Lambeta et al. 2020); GelSight Mini 0.0634 mm/px at 320x240 (the
+normalflow configuration listed in ``shared/data/README.md``); GelSight (Taxim data pack) 0.0295 mm/px at
+640x480 (``shared/data/gelsight_ball_presses``). The light layouts describe the hardware for people and
+the simulator's defaults; the pipeline learns colour -> normal from presses and never assumes them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from vtrack.errors import InputError
+
+
+@dataclass(frozen=True)
+class SensorPreset:
+    """Nominal properties of one tactile sensor type (px, mm, Hz)."""
+
+    type: str
+    width: int  # camera format, px
+    height: int
+    fps: float
+    mm_per_px: float  # nominal gel scale at ``width`` (mm per px)
+    gel_thickness_mm: float
+    #: degrees clockwise vtrack rotates the camera frame by when storing it (DIGIT: portrait)
+    rotate_deg: int
+    #: LEDs around the gel: (colour, azimuth deg in the image, counter-clockwise from +x)
+    lights: tuple[tuple[str, float], ...]
+    #: substrings of the UVC device name / serial that identify this sensor
+    name_hints: tuple[str, ...]
+
+    @property
+    def stored_size(self) -> tuple[int, int]:
+        """(width, height) of the stored images (after :attr:`rotate_deg`), px."""
+        return (self.height, self.width) if self.rotate_deg % 180 else (self.width, self.height)
+
+    def pitch_at(self, width_px: int, height_px: int) -> float:
+        """Nominal mm/px for images of ``width_px`` x ``height_px`` (the same field of view, resampled);
+        the longer side is compared with the preset's longer side, so portrait/landscape both work."""
+        if width_px <= 0 or height_px <= 0:
+            raise InputError("image size must be positive", field="size", got=(width_px, height_px))
+        return self.mm_per_px * max(self.width, self.height) / max(width_px, height_px)
+
+
+SENSOR_PRESETS: dict[str, SensorPreset] = {
+    # DIGIT streams QVGA 320x240 at 60 fps (VGA at 30); stored portrait (240 wide, 320 high).
+    "digit": SensorPreset("digit", 320, 240, 60.0, 0.09, 3.0, 90,
+                          (("blue", 90.0), ("green", 210.0), ("red", 330.0)), ("DIGIT", "Digit")),
+    # GelSight Mini: 3280x2464 sensor, usually streamed downscaled; 320x240 is the common working size.
+    "gelsight_mini": SensorPreset("gelsight_mini", 320, 240, 25.0, 0.0634, 4.0, 0,
+                                  (("blue", 0.0), ("green", 120.0), ("red", 240.0), ("white", 300.0)),
+                                  ("GelSight Mini", "GelSight")),
+    "gelsight": SensorPreset("gelsight", 640, 480, 30.0, 0.0295, 3.0, 0,
+                             (("blue", 0.0), ("green", 270.0), ("red", 135.0)), ("GelSight",)),
+}
+
+
+def sensor_preset(sensor_type: str, field: str = "sensor") -> SensorPreset:
+    """The preset of ``sensor_type``; a clear InputError naming ``field`` for an unknown type."""
+    p = SENSOR_PRESETS.get(sensor_type)
+    if p is None:
+        raise InputError("unknown tactile sensor type", field=field, expected=" | ".join(SENSOR_PRESETS),
+                         got=sensor_type)
+    return p
+
+
+def guess_sensor_type(name: str, default: str = "digit") -> str:
+    """Guess a sensor type from a topic / device / folder name (case-insensitive)."""
+    low = name.lower()
+    if "mini" in low:
+        return "gelsight_mini"
+    if "gelsight" in low:
+        return "gelsight"
+    if "digit" in low:
+        return "digit"
+    return default
