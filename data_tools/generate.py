@@ -2,7 +2,7 @@
 """Generate synthetic sessions in bulk (e.g. the benchmark sweeps) into a folder.
 
 Usage:
-    python data_tools/generate.py scenes/default.yaml --out /tmp/sessions --seconds 5 \
+    python data_tools/generate.py scenes/occlusion_none.yaml --out /tmp/sessions --seconds 5 \
         --occlusion none medium heavy --seeds 0 1 [--object MESH ...]
 
 Writes ``OUT/<scene>-<object>-<occlusion>-s<seed>/`` per combination (skips complete ones).

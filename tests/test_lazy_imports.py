@@ -40,6 +40,25 @@ def test_scene_session_geometry_layers_are_light(shared_data) -> None:
     assert loaded == []
 
 
+def test_front_door_names_resolve_without_heavy_imports() -> None:
+    """Every ``vtrack.<name>`` of the front door is the object its module owns, and resolving ALL of them
+    (loading, sessions, calibration, pipeline, reconstruct/track entry points, trackers) still imports none of
+    torch/open3d/depthai/pyvista/viser: those load when a component runs."""
+    import importlib
+
+    import vtrack
+
+    for name, (module, attr) in vtrack._LAZY.items():
+        assert getattr(vtrack, name) is getattr(importlib.import_module(module), attr), name
+        assert name in vtrack.__all__ and name in dir(vtrack)
+    import pytest
+
+    with pytest.raises(AttributeError, match="no attribute 'tracker_of_doom'"):
+        vtrack.tracker_of_doom  # noqa: B018
+    assert vtrack.__version__ != "0+unknown"  # read from the installed package's metadata
+    assert _loaded_after("import vtrack\nfor n in vtrack._LAZY: getattr(vtrack, n)") == []
+
+
 def test_cli_help_is_light() -> None:
     assert _loaded_after("import vtrack_apps.cli") == []
 

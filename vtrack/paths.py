@@ -1,12 +1,20 @@
-"""Where things live: repository root, shared data beside it, and the cache for generated data."""
+"""Where things live: the package's own assets, the repository root (checkouts only), shared data beside it,
+and the cache for generated data."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-#: Repository root (the folder holding pyproject.toml, vtrack/, scenes/).
+#: Repository root (the folder holding pyproject.toml, vtrack/, scenes/) of a checkout; for an installed wheel
+#: this is site-packages, so nothing a user runs may depend on it (see :func:`assets_dir`).
 REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def assets_dir() -> Path:
+    """Data shipped inside the package (``vtrack/assets``: default scene, Allegro+DIGIT URDF and meshes, the
+    soup-can mesh, sensor backgrounds, with their licences); scene files call it ``${assets}``."""
+    return Path(__file__).resolve().parent / "assets"
 
 
 def shared_dir() -> Path:
@@ -42,10 +50,10 @@ def cache_dir() -> Path:
 
 
 def scenes_dir() -> Path:
-    """The repository's ``scenes/`` folder (scene YAMLs)."""
+    """The repository's ``scenes/`` folder (example and benchmark scene YAMLs; checkouts only)."""
     return REPO_ROOT / "scenes"
 
 
 def default_scene_path() -> Path:
-    """The embedded default scene used by ``vtrack demo``."""
-    return scenes_dir() / "default.yaml"
+    """The embedded default scene used by ``vtrack demo`` (shipped in the package)."""
+    return assets_dir() / "scenes" / "default.yaml"

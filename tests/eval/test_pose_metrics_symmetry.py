@@ -10,9 +10,9 @@ import pytest
                                            ("011_banana", False), ("025_mug", False)])
 def test_rotational_symmetry_of_the_ycb_objects(shared_data, name, expected):
     from vtrack.eval.pose_metrics import is_rotationally_symmetric
-    from vtrack.tracking.sdf_grid import load_mesh_arrays
+    from vtrack.io.mesh import load_mesh
 
-    V, F = load_mesh_arrays(shared_data / "objects" / "ycb" / f"{name}.ply")
+    V, F = load_mesh(shared_data / "objects" / "ycb" / f"{name}.ply")
     # measured excess of rotated samples over the sampling spacing: <= 1.2 mm (can, ball), >= 6 mm (others)
     assert is_rotationally_symmetric(V, F) is expected
 

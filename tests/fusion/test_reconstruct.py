@@ -43,8 +43,8 @@ def test_tsdf_blind_session_result_folder(tsdf_result):
 
 def test_poses_file_reproduces_the_tracked_reconstruction(tsdf_result, blind_session, tmp_path):
     """poses.csv + mesh.ply place the object in the world; fusing with that file gives the same mesh."""
-    from vtrack.eval.reconstruction import load_mesh
     from vtrack.fusion.reconstruct import reconstruct_session
+    from vtrack.io.mesh import load_mesh
     from vtrack.io.poses import read_poses_csv
 
     out, m = tsdf_result

@@ -17,6 +17,7 @@ import pytest
 from vtrack.errors import InputError
 from vtrack.eval.pose_metrics import add, add_s, sample_model_points
 from vtrack.geometry import se3
+from vtrack.io.mesh import load_mesh
 from vtrack.tracking.globalreg import (
     GlobalRegOptions,
     PoseHypothesis,
@@ -25,20 +26,19 @@ from vtrack.tracking.globalreg import (
     random_pose,
     synthetic_frame,
 )
-from vtrack.tracking.sdf_grid import load_mesh_arrays
 
 CENTRE = np.array([0.0, 0.0, 0.1])
 
 
 @pytest.fixture(scope="module")
 def mustard(mustard_mesh):
-    V, F = load_mesh_arrays(mustard_mesh)
+    V, F = load_mesh(mustard_mesh)
     return V, F, sample_model_points(V, F, 1000)
 
 
 @pytest.fixture(scope="module")
 def can(can_mesh):
-    V, F = load_mesh_arrays(can_mesh)
+    V, F = load_mesh(can_mesh)
     return V, F, sample_model_points(V, F, 1000)
 
 

@@ -48,10 +48,10 @@ def test_gradient_matches_finite_differences():
 
 
 def test_mesh_grid_sign_and_cache(tmp_path, mustard_mesh):
-    from vtrack.tracking.sdf_grid import load_mesh_arrays
+    from vtrack.io.mesh import load_mesh
 
     g = SDFGrid.from_mesh(mustard_mesh, voxel=0.004, padding=0.01)
-    V, _ = load_mesh_arrays(mustard_mesh)
+    V, _ = load_mesh(mustard_mesh)
     c = 0.5 * (V.min(0) + V.max(0))
     inside, _ = g.query(c[None])
     assert inside[0] < -0.01  # the bottle centre is > 1 cm inside

@@ -1,4 +1,5 @@
-"""Speed-against-error benchmarks (``vtrack bench``). Results go to ``docs/benchmarks/``.
+"""Speed-against-error benchmarks (``vtrack bench``). Results go to ``--out`` (default ``results/benchmarks``;
+the repository keeps its tables in ``docs/benchmarks/``).
 
 Each stage lives in a module ``vtrack.bench.<stage>`` exposing ``run(quick: bool) -> BenchTable``.
 """

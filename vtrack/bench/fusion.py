@@ -81,11 +81,11 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
     Blind (default): SLAM poses, segmentation and touch from the raw streams; the GT mesh is moved into the
     SLAM object frame by the first-frame alignment (scoring only). Oracle: GT poses, GT masks, GT height maps.
     """
-    from vtrack.eval.reconstruction import load_mesh
     from vtrack.eval.session_gt import SessionGroundTruth
     from vtrack.frames.session import SessionFrames
     from vtrack.fusion.observations import observations_from_frames
     from vtrack.geometry import se3
+    from vtrack.io.mesh import load_mesh
     from vtrack.io.poses import PoseTrack
     from vtrack.tracking.run import track_session
 

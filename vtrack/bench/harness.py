@@ -24,8 +24,10 @@ from vtrack.paths import REPO_ROOT
 
 
 def benchmarks_dir() -> Path:
-    """``docs/benchmarks`` of the repository (override with ``VTRACK_BENCH_DIR``)."""
-    d = Path(os.environ.get("VTRACK_BENCH_DIR", REPO_ROOT / "docs" / "benchmarks"))
+    """Where benchmark results go: ``VTRACK_BENCH_DIR`` (set by ``vtrack bench --out``), else
+    ``results/benchmarks`` under the current folder (an installed package has no docs/ to write into; the
+    repository's committed tables are refreshed with ``--out docs/benchmarks``)."""
+    d = Path(os.environ.get("VTRACK_BENCH_DIR", Path.cwd() / "results" / "benchmarks"))
     d.mkdir(parents=True, exist_ok=True)
     return d
 

@@ -14,7 +14,6 @@ Empty or degenerate reconstructions give precision = recall = F = 0, ``chamfer_m
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,19 +22,6 @@ from vtrack.errors import InputError
 
 #: thresholds reported by default, metres -> key
 DEFAULT_THRESHOLDS_M: dict[str, float] = {"1mm": 0.001, "2mm": 0.002, "5mm": 0.005, "10mm": 0.010}
-
-
-def load_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) float64 and faces (F, 3) int64 of a triangle mesh file."""
-    import trimesh
-
-    path = Path(path)
-    if not path.exists():
-        raise InputError("mesh file does not exist", path=path)
-    m = trimesh.load(path, force="mesh", process=False)
-    if not isinstance(m, trimesh.Trimesh):
-        raise InputError("not a triangle mesh", path=path)
-    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int = 10_000,

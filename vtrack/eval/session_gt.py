@@ -93,11 +93,11 @@ class SessionGroundTruth:
         return "first_frame", None
 
     def model(self) -> tuple[np.ndarray, np.ndarray]:
-        from vtrack.tracking.sdf_grid import load_mesh_arrays
+        from vtrack.io.mesh import load_mesh
 
         if self.mesh_path is None:
             raise InputError("ground-truth mesh missing", path=self.path / GT_MESH)
-        return load_mesh_arrays(self.mesh_path)
+        return load_mesh(self.mesh_path)
 
 
 def score_trajectory(gt: SessionGroundTruth, times: np.ndarray, T_est: np.ndarray,

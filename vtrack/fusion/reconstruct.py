@@ -195,8 +195,9 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
         if k in res:
             metrics[k] = res[k]
     if gt_data is not None and gt_data.mesh_path is not None:
-        from vtrack.eval.reconstruction import load_mesh, mesh_metrics
+        from vtrack.eval.reconstruction import mesh_metrics
         from vtrack.eval.session_gt import align_mesh_to_gt
+        from vtrack.io.mesh import load_mesh
 
         Vg, Fg = load_mesh(gt_data.mesh_path)
         Va, how = align_mesh_to_gt(gt_data, V, mesh_frame, used_t, track.at(used_t))

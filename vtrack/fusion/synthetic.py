@@ -55,12 +55,10 @@ def make_observations(mesh_path: str | Path, *, n_views: int = 6, arc_deg: float
     ``touch_region``: ``"all"`` samples contact centres anywhere, ``"unseen"`` prefers points not
     visible from the cameras (what touch is for under occlusion). Returns (observations, V, F).
     """
-    import trimesh
-
     from vtrack.eval.reconstruction import sample_surface
+    from vtrack.io.mesh import load_mesh
 
-    m = trimesh.load(mesh_path, force="mesh", process=False)
-    V, F = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+    V, F = load_mesh(mesh_path)
     center = 0.5 * (V.min(0) + V.max(0))
     cam = cam or PinholeCamera.from_fov(160, 120, np.deg2rad(45))
     rng = np.random.default_rng(seed)

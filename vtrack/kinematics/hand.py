@@ -297,6 +297,8 @@ class HandKinematics:
             return self._mesh_cache
         import trimesh
 
+        from vtrack.io.mesh import load_trimesh
+
         out: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         base = self.urdf_path.parent
         for link in self._model.robot.links:
@@ -307,7 +309,7 @@ class HandKinematics:
                 if g.mesh is not None:
                     fn = Path(g.mesh.filename.replace("package://", ""))
                     fn = fn if fn.is_absolute() else base / fn
-                    m = trimesh.load(str(fn), force="mesh", process=True)
+                    m = load_trimesh(fn, process=True, field=f"{link.name} visual mesh")
                     if g.mesh.scale is not None:
                         m.apply_scale(np.asarray(g.mesh.scale, dtype=np.float64))
                 elif g.box is not None:

@@ -12,7 +12,7 @@ import yaml
 from pydantic import ValidationError
 
 from vtrack.errors import InputError
-from vtrack.paths import REPO_ROOT, shared_dir
+from vtrack.paths import REPO_ROOT, assets_dir, shared_dir
 from vtrack.scene.schema import Scene
 
 # Fields holding file paths, as (dotted path with '*' for list items).
@@ -25,7 +25,8 @@ _PATH_FIELDS = (
 
 
 def _expand(value: str, base: Path) -> str:
-    s = value.replace("${shared}", str(shared_dir())).replace("${repo}", str(REPO_ROOT))
+    s = (value.replace("${shared}", str(shared_dir())).replace("${repo}", str(REPO_ROOT))
+         .replace("${assets}", str(assets_dir())))
     p = Path(s).expanduser()
     return str(p if p.is_absolute() else (base / p).resolve())
 

@@ -5,8 +5,9 @@ which links carry which tactile sensors), optionally cameras, tactile sensors, t
 run and, for synthetic sessions, simulation parameters. Everything is in metres and radians
 unless a field name says otherwise (``_mm``, ``_deg``, ``_hz``).
 
-Paths in a scene file may use ``${shared}`` (the ``shared/`` folder beside the repository) and
-``${repo}`` (the repository root); other relative paths are relative to the scene file.
+Paths in a scene file may use ``${assets}`` (data shipped inside the package, :func:`vtrack.paths.assets_dir`),
+``${shared}`` (the ``shared/`` folder beside the repository) and ``${repo}`` (the repository root of a
+checkout); other relative paths are relative to the scene file.
 """
 
 from __future__ import annotations

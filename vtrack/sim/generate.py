@@ -83,31 +83,10 @@ def _times(seconds: float, rate_hz: float) -> np.ndarray:
 
 
 def _load_background(spec) -> np.ndarray:
-    import cv2
+    """The scene tactile entry's no-contact frame (:func:`vtrack.tactile.sensors.default_background`)."""
+    from vtrack.tactile.sensors import default_background
 
-    from vtrack.paths import shared_data_dir
-
-    candidates = []
-    if spec.background is not None:
-        candidates.append(Path(spec.background))
-    if spec.type == "digit":
-        candidates.append(shared_data_dir() / "backgrounds" / "digit_bg_tacto_240x320.jpg")
-    elif spec.type in ("gelsight_mini", "gelsight"):
-        candidates.append(shared_data_dir() / "backgrounds" / "gelsight_mini_bg_normalflow_320x240.png")
-    for p in candidates:
-        if p.exists():
-            img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-            if img is not None:
-                if img.shape[:2] != (spec.height, spec.width):
-                    if img.shape[:2] == (spec.width, spec.height):
-                        img = np.ascontiguousarray(np.rot90(img))
-                    img = cv2.resize(img, (spec.width, spec.height), interpolation=cv2.INTER_AREA)
-                return img
-    # No real background available: a plausible flat, slightly vignetted gel.
-    yy, xx = np.mgrid[0:spec.height, 0:spec.width]
-    r = np.hypot((xx - spec.width / 2) / spec.width, (yy - spec.height / 2) / spec.height)
-    base = np.array([150.0, 140.0, 130.0])[None, None] * (1.0 - 0.4 * r[..., None])
-    return base.astype(np.uint8)
+    return default_background(spec.type, spec.width, spec.height, spec.background)
 
 
 def _render_tactile(height_mm, spec, background, model, rng, noise_scale: float):

@@ -34,11 +34,9 @@ class ObjectMesh:
         return self.vertices.max(0) - self.vertices.min(0)
 
     def write_ply(self, path: str | Path) -> Path:
-        import trimesh
+        from vtrack.io.export import export_mesh
 
-        path = Path(path)
-        trimesh.Trimesh(self.vertices, self.faces, process=False).export(str(path))
-        return path
+        return export_mesh(path, self.vertices, self.faces)
 
 
 def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
@@ -53,15 +51,11 @@ def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
     """
     import trimesh
 
+    from vtrack.io.mesh import load_trimesh
+
     path = Path(path)
-    if not path.exists():
-        raise InputError("object mesh does not exist", path=path, field="object.mesh")
-    try:
-        m = trimesh.load(str(path), force="mesh", process=True)
-    except Exception as e:  # trimesh raises many types for bad files
-        raise InputError(f"cannot read the object mesh ({type(e).__name__}: {e})", path=path,
-                         field="object.mesh") from None
-    if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+    m = load_trimesh(path, process=True, field="object.mesh")
+    if len(m.faces) == 0:
         raise InputError("object mesh has no triangles", path=path, field="object.mesh")
     # Outward winding matters: the gel ray caster reads a back-face hit as "gel buried in the object".
     if m.is_watertight:

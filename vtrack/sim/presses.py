@@ -103,12 +103,9 @@ def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball
     R = float(ball_radius_mm if ball_radius_mm is not None else BALL_RADIUS_MM.get(sensor_type, 2.0))
     model = model if model is not None else OpticalModel.for_sensor(sensor_type, seed)
     if background is None:
-        from types import SimpleNamespace
+        from vtrack.tactile.sensors import default_background
 
-        from vtrack.sim.generate import _load_background
-
-        background = _load_background(SimpleNamespace(type=sensor_type, background=None, width=width,
-                                                      height=height))
+        background = default_background(sensor_type, width, height)
     bg = np.asarray(background)
     if bg.shape != (height, width, 3):
         raise InputError("background size differs from the sensor", field="background",
@@ -160,13 +157,13 @@ def sensor_calibration(spec: Any, seed: int | None = None, *, n: int = SIM_PRESS
     content and the options (a second call returns the cached file).
     """
     from vtrack.paths import cache_dir
-    from vtrack.sim.generate import _load_background
     from vtrack.sim.tactile_optics import optics_fingerprint
     from vtrack.tactile.calibration import TrainOptions, calibrate
     from vtrack.tactile.pressset import load_press_set
+    from vtrack.tactile.sensors import default_background
 
     seed = sensor_seed(spec.name) if seed is None else int(seed)
-    bg = _load_background(spec)
+    bg = default_background(spec.type, spec.width, spec.height, spec.background)
     opts = TrainOptions()
     key = json.dumps({"optics": optics_fingerprint(), "presses": _file_digest(Path(__file__)),
                       "type": spec.type, "w": spec.width, "h": spec.height, "mm_per_px": spec.mm_per_px,

@@ -66,14 +66,12 @@ class TactileFrame:
 
 def _sim_background(spec: Any) -> np.ndarray | None:
     """The no-contact frame the simulator renders this sensor on (scenes with a ``sim`` section), so a
-    synthetic session whose first frame is already in contact still has the right reference. None when the
-    simulator is not available (the first frame is used then)."""
+    synthetic session whose first frame is already in contact still has the right reference. None when it
+    cannot be read (the first frame is used then)."""
+    from vtrack.tactile.sensors import default_background
+
     try:
-        from vtrack.sim.generate import _load_background  # the simulator's own choice of background
-    except (ImportError, AttributeError):
-        return None
-    try:
-        return np.asarray(_load_background(spec), np.uint8)
+        return np.asarray(default_background(spec.type, spec.width, spec.height, spec.background), np.uint8)
     except Exception:  # noqa: BLE001 - any failure falls back to the first-frame background
         return None
 

@@ -63,6 +63,40 @@ SENSOR_PRESETS: dict[str, SensorPreset] = {
 }
 
 
+#: No-contact frames shipped in ``vtrack/assets/backgrounds`` (licences beside them), per sensor type.
+_BACKGROUNDS = {"digit": "digit_bg_tacto_240x320.jpg", "gelsight_mini": "gelsight_mini_bg_normalflow_320x240.png",
+                "gelsight": "gelsight_mini_bg_normalflow_320x240.png"}
+
+
+def default_background(sensor_type: str, width: int, height: int, path=None):
+    """A no-contact frame (uint8 BGR, (height, width, 3)) for a sensor without its own: ``path`` when given and
+    readable, else the shipped real frame of this type (rotated to the orientation, resized to the size), else
+    a plausible flat, slightly vignetted gel. For simulation and the generated calibration sets; a real
+    recording brings its own background."""
+    from pathlib import Path
+
+    import cv2
+    import numpy as np
+
+    from vtrack.paths import assets_dir
+
+    candidates = [Path(path)] if path is not None else []
+    if sensor_type in _BACKGROUNDS:
+        candidates.append(assets_dir() / "backgrounds" / _BACKGROUNDS[sensor_type])
+    for p in candidates:
+        img = cv2.imread(str(p), cv2.IMREAD_COLOR) if p.is_file() else None
+        if img is not None:
+            if img.shape[:2] != (height, width):
+                if img.shape[:2] == (width, height):
+                    img = np.ascontiguousarray(np.rot90(img))
+                img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
+            return img
+    yy, xx = np.mgrid[0:height, 0:width]
+    r = np.hypot((xx - width / 2) / width, (yy - height / 2) / height)
+    base = np.array([150.0, 140.0, 130.0])[None, None] * (1.0 - 0.4 * r[..., None])
+    return base.astype(np.uint8)
+
+
 def sensor_preset(sensor_type: str, field: str = "sensor") -> SensorPreset:
     """The preset of ``sensor_type``; a clear InputError naming ``field`` for an unknown type."""
     p = SENSOR_PRESETS.get(sensor_type)

@@ -36,10 +36,10 @@ class ICPTracker:
                  max_points: int = 300, n_model: int = 4000, **_: Any) -> None:
         import open3d as o3d
 
-        from vtrack.tracking.sdf_grid import load_mesh_arrays
+        from vtrack.io.mesh import load_mesh
 
         self._o3d = o3d
-        V, F = load_mesh_arrays(mesh)
+        V, F = load_mesh(mesh)
         from vtrack.eval.reconstruction import sample_surface
 
         # Seeded sampling: Open3D's sample_points_uniformly uses an unseeded RNG (irreproducible runs).

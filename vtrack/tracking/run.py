@@ -112,10 +112,10 @@ def resolve_mesh(mesh: str | Path | None, scene: Any) -> Path | None:
 
 def register_known_shape(mesh: Path, tracking_frames: list, symmetric: bool) -> tuple[np.ndarray, dict]:
     """``T_world_object`` of a known mesh from tracking frames by global registration (no prior)."""
+    from vtrack.io.mesh import load_mesh
     from vtrack.tracking.globalreg import global_register
-    from vtrack.tracking.sdf_grid import load_mesh_arrays
 
-    V, F = load_mesh_arrays(mesh)
+    V, F = load_mesh(mesh)
     t0 = time.perf_counter()
     hyps = global_register(V, F, tracking_frames, symmetric=symmetric)
     if not hyps:
@@ -325,10 +325,10 @@ class _Relocalisation:
         if self.last_ok is None:
             return T, status
         if self._reloc is None:
+            from vtrack.io.mesh import load_mesh
             from vtrack.tracking.globalreg import Relocaliser
-            from vtrack.tracking.sdf_grid import load_mesh_arrays
 
-            V, F = load_mesh_arrays(self.mesh)
+            V, F = load_mesh(self.mesh)
             self._reloc = Relocaliser(V, F, symmetric=self.symmetric, grid=getattr(self.tracker, "grid", None))
         h = self._reloc.relocalise(self.recent, self.last_ok)
         if h is None:

@@ -151,7 +151,9 @@ class SDFGrid:
                     return cls.load(cache_path)
                 except InputError:
                     pass  # corrupt cache: rebuild
-        verts, faces = load_mesh_arrays(mesh_path, scale)
+        from vtrack.io.mesh import load_mesh
+
+        verts, faces = load_mesh(mesh_path, scale)
         grid = cls.from_arrays(verts, faces, voxel=voxel, padding=padding)
         if cache_path is not None:
             grid.save(cache_path)
@@ -183,24 +185,3 @@ class SDFGrid:
         q = np.stack([X, Y, Z], -1).reshape(-1, 3).astype(np.float32)
         sdf = scene.compute_signed_distance(o3d.core.Tensor(q)).numpy().reshape(n)
         return cls(sdf, lo.astype(np.float64), voxel)
-
-
-def load_mesh_arrays(mesh_path: str | Path, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) metres and faces (F, 3) of a mesh file (Open3D reader, trimesh fallback)."""
-    mesh_path = Path(mesh_path)
-    V = F = None
-    try:
-        import open3d as o3d
-
-        m = o3d.io.read_triangle_mesh(str(mesh_path))
-        V, F = np.asarray(m.vertices, np.float64), np.asarray(m.triangles, np.int64)
-    except Exception:
-        V = F = None
-    if V is None or len(V) == 0 or len(F) == 0:
-        import trimesh
-
-        m = trimesh.load(str(mesh_path), force="mesh")
-        V, F = np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
-    if len(V) == 0 or len(F) == 0:
-        raise InputError("mesh has no triangles", path=mesh_path)
-    return V * scale, F

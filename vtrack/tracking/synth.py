@@ -17,8 +17,8 @@ import numpy as np
 
 from vtrack.geometry import se3
 from vtrack.geometry.camera import PinholeCamera
+from vtrack.io.mesh import load_mesh
 from vtrack.tracking.frame import TrackingFrame
-from vtrack.tracking.sdf_grid import load_mesh_arrays
 
 
 @dataclass
@@ -52,7 +52,7 @@ def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: f
     import open3d as o3d
 
     rng = np.random.default_rng(seed)
-    V, F = load_mesh_arrays(mesh_path)
+    V, F = load_mesh(mesh_path)
     centre = 0.5 * (V.min(0) + V.max(0))
     radius = float(np.linalg.norm(V - centre, axis=1).max())
     scene = o3d.t.geometry.RaycastingScene()

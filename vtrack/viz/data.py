@@ -234,23 +234,16 @@ def read_poses_csv(path: str | Path) -> dict[str, np.ndarray | None]:
 
 
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
-    """(vertices (V, 3) float32 m, faces (F, 3) int32) of a mesh file; None if it has no faces.
+    """(vertices (V, 3) float32 m, faces (F, 3) int32) of a mesh file for display; None if it has no faces.
 
     Raises:
-        InputError: unreadable file or non-finite vertices.
+        InputError: unreadable file or non-finite vertices (:func:`vtrack.io.mesh.load_mesh`).
     """
-    import trimesh
+    from vtrack.io.mesh import load_mesh as read_mesh
 
-    try:
-        m = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as e:  # trimesh raises many types for corrupt files
-        raise InputError(f"cannot read mesh ({type(e).__name__}: {e})", path=path) from None
-    V = np.asarray(getattr(m, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    F = np.asarray(getattr(m, "faces", np.zeros((0, 3))), dtype=np.int64)
-    if len(F) == 0 or len(V) == 0:
+    V, F = read_mesh(path, allow_empty=True)
+    if len(F) == 0:
         return None
-    if not np.all(np.isfinite(V)):
-        raise InputError("mesh has non-finite vertices", path=path)
     return V.astype(np.float32), F.astype(np.int32)
 
 

@@ -10,7 +10,8 @@ import typer
 def register(app: typer.Typer) -> None:
     @app.command("demo")
     def demo(
-        scene: Path = typer.Option(None, "--scene", help="scene YAML (default: scenes/default.yaml)"),
+        scene: Path = typer.Option(None, "--scene",
+                                   help="scene YAML (default: the embedded scene vtrack/assets/scenes/default.yaml)"),
         out: Path = typer.Option(Path("results/demo"), "--out", help="results folder"),
         seconds: float = typer.Option(None, "--seconds", help="override the session length (s)"),
         json_out: Path = typer.Option(None, "--json", help="also write the summary to this JSON file"),

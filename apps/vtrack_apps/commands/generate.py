@@ -17,7 +17,7 @@ class Occlusion(StrEnum):
 def register(app: typer.Typer) -> None:
     @app.command("generate")
     def generate(
-        scene: Path = typer.Argument(..., help="scene YAML (e.g. scenes/default.yaml)"),
+        scene: Path = typer.Argument(..., help="scene YAML (e.g. scenes/occlusion_none.yaml)"),
         out: Path = typer.Option(..., "--out", "-o", help="session directory to write"),
         object_mesh: Path = typer.Option(None, "--object", help="override the object: watertight mesh in metres"),
         seconds: float = typer.Option(None, "--seconds", help="duration, s (default: scene sim.seconds)"),
