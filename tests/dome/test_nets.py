@@ -29,8 +29,9 @@ def test_knn_torch_matches_numpy() -> None:
 
 @pytest.mark.parametrize("kind", ["gnn", "cnn"])
 def test_training_reduces_loss(kind, tiny_data) -> None:
+    from vtrack.dome.bundle import build_model
     from vtrack.dome.model import DomeGeometry
-    from vtrack.dome.train import Batcher, _dense_graph, build_model, recon_loss
+    from vtrack.dome.train import Batcher, _dense_graph, recon_loss
 
     torch.manual_seed(0)
     geo = DomeGeometry()
@@ -126,7 +127,7 @@ def test_platt_fit_recovers_scale_and_handles_degenerate_input():
 
 
 def test_shipped_bundles_carry_contact_calibration():
-    from vtrack.dome.train import load_bundle, weights_dir
+    from vtrack.dome.bundle import load_bundle, weights_dir
 
     for kind in ("gnn", "cnn"):
         model, _, _, _ = load_bundle(weights_dir() / f"{kind}.pt", with_heads=False)

@@ -574,11 +574,11 @@ def dome_case():
     """(model, one-graph batch of a simulated press): the shipped GNN, or a seeded untrained one if absent."""
     import torch
 
+    from vtrack.dome.bundle import build_model, load_bundle
     from vtrack.dome.features import collate_graphs, graph_arrays, reference_centers
     from vtrack.dome.model import DomeConfig, DomeGeometry
     from vtrack.dome.reconstruct import default_weights
     from vtrack.dome.simulate import DomeSimulator, sample_press
-    from vtrack.dome.train import build_model, load_bundle
 
     path = default_weights("gnn")
     if path.exists():

@@ -15,12 +15,13 @@ from vtrack.bench.harness import BenchTable
 def run(quick: bool = False) -> BenchTable:
     import torch
 
+    from vtrack.dome.bundle import load_bundle
     from vtrack.dome.evaluate import template_baseline, time_end_to_end
     from vtrack.dome.metrics import evaluate_predictions
     from vtrack.dome.model import DomeGeometry
     from vtrack.dome.reconstruct import default_weights
     from vtrack.dome.simulate import make_dataset
-    from vtrack.dome.train import Batcher, load_bundle, predict
+    from vtrack.dome.train import Batcher, predict
 
     torch.set_num_threads(1)
     n_test = 40 if quick else 300

@@ -38,11 +38,12 @@ def evaluate(weights_dir: Path | None = None, n_test: int = 300, test_seed: int 
     """Metrics of each method on the simulated test set (same samples for every method)."""
     import torch
 
+    from vtrack.dome.bundle import load_bundle
+    from vtrack.dome.bundle import weights_dir as wdir
     from vtrack.dome.metrics import evaluate_predictions
     from vtrack.dome.model import DomeGeometry
     from vtrack.dome.simulate import make_dataset
-    from vtrack.dome.train import Batcher, load_bundle, predict
-    from vtrack.dome.train import weights_dir as wdir
+    from vtrack.dome.train import Batcher, predict
     from vtrack.errors import InputError
 
     torch.set_num_threads(1)
@@ -97,12 +98,13 @@ def pressure_probe(method: str = "gnn", weights_dir: Path | None = None, ridge: 
     """
     import torch
 
+    from vtrack.dome.bundle import bundle_train_config, load_bundle, read_bundle
+    from vtrack.dome.bundle import weights_dir as wdir
     from vtrack.dome.model import DomeGeometry
-    from vtrack.dome.train import Batcher, bundle_train_config, force_features, load_bundle, load_sets
-    from vtrack.dome.train import weights_dir as wdir
+    from vtrack.dome.train import Batcher, force_features, load_sets
 
     path = Path(weights_dir or wdir()) / f"{method}.pt"
-    tc = bundle_train_config(torch.load(path, map_location="cpu", weights_only=False))
+    tc = bundle_train_config(read_bundle(path))
     model, _, cfg, _ = load_bundle(path, with_heads=False)
     geo = DomeGeometry(cfg)
     tr, te = load_sets(tc, cfg)

@@ -82,8 +82,8 @@ class DomeReconstructor:
                  reference: np.ndarray | str | Path | None = None) -> None:
         import torch
 
+        from vtrack.dome.bundle import load_bundle
         from vtrack.dome.model import DomeGeometry
-        from vtrack.dome.train import load_bundle
 
         if method not in ("gnn", "cnn"):
             raise InputError("unknown dome method", field="method", expected="gnn or cnn", got=method)

@@ -11,39 +11,20 @@ with the internal pressure (FiLM) and once without.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from vtrack.dome.bundle import (
+    TrainConfig,
+    build_model,
+    bundle_train_config,
+    load_bundle,
+    read_bundle,
+    save_bundle,
+    weights_dir,
+)
 from vtrack.dome.model import DomeConfig, DomeGeometry, knn_np
-
-
-@dataclass
-class TrainConfig:
-    n_train: int = 2000
-    n_test: int = 300
-    seed: int = 0
-    test_seed: int = 12345
-    epochs_coarse: int = 8
-    epochs_fine: int = 6
-    epochs_force: int = 20
-    batch: int = 32
-    lr: float = 2e-3
-    hidden: int = 64
-    threads: int = 1
-    gnn_k: int = 4  # markers interpolated per coarse template point
-    gnn_layers: int = 3  # GINE layers
-    gnn_edge_strain: bool = True  # reference-relative edge strain attributes (features.edge_strain)
-    #: weight of an L1 term (mean error norm, mm) on the non-contact points, next to their L2 term: L2 alone
-    #: leaves ~0.01 mm of phantom deformation on the ~80 % of the dome that does not move; L1 pulls it to 0
-    still_l1: float = 2.0
-
-
-def bundle_train_config(bundle: dict) -> TrainConfig:
-    """The TrainConfig a bundle was trained with; options added since then take their old behaviour."""
-    legacy = {"gnn_k": 4, "gnn_layers": 3, "gnn_edge_strain": False, "still_l1": 0.0}
-    return TrainConfig(**{**legacy, **bundle["train"]})
 
 
 def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple[dict, dict]:
@@ -51,17 +32,6 @@ def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple
 
     return (make_dataset(tc.n_train, tc.seed, cfg, progress=progress),
             make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress))
-
-
-def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 4, gnn_layers: int = 3,
-                gnn_edge_strain: bool = True):
-    from vtrack.dome.nets import DomeCNN, DomeGNN
-
-    if kind == "gnn":
-        return DomeGNN(geo, hidden, gnn_layers, gnn_k, gnn_edge_strain)
-    if kind == "cnn":
-        return DomeCNN(geo, hidden)
-    raise ValueError(f"unknown model kind {kind!r} (gnn | cnn)")
 
 
 class Batcher:
@@ -299,7 +269,7 @@ def calibrate_bundle(path: Path, tc: TrainConfig | None = None) -> tuple[float, 
     """Fit the contact calibration of a saved bundle on its training set and store it in the bundle."""
     import torch
 
-    b = torch.load(path, map_location="cpu", weights_only=False)
+    b = read_bundle(path)
     tc = tc or bundle_train_config(b)
     torch.set_num_threads(tc.threads)
     model, _, cfg, _ = load_bundle(path, with_heads=False)
@@ -314,7 +284,7 @@ def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
     """Retrain only the two force heads of a saved bundle (same budget for every method); re-save it."""
     import torch
 
-    b = torch.load(path, map_location="cpu", weights_only=False)
+    b = read_bundle(path)
     tc = tc or bundle_train_config(b)
     torch.set_num_threads(tc.threads)
     model, _, cfg, info = load_bundle(path, with_heads=False)
@@ -324,43 +294,6 @@ def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
     heads = train_force_heads(model, btr, tc, log)
     save_bundle(path, b["kind"], model, heads, cfg, tc, info)  # keeps the calibration (load_bundle set it)
     return info
-
-
-def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: TrainConfig, info: dict) -> None:
-    """Weights in float16 (they are small; halves the shipped size) plus configs."""
-    import torch
-
-    def half(sd):
-        return {k: (v.half() if v.is_floating_point() else v) for k, v in sd.items()}
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"kind": kind, "cfg": cfg.to_dict(), "train": asdict(tc), "info": info,
-                "contact_calib": list(model.decoder.contact_calib), "recon": half(model.state_dict()),
-                **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()}},
-               path)
-
-
-def load_bundle(path: Path, with_heads: bool = True):
-    """-> (model, {"p": head, "nop": head}, DomeConfig, info) in eval mode, float32."""
-    import torch
-
-    from vtrack.dome.nets import ForceHead
-
-    b = torch.load(path, map_location="cpu", weights_only=False)
-    cfg = DomeConfig.from_dict(b["cfg"])
-    geo = DomeGeometry(cfg)
-    hidden = b["train"]["hidden"]
-    tc = bundle_train_config(b)
-    model = build_model(b["kind"], geo, hidden, tc.gnn_k, tc.gnn_layers, tc.gnn_edge_strain)
-    model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
-    model.decoder.contact_calib = tuple(float(v) for v in b.get("contact_calib", (1.0, 0.0)))
-    heads = {}
-    for key, use_p in (("p", True), ("nop", False)):
-        if with_heads and f"force_{key}" in b:
-            h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
-            h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[f"force_{key}"].items()})
-            heads[key] = h.eval()
-    return model.eval(), heads, cfg, b.get("info", {})
 
 
 def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str, np.ndarray]:
@@ -379,10 +312,6 @@ def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str,
                 f = h(o, batcher.pressure[idx], model.decoder.coarse_rest).numpy()
                 outs.setdefault("force" if key == "p" else "force_nop", []).append(f)
     return {k: np.concatenate(v) for k, v in outs.items()}
-
-
-def weights_dir() -> Path:
-    return Path(__file__).resolve().parent / "weights"
 
 
 def train_all(tc: TrainConfig | None = None, cfg: DomeConfig | None = None, out_dir: Path | None = None,

@@ -1,0 +1,72 @@
+"""Dome model bundle format (vtrack.dome.bundle): explicit versions, no code from a data file."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from vtrack.errors import InputError
+
+
+class _Payload:  # a pickled object in a "bundle": loading it must not run anything
+    def __reduce__(self):
+        return (exec, ("import pathlib; pathlib.Path(__import__('os').environ['VT_PWNED']).write_text('x')",))
+
+
+def test_shipped_bundles_are_version_2_and_inference_never_imports_training():
+    import subprocess
+
+    from vtrack.dome.bundle import BUNDLE_VERSION, read_bundle, weights_dir
+
+    for kind in ("gnn", "cnn"):
+        assert read_bundle(weights_dir() / f"{kind}.pt")["version"] == BUNDLE_VERSION == 2
+    code = ("import sys, numpy as np; from vtrack.dome.reconstruct import DomeReconstructor; "
+            "DomeReconstructor(); print('TRAIN' if 'vtrack.dome.train' in sys.modules else 'CLEAN')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().endswith("CLEAN")
+
+
+def test_bundle_with_code_newer_version_or_missing_parts_is_refused(tmp_path, monkeypatch):
+    import torch
+
+    from vtrack.dome.bundle import read_bundle, weights_dir
+
+    flag = tmp_path / "pwned"
+    monkeypatch.setenv("VT_PWNED", str(flag))
+    evil = tmp_path / "evil.pt"
+    torch.save({"kind": "gnn", "cfg": {}, "train": {}, "recon": {}, "info": _Payload()}, evil)
+    with pytest.raises(InputError, match="not a dome model bundle"):
+        read_bundle(evil)
+    assert not flag.exists()
+    b = read_bundle(weights_dir() / "gnn.pt")
+    newer = tmp_path / "newer.pt"
+    torch.save({**b, "version": 3}, newer)
+    with pytest.raises(InputError, match="newer vtrack"):
+        read_bundle(newer)
+    part = tmp_path / "part.pt"
+    torch.save({k: v for k, v in b.items() if k != "recon"}, part)
+    with pytest.raises(InputError, match="incomplete.*recon|recon.*incomplete"):
+        read_bundle(part)
+    with pytest.raises(InputError, match="not found"):
+        read_bundle(tmp_path / "missing.pt")
+
+
+def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
+    import torch
+
+    from vtrack.dome.bundle import bundle_dome_config, bundle_train_config, load_bundle, read_bundle, weights_dir
+
+    b = read_bundle(weights_dir() / "gnn.pt")
+    v1 = {k: v for k, v in b.items() if k != "version"}
+    v1["train"] = {k: v for k, v in b["train"].items() if k not in ("still_l1",)}
+    v1["cfg"] = {k: v for k, v in b["cfg"].items() if k != "reference_at_pressure"}
+    assert bundle_train_config(v1).still_l1 == 0.0 and bundle_dome_config(v1).reference_at_pressure is False
+    # version 2 guesses nothing: the same missing key is an error, not a silent default
+    with pytest.raises(InputError, match="sensor config does not match"):
+        bundle_dome_config({**v1, "version": 2, "cfg": {"nonsense": 1}})
+    p = tmp_path / "v1.pt"
+    torch.save(v1, p)
+    model, heads, cfg, _ = load_bundle(p)
+    assert cfg.reference_at_pressure is False and set(heads) == {"p", "nop"}
