@@ -19,6 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from vtrack.io.jsonio import write_json
+from vtrack.io.session import is_complete
 from vtrack.paths import cache_dir, default_scene_path
 from vtrack.registry import required_components
 from vtrack.scene import load_scene
@@ -69,7 +71,7 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
         key = scene_digest(scene) + f"-v{SIM_CACHE_VERSION}" + (f"-{seconds:g}s" if seconds else "")
         session_dir = cache_dir() / "sessions" / f"{scene.name}-{key}"
         ts = time.perf_counter()
-        if not (session_dir / "manifest.json").exists() or not _session_complete(session_dir):
+        if not (session_dir / "manifest.json").exists() or not is_complete(session_dir):
             generate_session(scene, session_dir, seconds=seconds, overwrite=True, progress=progress)
         summary["stages"]["generate"] = {"session": str(session_dir), "seconds": time.perf_counter() - ts}
     blind_dir: Path | None = None
@@ -78,7 +80,7 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
 
         blind_dir = session_dir.with_name(session_dir.name + "-blind")
         ts = time.perf_counter()
-        if not _session_complete(blind_dir):
+        if not is_complete(blind_dir):
             strip_gt(session_dir, blind_dir, overwrite=blind_dir.exists())
         summary["stages"]["strip_gt"] = {"session": str(blind_dir), "seconds": time.perf_counter() - ts}
     if blind_dir is not None and scene.pipeline.reconstruction != "off" and _available("vtrack.fusion.reconstruct"):
@@ -92,7 +94,8 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
         from vtrack.tracking.run import track_session
 
         known = scene.pipeline.tracking == "known_shape" and scene.object.mesh is not None
-        summary["stages"]["track"] = track_session(blind_dir, out / "tracking", shape="known" if known else "slam",
+        shape = "known_shape" if known else "slam"
+        summary["stages"]["track"] = track_session(blind_dir, out / "tracking", shape=shape,
                                                    mesh=scene.object.mesh if known else None, gt=session_dir,
                                                    modalities=tuple(scene.effective_modalities))
     produced = any(k in summary["stages"] for k in ("generate", "reconstruct", "track"))
@@ -106,12 +109,7 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
         except Exception as e:  # a rendering problem must not lose the results already written
             summary["stages"]["screenshot"] = {"error": f"{type(e).__name__}: {e}"}
     summary["seconds_total"] = time.perf_counter() - t0
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    write_json(out / "summary.json", summary)
     return summary
 
 
-def _session_complete(path: Path) -> bool:
-    try:
-        return bool(json.loads((path / "manifest.json").read_text()).get("complete"))
-    except Exception:
-        return False

@@ -74,7 +74,7 @@ def test_registry():
 
 @pytest.mark.parametrize("task,params,expect", [
     ("reconstruct", {"method": "tsdf", "screenshot": False}, {"open3d", "trimesh", "yourdfpy", "vtrack.fusion.tsdf"}),
-    ("track", {"shape": "known"}, {"open3d", "vtrack.tracking.tracker", "vtrack.frames.session"}),
+    ("track", {"shape": "known_shape"}, {"open3d", "vtrack.tracking.tracker", "vtrack.frames.session"}),
     ("bench", {"reconstruction": {"method": "tsdf"}}, {"open3d", "vtrack.fusion.tsdf", "vtrack.tracking.tracker"}),
 ])
 def test_warm_up_imports_what_the_task_uses(task, params, expect):

@@ -75,8 +75,10 @@ def test_clean_leftovers_only_touches_temp_names(tmp_path):
 
 def test_metrics_sanitised_and_summary_written(tmp_path):
     bad: list[str] = []
-    m = results.sanitize_metrics({"a": np.float32(1.5), "b": float("nan"), "c": {"d": np.inf, "e": np.int64(3)},
-                                  "arr": np.array([1.0, 2.0])}, bad=bad)
+    from vtrack.io.jsonio import to_jsonable
+
+    m = to_jsonable({"a": np.float32(1.5), "b": float("nan"), "c": {"d": np.inf, "e": np.int64(3)},
+                     "arr": np.array([1.0, 2.0])}, bad)
     assert m == {"a": 1.5, "b": None, "c": {"d": None, "e": 3}, "arr": [1.0, 2.0]}
     assert bad == ["b", "c.d"]
     recs = [{"key": "s0", "session": "/x", "chunk": None, "status": "ok", "attempts": 1, "seconds": 0.5,

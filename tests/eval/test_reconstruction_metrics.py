@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from vtrack.eval.pose import add, adds
+from vtrack.eval.pose_metrics import add, add_s
 from vtrack.eval.reconstruction import mesh_metrics, point_metrics, sample_surface
 from vtrack.geometry import se3
 
@@ -55,12 +55,15 @@ def test_empty_reconstruction_is_zero_not_nan(box):
 
 
 def test_add_and_adds():
+    def adds(T_est, T_gt, P):  # single poses through the per-frame metric
+        return float(add_s(T_est[None], T_gt[None], P)[0])
+
     P = np.random.default_rng(0).normal(size=(500, 3)) * 0.03
     T = se3.make_transform(np.eye(3), [0.01, 0, 0])
-    assert add(T, np.eye(4), P) == pytest.approx(0.01)
-    assert adds(T, np.eye(4), P) <= add(T, np.eye(4), P) + 1e-12
+    assert float(add(T[None], np.eye(4)[None], P)[0]) == pytest.approx(0.01)
+    assert adds(T, np.eye(4), P) <= float(add(T[None], np.eye(4)[None], P)[0]) + 1e-12
     # symmetric object: a rotation about its symmetry axis has ADD-S ~ 0 (dense ring)
     a = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
     ring = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1) * 0.03
     R = se3.make_transform(se3.so3_exp(np.array([0, 0, 0.7])), None)
-    assert adds(R, np.eye(4), ring) < 1e-4 and add(R, np.eye(4), ring) > 0.01
+    assert adds(R, np.eye(4), ring) < 1e-4 and float(add(R[None], np.eye(4)[None], ring)[0]) > 0.01

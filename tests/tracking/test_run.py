@@ -56,7 +56,7 @@ def test_stripped_session_gives_identical_estimates(slam_runs):
 def test_known_shape_without_initial_pose(tiny_session, blind_session, user_mesh, tmp_path):
     from vtrack.tracking.run import track_session
 
-    m = track_session(blind_session, tmp_path, shape="known", mesh=user_mesh, gt=tiny_session)
+    m = track_session(blind_session, tmp_path, shape="known_shape", mesh=user_mesh, gt=tiny_session)
     assert m["init"].startswith("global registration") and m["alignment"] == "mesh"
     assert m["blind"] and np.isfinite(m["add_s_mm"])
     assert m["add_s_mm"] < 5.0
@@ -75,7 +75,7 @@ def test_other_modes(tiny_session, kw):
 def test_oracle_init_is_labelled(tiny_session, user_mesh):
     from vtrack.tracking.run import track_session
 
-    m = track_session(tiny_session, "", shape="known", mesh=user_mesh, init="gt", init_perturb=(0.003, 0.03),
+    m = track_session(tiny_session, "", shape="known_shape", mesh=user_mesh, init="gt", init_perturb=(0.003, 0.03),
                       write=False, max_frames=10)
     assert "[oracle]" in m["init"] and "init" in m["oracle"] and not m["blind"]
 
@@ -100,7 +100,7 @@ def test_known_shape_needs_a_mesh(blind_session, tmp_path):
     from vtrack.tracking.run import track_session
 
     with pytest.raises(InputError, match="--mesh"):
-        track_session(blind_session, tmp_path, shape="known")
+        track_session(blind_session, tmp_path, shape="known_shape")
 
 
 def test_sensor_without_calibration_is_a_clear_error(blind_session, tmp_path):

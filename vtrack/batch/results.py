@@ -19,12 +19,13 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import math
 import os
 import shutil
 import uuid
 from pathlib import Path
 from typing import Any
+
+from vtrack.io.jsonio import write_json
 
 RESULT_MANIFEST = "batch_result.json"
 RESULT_FORMAT = "vtrack-batch-result"
@@ -48,37 +49,6 @@ def file_table(folder: Path) -> dict[str, dict[str, Any]]:
         if p.is_file() and p.name != RESULT_MANIFEST:
             out[p.relative_to(folder).as_posix()] = {"bytes": p.stat().st_size, "sha256": sha256_file(p)}
     return out
-
-
-def sanitize_metrics(obj: Any, prefix: str = "", bad: list[str] | None = None) -> Any:
-    """JSON-able copy of task metrics; NaN/Inf become None and their keys are listed in ``bad``."""
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): sanitize_metrics(v, f"{prefix}{k}.", bad) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [sanitize_metrics(v, f"{prefix}{i}.", bad) for i, v in enumerate(obj)]
-    if isinstance(obj, np.ndarray):
-        return sanitize_metrics(obj.tolist(), prefix, bad)
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        if bad is not None:
-            bad.append(prefix.rstrip("."))
-        return None
-    if isinstance(obj, (str, int, float, bool)) or obj is None:
-        return obj
-    return str(obj)
-
-
-def write_json_atomic(path: Path, data: Any, fsync: bool = True) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:6]}.tmp")
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=1, allow_nan=False)
-        f.flush()
-        if fsync:
-            os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -132,7 +102,7 @@ def write_manifest(folder: Path, job: dict[str, Any], metrics: dict[str, Any], e
     man = {"format": RESULT_FORMAT, "version": RESULT_VERSION, **expected_identity(job),
            "key": job["key"], "session": job["session"], "params": job["params"],
            "metrics": metrics, "files": file_table(folder), **extra}
-    write_json_atomic(folder / RESULT_MANIFEST, man)
+    write_json(folder / RESULT_MANIFEST, man, indent=1, fsync=True)
     _fsync_dir(folder)
     return man
 
@@ -230,5 +200,5 @@ def write_summary(out_root: Path, records: list[dict[str, Any]], run_info: dict[
             w.writerow({k: ("" if r.get(k) is None else r.get(k, "")) for k in cols})
     os.replace(tmp, csv_path)
     json_path = out_root / "summary.json"
-    write_json_atomic(json_path, {"run": run_info, "results": records}, fsync=False)
+    write_json(json_path, {"run": run_info, "results": records}, indent=1)
     return {"csv": csv_path, "json": json_path}

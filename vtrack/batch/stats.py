@@ -9,13 +9,13 @@ reference task of the batch engine's own tests (deterministic, no heavy dependen
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.io.jsonio import write_json
 
 
 def _select(t: np.ndarray, time_range: tuple[float, float] | None) -> np.ndarray:
@@ -115,7 +115,7 @@ def session_stats(session_dir: str, out_dir: str, *, time_range: tuple[float, fl
             per_stream[name] = _pose_stats(s, idx)
     out = {"session": str(Path(session_dir)), "complete": reader.complete, "time_range": time_range,
            "frames": frames, "streams": per_stream}
-    Path(out_dir, "stats.json").write_text(json.dumps(out, indent=1))
+    write_json(Path(out_dir, "stats.json"), out, indent=1)
     metrics: dict[str, Any] = {"complete": reader.complete}
     for name, st in per_stream.items():
         for k, v in st.items():

@@ -151,7 +151,9 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(metrics, dict):
             raise TypeError(f"task returned {type(metrics).__name__}, expected a dict of metrics")
         bad: list[str] = []
-        metrics = results.sanitize_metrics(metrics, bad=bad)
+        from vtrack.io.jsonio import to_jsonable
+
+        metrics = to_jsonable(metrics, bad)
         seconds = time.perf_counter() - t0
         cpu_seconds = time.process_time() - c0
         results.write_manifest(tmp, job, metrics, {

@@ -8,7 +8,6 @@ least ``method``, ``setting``, ``ms`` (median per unit of work) and an error col
 from __future__ import annotations
 
 import csv
-import json
 import os
 import platform
 import subprocess
@@ -20,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from vtrack.io.jsonio import write_json
 from vtrack.paths import REPO_ROOT
 
 
@@ -168,7 +168,7 @@ def write_results(table: BenchTable, out_dir: Path | None = None, columns: list[
     md_path.write_text("\n".join(lines))
     png_path = out_dir / f"{table.stage}.png"
     plot_pareto(table, png_path)
-    (out_dir / f"{table.stage}.json").write_text(json.dumps({"machine": info, "rows": rows}, indent=1, default=str))
+    write_json(out_dir / f"{table.stage}.json", {"machine": info, "rows": rows}, indent=1)
     _update_index(out_dir)
     return {"csv": csv_path, "md": md_path, "png": png_path}
 

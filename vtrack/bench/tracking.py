@@ -98,12 +98,12 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
     cases = session_cases(quick)
     for obj, occ, setting, noise, sess in cases:
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
-        runs = [("known/" + m + " [blind]", dict(shape="known", mesh=mesh, modalities=mods))
+        runs = [("known/" + m + " [blind]", dict(shape="known_shape", mesh=mesh, modalities=mods))
                 for m, mods in MODES.items()]
         runs.append(("slam/visuo-tactile [blind]", dict(shape="slam")))
         runs.append(("slam/vision [blind]", dict(shape="slam", modalities=("vision",))))
-        runs.append(("known/visuo-tactile [oracle]", dict(shape="known", mesh=mesh, **oracle)))
-        runs.append(("icp/vision [oracle init+masks]", dict(shape="known", method="icp", mesh=mesh, init="gt",
+        runs.append(("known/visuo-tactile [oracle]", dict(shape="known_shape", mesh=mesh, **oracle)))
+        runs.append(("icp/vision [oracle init+masks]", dict(shape="known_shape", method="icp", mesh=mesh, init="gt",
                                                             segmentation="gt")))
         runs.append(("slam/visuo-tactile [oracle]", dict(shape="slam", tactile_source="gt", segmentation="gt")))
         for name, kw in runs:
@@ -130,7 +130,7 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
     for op, opts in OPERATING_POINTS.items():
         if op == "default":
             continue  # already in the table
-        m = track_session(sess, "", write=False, shape="known", mesh=mesh, **opts)
+        m = track_session(sess, "", write=False, shape="known_shape", mesh=mesh, **opts)
         table.add(method="known/visuo-tactile [blind]", setting=f"{setting} {op}", data="sim", object=obj,
                   occlusion=occ, noise=noise, ms=m["cpu_ms_per_frame_mean"], wall_ms=m["ms_per_frame_mean"],
                   drift_mm=m["drift_mm"], add_s_mm=m["add_s_mm"], motion_err_mm=m["motion_err_mm"],

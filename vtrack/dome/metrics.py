@@ -12,20 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 
-def _nn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    from scipy.spatial import cKDTree
-
-    return cKDTree(b).query(a, k=1)[0]
-
-
 def surface_metrics(pred: np.ndarray, gt: np.ndarray, tau_mm: float = 2.0) -> dict[str, float]:
-    """Chamfer, HD95 and F-score between two point sets (n, 3) and (m, 3) in mm."""
+    """Chamfer, HD95 and F-score at ``tau_mm`` between two point sets (n, 3) and (m, 3) in mm
+    (:func:`vtrack.eval.reconstruction.point_metrics` in mm; an empty or non-finite prediction scores inf / 0)."""
+    from vtrack.eval.reconstruction import point_metrics
+
     if len(pred) == 0 or len(gt) == 0 or not np.all(np.isfinite(pred)):
         return {"cd": float("inf"), "hd95": float("inf"), "f": 0.0}
-    d1, d2 = _nn(pred, gt), _nn(gt, pred)
-    p, r = float((d1 < tau_mm).mean()), float((d2 < tau_mm).mean())
-    f = 2 * p * r / (p + r) if p + r > 0 else 0.0
-    return {"cd": 0.5 * (d1.mean() + d2.mean()), "hd95": float(np.percentile(np.concatenate([d1, d2]), 95)), "f": f}
+    m = point_metrics(pred, gt, thresholds_m={"f": tau_mm * 1e-3}, units="mm")
+    return {"cd": m["chamfer_mm"], "hd95": m["hd95_mm"], "f": m["fscore"]["f"]}
 
 
 def evaluate_predictions(pred: dict[str, np.ndarray], gt: dict[str, np.ndarray]) -> dict[str, float]:

@@ -7,7 +7,6 @@ otherwise. Output frame: the dome frame of :mod:`vtrack.dome.model` (mm, origin 
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.io.jsonio import write_json
 
 
 @dataclass
@@ -59,7 +59,7 @@ class DomeResult:
         cols[:, 2] = 255 - cols[:, 0]
         cols[:, 3] = 255
         trimesh.PointCloud(self.coarse_mm, colors=cols).export(out_dir / "coarse.ply")
-        (out_dir / "result.json").write_text(json.dumps({"kind": "dome", **self.summary()}, indent=1))
+        write_json(out_dir / "result.json", {"kind": "dome", **self.summary()}, indent=1)
         return {"mesh": out_dir / "mesh.ply", "coarse": out_dir / "coarse.ply", "json": out_dir / "result.json"}
 
 

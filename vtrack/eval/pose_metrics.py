@@ -17,8 +17,6 @@ Definitions (documented in docs/tracking.md):
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from vtrack.errors import InputError
@@ -162,35 +160,3 @@ def summarize(errors: dict[str, np.ndarray]) -> dict[str, float]:
         "rot_drift_final_deg": float(e["rot"][-1] * deg),
         "rot_drift_full_deg": float(e["rot_full"].mean() * deg),
     }
-
-
-def plot_errors(times: np.ndarray, errors: dict[str, np.ndarray], path: str | Path, title: str = "",
-                lost: np.ndarray | None = None) -> Path:
-    """PNG of position error (mm), ADD-S (mm) and rotation error (deg) over time (s)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = np.asarray(times, dtype=np.float64)
-    fig, ax = plt.subplots(2, 1, figsize=(7, 4.8), dpi=110, sharex=True)
-    ax[0].plot(t, errors["pos"] * 1e3, label="position (centre)")
-    ax[0].plot(t, errors["add_s"] * 1e3, label="ADD-S")
-    if lost is not None and np.any(lost):
-        ax[0].scatter(t[lost], errors["pos"][lost] * 1e3, c="r", s=8, label="lost/recovering", zorder=3)
-    ax[0].set_ylabel("mm")
-    ax[0].legend(fontsize=7)
-    ax[0].grid(alpha=0.3)
-    ax[1].plot(t, np.degrees(errors["rot"]), label="rotation", color="C2")
-    ax[1].set_ylabel("deg")
-    ax[1].set_xlabel("time (s)")
-    ax[1].grid(alpha=0.3)
-    ax[1].legend(fontsize=7)
-    if title:
-        ax[0].set_title(title, fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path

@@ -43,6 +43,11 @@ def _torch():
 
     return torch
 
+#: Offline training iterations, the one default of ``vtrack reconstruct`` and the API: on the speed/accuracy front
+#: of ``vtrack bench fusion`` (docs/benchmarks/fusion.md, soup can, vision+touch: F@5 mm 0.904 at 400, 0.904 at
+#: 300, 0.902 at 600 iterations).
+OFFLINE_ITERS = 400
+
 
 class _SDFNet:
     """Dense multires grid + MLP (built lazily so importing this module does not import torch)."""
@@ -399,9 +404,10 @@ class NeuralSDFReconstructor:
                           ("normal", l_norm), ("offset", l_off), ("free", l_free), ("eikonal", l_eik))}
 
     # -- offline -----------------------------------------------------------------------------
-    def fit(self, observations: list, n_iters: int = 1500, time_budget_s: float | None = None,
+    def fit(self, observations: list, n_iters: int = OFFLINE_ITERS, time_budget_s: float | None = None,
             lr_decay: bool = True) -> dict[str, Any]:
-        """Offline: integrate every observation, size the box from all points, train ``n_iters``."""
+        """Offline: integrate every observation, size the box from all points, train ``n_iters``
+        (default :data:`OFFLINE_ITERS`)."""
         obs = [o for o in observations if len(o)]
         if self.net is None:
             allp = np.concatenate([o.points for o in obs]) if obs else np.zeros((0, 3))

@@ -22,8 +22,8 @@ from vtrack.io.jsonio import write_json
 
 METHODS = ("neural_sdf", "tsdf")
 
-#: per-method default options (overridable through ``**opts``)
-NEURAL_DEFAULTS: dict[str, Any] = {"n_iters": 400}
+#: per-method default options (overridable through ``**opts``); the iteration count is the neural SDF's own
+NEURAL_DEFAULTS: dict[str, Any] = {"n_iters": None}
 
 
 def _parse_modalities(modalities: Any) -> tuple[str, ...]:
@@ -65,7 +65,12 @@ def reconstruct_observations(obs: list, method: str = "neural_sdf", *, online: b
         from vtrack.fusion.neural_sdf import NeuralSDFReconstructor
 
         o2 = {**NEURAL_DEFAULTS, **opts}
-        n_iters = int(o2.pop("n_iters"))
+        n_iters = o2.pop("n_iters")
+        if n_iters is None:
+            from vtrack.fusion.neural_sdf import OFFLINE_ITERS
+
+            n_iters = OFFLINE_ITERS
+        n_iters = int(n_iters)
         budget = o2.pop("time_budget_s", None)
         rec = NeuralSDFReconstructor(**o2)
         if online:
@@ -140,7 +145,7 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
         from vtrack.tracking.run import track_session
 
         kept: dict[str, Any] = {}
-        shape = "known" if mesh is not None else "slam"
+        shape = "known_shape" if mesh is not None else "slam"
         track_metrics, (times, est) = track_session(
             session_dir, out / "tracking", shape=shape, modalities=mods, mesh=mesh, gt=gt,
             tactile_source=tactile_source, segmentation=segmentation, write=True, return_poses=True,
@@ -220,7 +225,9 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
     cloud.to_ply(out / "cloud.ply")
     if screenshot:
         try:
-            save_screenshot(out / "screenshot.png", V, F, cloud, title=f"{method} ({'+'.join(mods)})")
+            from vtrack.viz.screenshot import save_mesh_cloud_screenshot
+
+            save_mesh_cloud_screenshot(out / "screenshot.png", V, F, cloud, title=f"{method} ({'+'.join(mods)})")
             metrics["screenshot"] = "screenshot.png"
         except Exception as e:  # no display / VTK problem must not lose the reconstruction
             metrics["screenshot_error"] = f"{type(e).__name__}: {e}"
@@ -250,32 +257,3 @@ def _write_empty_mesh(path: Path) -> None:
     path.write_text("ply\nformat ascii 1.0\ncomment vtrack: empty reconstruction\nelement vertex 0\n"
                     "property float x\nproperty float y\nproperty float z\nelement face 0\n"
                     "property list uchar int vertex_indices\nend_header\n")
-
-
-def save_screenshot(path: str | Path, vertices: np.ndarray, faces: np.ndarray, cloud: Any = None,
-                    title: str = "", gt_path: Path | None = None, size: tuple[int, int] = (900, 600)) -> Path:
-    """Off-screen pyvista render: reconstructed mesh, GT wireframe, vision (blue) / touch (red) points."""
-    import pyvista as pv
-
-    pl = pv.Plotter(off_screen=True, window_size=size)
-    if len(faces):
-        fa = np.hstack([np.full((len(faces), 1), 3), faces]).astype(np.int64).ravel()
-        pl.add_mesh(pv.PolyData(np.asarray(vertices), fa), color="lightgray", smooth_shading=True)
-    if gt_path is not None:
-        gt = pv.read(str(gt_path))
-        pl.add_mesh(gt, style="wireframe", color="green", opacity=0.15)
-    if cloud is not None and len(cloud):
-        from vtrack.fusion.cloud import TOUCH
-
-        rng = np.random.default_rng(0)
-        for mod, colour in ((0, "royalblue"), (TOUCH, "red")):
-            P = cloud.xyz[cloud.modality == mod]
-            if len(P) > 20000:
-                P = P[rng.choice(len(P), 20000, replace=False)]
-            if len(P):
-                pl.add_points(P, color=colour, point_size=2 if mod == 0 else 3, render_points_as_spheres=False)
-    pl.add_text(title, font_size=10)
-    pl.view_isometric()
-    pl.screenshot(str(path))
-    pl.close()
-    return Path(path)

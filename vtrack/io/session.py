@@ -35,6 +35,7 @@ from typing import Any, Literal
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.io.jsonio import write_json
 
 FORMAT_NAME = "vtrack-session"
 FORMAT_VERSION = 1
@@ -53,15 +54,6 @@ STANDARD_FIELDS = {
     "q": "float64 (J,) joint positions, rad, order in the stream's joint_names",
     "T_world_object": "float64 (4, 4) object pose",
 }
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 @dataclass
@@ -340,17 +332,7 @@ class SessionWriter:
             self.flush()
 
     def _write_manifest(self) -> None:
-        _atomic_write_text(self.path / MANIFEST, json.dumps(self.manifest, indent=1, default=_json_default))
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+        write_json(self.path / MANIFEST, self.manifest, indent=1, fsync=True)
 
 
 def _vtrack_version() -> str:
@@ -700,6 +682,15 @@ class SessionReader:
                 "fields": {f: list(fr.shape[1:]) for f, fr in s.fields.items()},
             }
         return out
+
+
+def is_complete(path: str | Path) -> bool:
+    """True when ``path`` holds a session whose writer finished (manifest parses and says ``complete``);
+    False for a missing, partial (crashed writer) or unreadable one. Cheap: reads only the manifest."""
+    try:
+        return bool(json.loads((Path(path) / MANIFEST).read_text()).get("complete"))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def open_session(path: str | Path, on_corrupt: OnCorrupt | None = None) -> SessionReader:

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from vtrack.errors import InputError
+from vtrack.io.jsonio import write_json
 
 #: Creation-info keys that describe the recording itself (kept); everything else is dropped.
 _KEEP_CREATED = ("time_unix", "host", "vtrack_version", "platform", "python")
@@ -119,8 +120,6 @@ def strip_gt(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> di
     report = {"removed_streams": removed_streams, "removed_fields": removed_fields,
               "removed_files": removed_files, "scene_changes": scene_changes}
     manifest["stripped"] = report
-    tmp = dst / f".{MANIFEST}.tmp"
-    tmp.write_text(json.dumps(manifest, indent=1))
-    tmp.replace(dst / MANIFEST)
+    write_json(dst / MANIFEST, manifest, indent=1, fsync=True)
     open_session(dst)  # the copy must be a valid session
     return report

@@ -86,7 +86,7 @@ class TrackConsumer(Consumer):
                     T0, _ = register_known_shape(self.mesh, [frame], bool(self.sf.scene.object.symmetric))
                 except InputError:  # nothing to register on yet: try the next frame
                     return
-            self.tracker = build_tracker("known", self.mesh, T0, **self.tracker_opts)
+            self.tracker = build_tracker("known_shape", self.mesh, T0, **self.tracker_opts)
         else:
             T0 = centroid_frame(frame)
             if T0 is not None:
@@ -114,7 +114,7 @@ class TrackConsumer(Consumer):
 
     def finish(self) -> dict[str, Any]:
         out: dict[str, Any] = {"steps": len(self.poses), "modalities": list(self.sf.modalities),
-                               "mode": "known" if self.mesh is not None else "slam"}
+                               "mode": "known_shape" if self.mesh is not None else "slam"}
         if len(self.poses) > 1:
             from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
 

@@ -8,15 +8,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from vtrack.io.session import is_complete
 from vtrack.paths import cache_dir, default_scene_path
-
-
-def _complete(path: Path) -> bool:
-    try:
-        return bool(json.loads((path / "manifest.json").read_text()).get("complete"))
-    except (OSError, ValueError):
-        return False
-
 
 #: Bump when the simulator's output format or content changes (cached sessions are then regenerated).
 SIM_CACHE_VERSION = 3
@@ -41,7 +34,7 @@ def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str
     key = json.dumps(spec, sort_keys=True)
     digest = hashlib.sha1(key.encode()).hexdigest()[:12]
     path = cache_dir() / "sessions" / f"tiny-{occlusion}-{seconds:g}s-{digest}"
-    if _complete(path):
+    if is_complete(path):
         return path
     from vtrack.sim.generate import generate_session
 
@@ -55,7 +48,7 @@ def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str
         scene.sim.depth_noise = float(depth_noise)
     generate_session(scene, tmp, seconds=seconds, seed=seed, occlusion=occlusion, object_mesh=object,
                      overwrite=True)
-    if not _complete(path):
+    if not is_complete(path):
         try:
             tmp.rename(path)
         except OSError:  # another process won the race; use theirs

@@ -33,7 +33,7 @@ from vtrack.errors import InputError
 from vtrack.geometry import se3
 from vtrack.io.jsonio import write_json
 
-SHAPES = ("known", "slam")
+SHAPES = ("known_shape", "slam")
 METHODS = ("ours", "icp")
 INITS = ("auto", "gt")
 
@@ -53,7 +53,7 @@ def perturb_pose(T: np.ndarray, trans_m: float, rot_rad: float, seed: int = 0) -
 
 def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str = "ours",
                   scene: Any = None, **opts: Any):
-    """The tracker for a mode: ``ours`` known/slam or the ``icp`` baseline."""
+    """The tracker for a mode: ``ours`` known_shape/slam or the ``icp`` baseline."""
     if method == "icp":
         if mesh is None:
             raise InputError("the ICP baseline needs the object mesh", field="--mesh")
@@ -62,7 +62,7 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
         return ICPTracker(mesh, T_init, **opts)
     if method != "ours":
         raise InputError("unknown method", field="method", expected="|".join(METHODS), got=method)
-    if shape == "known":
+    if shape == "known_shape":
         from vtrack.tracking.tracker import KnownShapeTracker
 
         if mesh is None:
@@ -72,7 +72,7 @@ def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str
         from vtrack.tracking.slam import SLAMTracker
 
         return SLAMTracker(T_init, **opts)
-    raise InputError("unknown shape mode", field="shape", expected="known|slam", got=shape)
+    raise InputError("unknown shape mode", field="shape", expected="known_shape|slam", got=shape)
 
 
 def centroid_frame(frame: Any) -> np.ndarray | None:
@@ -136,7 +136,7 @@ def known_shape_init(frames: Any, mesh: Path, symmetric: bool, n_frames: int = 3
     return T, info
 
 
-def warm_up(shape: str = "known", method: str = "ours", write: bool = True, **_: Any) -> None:
+def warm_up(shape: str = "known_shape", method: str = "ours", write: bool = True, **_: Any) -> None:
     """Import what :func:`track_session` will use (batch workers call this before timing starts)."""
     import importlib
 
@@ -160,7 +160,7 @@ TRACK_TOUCH_DOWNSAMPLE = 4
 TRACK_TOUCH_STRIDE = 2
 
 
-def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "known",
+def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "known_shape",
                   modalities: tuple[str, ...] | list[str] = ("vision", "touch"), method: str = "ours", *,
                   mesh: str | Path | None = None, init_pose: np.ndarray | None = None, init: str = "auto",
                   init_perturb: tuple[float, float] | None = None, gt: str | Path | None = None,
@@ -197,7 +197,7 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     from vtrack.frames.session import SessionFrames
 
     if shape not in SHAPES:
-        raise InputError("unknown shape mode", field="shape", expected="known|slam", got=shape)
+        raise InputError("unknown shape mode", field="shape", expected="known_shape|slam", got=shape)
     if init not in INITS:
         raise InputError("unknown initialisation", field="init", expected="auto | gt (oracle)", got=init)
     modalities = tuple(modalities)
@@ -206,8 +206,8 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     frames = SessionFrames(session_dir, modalities=modalities, tactile_source=tactile_source,
                            segmentation=segmentation, depth_stride=depth_stride, touch_stride=touch_stride,
                            max_frames=max_frames, touch_downsample=touch_downsample)
-    mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known" or method == "icp") else None
-    if (shape == "known" or method == "icp") and mesh_path is None:
+    mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known_shape" or method == "icp") else None
+    if (shape == "known_shape" or method == "icp") and mesh_path is None:
         raise InputError("known-shape tracking needs the object mesh", path=frames.path, field="--mesh",
                          expected="--mesh PATH (object frame, m) or object.mesh in the scene; or use --shape slam")
     from vtrack.eval.session_gt import SessionGroundTruth
@@ -249,7 +249,7 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     if keep_frames is not None:
         keep_frames.update(frames=frames, built=[])
     reloc = _Relocalisation(tracker, mesh_path, bool(frames.scene.object.symmetric)) \
-        if (shape == "known" and method == "ours") else None
+        if (shape == "known_shape" and method == "ours") else None
     for i in range(n):
         raw = frames.read(i)  # disk read + decompression: not part of the per-frame tracking cost
         c0, t0 = time.process_time(), time.perf_counter()
@@ -338,7 +338,6 @@ class _Relocalisation:
 
 
 def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
-    from vtrack.eval.pose_metrics import plot_errors
     from vtrack.io.poses import write_poses_csv
 
     out.mkdir(parents=True, exist_ok=True)
@@ -350,6 +349,10 @@ def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
     if errors is not None:
         lost = np.array([s in ("lost",) for s in status])
         key = "add_s_mm" if "add_s_mm" in metrics else "motion_err_mm"
-        plot_errors(frames.times, errors, out / "error.png",
-                    title=f"{metrics['mode']} / {'+'.join(metrics['modalities'])}: "
-                          f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics[key]:.2f} mm", lost=lost)
+        from vtrack.viz.plots import plot_error_over_time
+
+        plot_error_over_time(out / "error.png", frames.times,
+                             [{"position (centre)": errors["pos"] * 1e3, "ADD-S": errors["add_s"] * 1e3},
+                              {"rotation": np.degrees(errors["rot"])}], ylabel=["mm", "deg"],
+                             title=f"{metrics['mode']} / {'+'.join(metrics['modalities'])}: "
+                                   f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics[key]:.2f} mm", flags=lost)

@@ -28,7 +28,7 @@ class KnownShapeTracker(WindowTracker):
         **opts: :class:`~vtrack.tracking.window.TrackerOptions` overrides.
     """
 
-    mode = "known"
+    mode = "known_shape"
 
     def __init__(self, mesh: str | Path | SDFGrid, T_init: np.ndarray, voxel: float = 0.002, scale: float = 1.0,
                  **opts: Any) -> None:

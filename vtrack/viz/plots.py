@@ -41,7 +41,8 @@ def _save(fig, out: str | Path) -> Path:
 def plot_error_over_time(out: str | Path, t: np.ndarray | Mapping[str, np.ndarray],
                          series: Mapping[str, np.ndarray] | Sequence[Mapping[str, np.ndarray]],
                          ylabel: str | Sequence[str] = "error", title: str = "",
-                         xlabel: str = "time (s)") -> Path:
+                         xlabel: str = "time (s)", flags: np.ndarray | None = None,
+                         flag_label: str = "lost/recovering") -> Path:
     """Plot error series against time.
 
     Args:
@@ -50,6 +51,8 @@ def plot_error_over_time(out: str | Path, t: np.ndarray | Mapping[str, np.ndarra
         series: ``{name: (N,) values}`` for one panel, or a list of such dicts for stacked panels
             (e.g. ``[{"ours": trans_mm}, {"ours": rot_deg}]``) sharing the time axis.
         ylabel: y label, or one per panel.
+        flags: optional (N,) bool over the shared ``t``: those samples of each panel's first series are
+            marked in red (e.g. frames where the tracker was lost).
 
     Returns:
         The written path.
@@ -73,6 +76,11 @@ def plot_error_over_time(out: str | Path, t: np.ndarray | Mapping[str, np.ndarra
             # NaN breaks the line: lost frames show as gaps.
             vv = np.where(np.isfinite(vv), vv, np.nan)
             ax.plot(tt, vv, lw=1.2, label=str(name))
+        if flags is not None and not isinstance(t, Mapping) and np.any(flags):
+            first = np.asarray(next(iter(panel.values())), np.float64).reshape(-1)
+            f = np.asarray(flags, bool).reshape(-1)
+            if len(f) == len(first):
+                ax.scatter(np.asarray(t, np.float64)[f], first[f], c="r", s=8, label=flag_label, zorder=3)
         ax.set_ylabel(lab)
         ax.grid(alpha=0.3)
         if len(panel) > 1 or len(panels) == 1:

@@ -11,6 +11,7 @@ a column on the right.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -169,3 +170,34 @@ def render_result(path: str | Path, out_png: str | Path, frame: int = -1, size: 
     if not cv2.imwrite(str(out), np.ascontiguousarray(img[..., ::-1])):
         raise InputError("cannot write the screenshot", path=out)
     return out
+
+
+def save_mesh_cloud_screenshot(path: str | Path, vertices: np.ndarray, faces: np.ndarray, cloud: Any = None,
+                               title: str = "", gt_path: Path | None = None,
+                               size: tuple[int, int] = (900, 600)) -> Path:
+    """Off-screen pyvista render of a reconstruction result alone (no session needed): mesh (object or world
+    frame, as given), optional GT mesh file as a wireframe, vision (blue) / touch (red) points of a fused cloud."""
+    import pyvista as pv
+
+    pl = pv.Plotter(off_screen=True, window_size=size)
+    if len(faces):
+        fa = np.hstack([np.full((len(faces), 1), 3), faces]).astype(np.int64).ravel()
+        pl.add_mesh(pv.PolyData(np.asarray(vertices), fa), color="lightgray", smooth_shading=True)
+    if gt_path is not None:
+        gt = pv.read(str(gt_path))
+        pl.add_mesh(gt, style="wireframe", color="green", opacity=0.15)
+    if cloud is not None and len(cloud):
+        from vtrack.fusion.cloud import TOUCH
+
+        rng = np.random.default_rng(0)
+        for mod, colour in ((0, "royalblue"), (TOUCH, "red")):
+            P = cloud.xyz[cloud.modality == mod]
+            if len(P) > 20000:
+                P = P[rng.choice(len(P), 20000, replace=False)]
+            if len(P):
+                pl.add_points(P, color=colour, point_size=2 if mod == 0 else 3, render_points_as_spheres=False)
+    pl.add_text(title, font_size=10)
+    pl.view_isometric()
+    pl.screenshot(str(path))
+    pl.close()
+    return Path(path)

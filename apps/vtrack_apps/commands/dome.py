@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from vtrack.io.jsonio import write_json
+
 
 def register(app: typer.Typer) -> None:
     dome_app = typer.Typer(help="Dome (TacTip/FusionTouch-style) marker sensor: simulate, train, eval, reconstruct.",
@@ -84,7 +86,6 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(12345, "--seed", help="test-set seed (12345 = the held-out set)"),
     ) -> None:
         """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms)."""
-        import json
 
         from vtrack.dome.evaluate import EVAL_KEYS, evaluate
         from vtrack_apps.output import print_table
@@ -93,7 +94,7 @@ def register(app: typer.Typer) -> None:
         print_table("dome eval", [{"method": m, **{k: round(r[k], 4) for k in EVAL_KEYS}} for m, r in res.items()])
         if json_out:
             json_out.parent.mkdir(parents=True, exist_ok=True)
-            json_out.write_text(json.dumps(res, indent=1))
+            write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")
 
     @dome_app.command("reconstruct")
@@ -131,7 +132,6 @@ def register(app: typer.Typer) -> None:
         root: Path = typer.Option(None, "--root", help="tactip_frames folder (default: shared data)"),
     ) -> None:
         """Real TacTip frames: marker-count stability, track continuity, depth/roll regression (80/20 split)."""
-        import json
 
         import torch
 
@@ -143,5 +143,5 @@ def register(app: typer.Typer) -> None:
         print_table("dome tactip", res)
         if json_out:
             json_out.parent.mkdir(parents=True, exist_ok=True)
-            json_out.write_text(json.dumps(res, indent=1))
+            write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")

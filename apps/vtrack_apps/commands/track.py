@@ -12,7 +12,8 @@ def register(app: typer.Typer) -> None:
     def track(
         session: Path = typer.Argument(..., help="session directory (no ground truth needed)"),
         out: Path = typer.Option(..., "--out", help="result folder (poses.csv, metrics.json, ...)"),
-        shape: str = typer.Option("known", "--shape", help="known (mesh SDF) | slam (shape reconstructed online)"),
+        shape: str = typer.Option("known_shape", "--shape",
+                                  help="known_shape (mesh SDF) | slam (shape reconstructed online)"),
         mesh: Path = typer.Option(None, "--mesh", help="known object shape (object frame, m); default: the scene's"),
         init_pose: str = typer.Option(None, "--init-pose",
                                       help="first-frame prior x,y,z,qx,qy,qz,qw or a poses.csv (default: "
