@@ -21,8 +21,14 @@ from vtrack.tactile.pressset import PRESETS_DIR
 KEYS = ("imgs", "f0", "touch_center", "touch_radius")
 
 
-def convert(src: str | Path, out: str | Path, *, mm_per_px: float | None = None, ball_radius_mm: float | None = None,
-            sensor: str | None = None) -> Path:
+def convert(
+    src: str | Path,
+    out: str | Path,
+    *,
+    mm_per_px: float | None = None,
+    ball_radius_mm: float | None = None,
+    sensor: str | None = None,
+) -> Path:
     """Write the press-set folder ``out`` from the Taxim pack ``src``; returns ``out``."""
     import cv2
 
@@ -38,8 +44,13 @@ def convert(src: str | Path, out: str | Path, *, mm_per_px: float | None = None,
         raise InputError("inconsistent array shapes", path=src, got=(imgs.shape, bg.shape, centers.shape, radii.shape))
     preset = PRESETS_DIR / f"{src.stem.replace('dataPack', 'taxim_datapack').lower()}.json"
     meta = json.loads(preset.read_text()) if preset.is_file() else {}
-    meta.update({k: v for k, v in {"sensor": sensor, "mm_per_px": mm_per_px, "ball_radius_mm": ball_radius_mm}.items()
-                 if v is not None})
+    meta.update(
+        {
+            k: v
+            for k, v in {"sensor": sensor, "mm_per_px": mm_per_px, "ball_radius_mm": ball_radius_mm}.items()
+            if v is not None
+        }
+    )
     meta.setdefault("sensor", "gelsight")
     if "mm_per_px" not in meta or "ball_radius_mm" not in meta:
         raise InputError("give --mm-per-px and --ball-radius-mm (no preset for this pack)", path=src)

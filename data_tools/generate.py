@@ -34,16 +34,21 @@ def main(argv: list[str] | None = None) -> int:
     scene = load_scene(args.scene)
     args.out.mkdir(parents=True, exist_ok=True)
     for obj, occ, seed in itertools.product(args.objects, args.occlusion, args.seeds):
-        name = "-".join([scene.name, obj.stem if obj else scene.object.name, occ or "scene",
-                         f"s{seed if seed is not None else 'scene'}"])
+        name = "-".join(
+            [
+                scene.name,
+                obj.stem if obj else scene.object.name,
+                occ or "scene",
+                f"s{seed if seed is not None else 'scene'}",
+            ]
+        )
         dst = args.out / name
         man = dst / "manifest.json"
         if man.exists() and json.loads(man.read_text()).get("complete") and not args.force:
             print(f"skip {dst} (complete)")
             continue
         t0 = time.perf_counter()
-        generate_session(scene, dst, seconds=args.seconds, seed=seed, occlusion=occ, object_mesh=obj,
-                         overwrite=True)
+        generate_session(scene, dst, seconds=args.seconds, seed=seed, occlusion=occ, object_mesh=obj, overwrite=True)
         print(f"{dst}  {time.perf_counter() - t0:.1f} s")
     return 0
 

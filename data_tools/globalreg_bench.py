@@ -52,10 +52,16 @@ def main() -> None:
             errs.append(e[0])
             top5.append(min(e))
         errs, top5 = np.array(errs), np.array(top5)
-        out[name] = {"success": float(np.mean(errs < 0.005)), "success_top5": float(np.mean(top5 < 0.005)),
-                     "median_err_mm": float(np.median(errs) * 1000), "median_s": float(np.median(times)),
-                     "max_s": float(np.max(times)),
-                     "median_cpu_s": float(np.median(cpu)), "metric": "ADD-S" if sym else "ADD", "seeds": args.seeds}
+        out[name] = {
+            "success": float(np.mean(errs < 0.005)),
+            "success_top5": float(np.mean(top5 < 0.005)),
+            "median_err_mm": float(np.median(errs) * 1000),
+            "median_s": float(np.median(times)),
+            "max_s": float(np.max(times)),
+            "median_cpu_s": float(np.median(cpu)),
+            "metric": "ADD-S" if sym else "ADD",
+            "seeds": args.seeds,
+        }
         print(name, json.dumps(out[name]), flush=True)
     if args.json:
         with open(args.json, "w") as f:

@@ -16,6 +16,7 @@ def checked_fields(cls: type[T], opts: dict[str, Any], what: str) -> dict[str, A
     names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
     unknown = set(opts) - names
     if unknown:
-        raise InputError(f"unknown {what} option(s)", field=", ".join(sorted(unknown)),
-                         expected=f"some of {sorted(names)}")
+        raise InputError(
+            f"unknown {what} option(s)", field=", ".join(sorted(unknown)), expected=f"some of {sorted(names)}"
+        )
     return opts

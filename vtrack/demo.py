@@ -44,8 +44,12 @@ def scene_digest(scene) -> str:
     return h.hexdigest()[:12]
 
 
-def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "results/demo",
-             seconds: float | None = None, progress: bool = True) -> dict[str, Any]:
+def run_demo(
+    scene_path: str | Path | None = None,
+    out_dir: str | Path = "results/demo",
+    seconds: float | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
     """Run the demo pipeline on a scene (default: the embedded default scene).
 
     Returns a summary dict that is also written to ``out_dir/summary.json``.
@@ -86,18 +90,27 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
     if blind_dir is not None and scene.pipeline.reconstruction != "off" and _available("vtrack.fusion.reconstruct"):
         from vtrack.fusion.reconstruct import reconstruct_session
 
-        summary["stages"]["reconstruct"] = reconstruct_session(blind_dir, out / "reconstruction",
-                                                               method=scene.pipeline.reconstruction,
-                                                               modalities=tuple(scene.effective_modalities),
-                                                               poses="track", gt=session_dir)
+        summary["stages"]["reconstruct"] = reconstruct_session(
+            blind_dir,
+            out / "reconstruction",
+            method=scene.pipeline.reconstruction,
+            modalities=tuple(scene.effective_modalities),
+            poses="track",
+            gt=session_dir,
+        )
     if blind_dir is not None and scene.pipeline.tracking != "off" and _available("vtrack.tracking.run"):
         from vtrack.tracking.run import track_session
 
         known = scene.pipeline.tracking == "known_shape" and scene.object.mesh is not None
         shape = "known_shape" if known else "slam"
-        summary["stages"]["track"] = track_session(blind_dir, out / "tracking", shape=shape,
-                                                   mesh=scene.object.mesh if known else None, gt=session_dir,
-                                                   modalities=tuple(scene.effective_modalities))
+        summary["stages"]["track"] = track_session(
+            blind_dir,
+            out / "tracking",
+            shape=shape,
+            mesh=scene.object.mesh if known else None,
+            gt=session_dir,
+            modalities=tuple(scene.effective_modalities),
+        )
     produced = any(k in summary["stages"] for k in ("generate", "reconstruct", "track"))
     if produced and _available("vtrack.viz.screenshot"):
         from vtrack.viz.screenshot import render_result
@@ -111,5 +124,3 @@ def run_demo(scene_path: str | Path | None = None, out_dir: str | Path = "result
     summary["seconds_total"] = time.perf_counter() - t0
     write_json(out / "summary.json", summary)
     return summary
-
-

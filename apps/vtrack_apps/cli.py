@@ -27,11 +27,17 @@ app = typer.Typer(
 
 @app.callback()
 def _root(
-    threads: int = typer.Option(0, "--threads", help="threads of every numeric back-end: BLAS/OpenMP, OpenCV, "
-                                                     "torch (0 = library default; 1 for single-core speed figures)."),
-    on_corrupt: str = typer.Option(None, "--on-corrupt",
-                                   help="session frames whose data chunks are damaged: raise (default), "
-                                        "skip them, or stop at the first"),
+    threads: int = typer.Option(
+        0,
+        "--threads",
+        help="threads of every numeric back-end: BLAS/OpenMP, OpenCV, "
+        "torch (0 = library default; 1 for single-core speed figures).",
+    ),
+    on_corrupt: str = typer.Option(
+        None,
+        "--on-corrupt",
+        help="session frames whose data chunks are damaged: raise (default), skip them, or stop at the first",
+    ),
 ) -> None:
     """vtrack: tactile height maps, world-frame visuo-tactile fusion, in-hand tracking."""
     if on_corrupt is not None:

@@ -32,8 +32,9 @@ class BatchCase:
 def _synthetic_sessions(root: Path, n: int, frames: int = 12) -> list[Path]:
     from vtrack.batch.synthetic import write_synthetic_session
 
-    return [write_synthetic_session(root / f"session_{i}", seed=i, frames=frames, width=96, height=72)
-            for i in range(n)]
+    return [
+        write_synthetic_session(root / f"session_{i}", seed=i, frames=frames, width=96, height=72) for i in range(n)
+    ]
 
 
 @pytest.fixture(scope="session")
@@ -49,9 +50,11 @@ def real_case(synthetic_sessions) -> BatchCase | None:
     simulator's sessions take tens of seconds each to generate on 2 busy cores."""
     if not _have("vtrack.fusion.reconstruct"):
         return None
-    return BatchCase("reconstruct", synthetic_sessions[:3],
-                     {"method": "tsdf", "modalities": ["vision"], "screenshot": False, "poses": "gt",
-                      "segmentation": "gt"})
+    return BatchCase(
+        "reconstruct",
+        synthetic_sessions[:3],
+        {"method": "tsdf", "modalities": ["vision"], "screenshot": False, "poses": "gt", "segmentation": "gt"},
+    )
 
 
 @pytest.fixture(scope="session")
@@ -60,5 +63,3 @@ def three_case(real_case, synthetic_sessions) -> BatchCase:
     if real_case is not None:
         return real_case
     return BatchCase("stats", synthetic_sessions[:3], {})
-
-

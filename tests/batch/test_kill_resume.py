@@ -49,8 +49,18 @@ def test_killed_driver_resumes_without_loss_or_duplicates(synthetic_sessions, tm
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps({"*": {"delay_s": 0.6}}))  # slow tasks down so the kill lands mid-batch
     env = {**os.environ, "VTRACK_BATCH_FAULT_PLAN": str(plan)}
-    cmd = [sys.executable, "-m", "vtrack_apps.cli", "batch", "stats", *map(str, synthetic_sessions), "--out",
-           str(out), "--workers", "2"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "vtrack_apps.cli",
+        "batch",
+        "stats",
+        *map(str, synthetic_sessions),
+        "--out",
+        str(out),
+        "--workers",
+        "2",
+    ]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     t0 = time.monotonic()
     workers: set[int] = set()
@@ -87,5 +97,6 @@ def test_killed_driver_resumes_without_loss_or_duplicates(synthetic_sessions, tm
     # The resumed results equal those of an uninterrupted, in-process computation.
     for s in synthetic_sessions:
         (tmp_path / "ref" / s.name).mkdir(parents=True)
-        assert session_stats(str(s), str(tmp_path / "ref" / s.name)) == \
-            next(r["metrics"] for r in rep["results"] if r["key"] == s.name)
+        assert session_stats(str(s), str(tmp_path / "ref" / s.name)) == next(
+            r["metrics"] for r in rep["results"] if r["key"] == s.name
+        )

@@ -41,17 +41,18 @@ def test_local_run_then_resume_skips_complete(synthetic_sessions, tmp_path):
     # Other task options make the old results stale: they are recomputed, not reused.
     rep3 = run_batch("stats", sessions, tmp_path, engine="local", workers=2, params={"voxel_m": 0.01})
     assert rep3["run"]["ok"] == 3
-    assert all(metrics_of(rep3)[k]["camera/cam0.occupied_voxels"] < m[k]["camera/cam0.occupied_voxels"]
-               for k in m)
+    assert all(metrics_of(rep3)[k]["camera/cam0.occupied_voxels"] < m[k]["camera/cam0.occupied_voxels"] for k in m)
     rows = (tmp_path / "summary.csv").read_text().splitlines()
     assert len(rows) == 4 and rows[1].startswith("session_0,")
 
 
 def test_crashing_worker_is_retried_and_reported(synthetic_sessions, tmp_path):
     sessions = synthetic_sessions[:4]
-    plan = {"session_1": {"mode": "exit", "times": 1},         # crashes once, then succeeds
-            "session_2": {"mode": "kill", "times": 99},        # SIGKILLs its worker every time
-            "session_3": {"mode": "exit_before_commit", "times": 1}}  # dies with its result unrenamed
+    plan = {
+        "session_1": {"mode": "exit", "times": 1},  # crashes once, then succeeds
+        "session_2": {"mode": "kill", "times": 99},  # SIGKILLs its worker every time
+        "session_3": {"mode": "exit_before_commit", "times": 1},
+    }  # dies with its result unrenamed
     out = tmp_path / "out"
     rep = run_batch("stats", sessions, out, engine="local", workers=2, retries=2, fault_plan=plan)
     by = {r["key"]: r for r in rep["results"]}
@@ -81,8 +82,15 @@ def test_bad_input_is_not_retried(synthetic_sessions, tmp_path):
 
 
 def test_timeout_kills_and_retries(synthetic_sessions, tmp_path):
-    rep = run_batch("stats", synthetic_sessions[:2], tmp_path, workers=2, retries=1, timeout_s=4.0,
-                    fault_plan={"session_0": {"mode": "hang", "times": 1}})
+    rep = run_batch(
+        "stats",
+        synthetic_sessions[:2],
+        tmp_path,
+        workers=2,
+        retries=1,
+        timeout_s=4.0,
+        fault_plan={"session_0": {"mode": "hang", "times": 1}},
+    )
     by = {r["key"]: r for r in rep["results"]}
     assert by["session_0"]["status"] == "ok" and by["session_0"]["attempts"] == 2
     assert "timed out after 4 s" in by["session_0"]["attempt_errors"][0]

@@ -36,8 +36,7 @@ def test_chunks_cover_every_frame_once(synthetic_sessions):
     chunks = chunk_ranges(s, 5)
     assert [c["frames"] for c in chunks] == [[0, 5], [5, 10], [10, 12]]
     t = open_session(s)["camera/cam0"].t
-    covered = np.concatenate([np.nonzero((t >= c["time_range"][0]) & (t < c["time_range"][1]))[0]
-                              for c in chunks])
+    covered = np.concatenate([np.nonzero((t >= c["time_range"][0]) & (t < c["time_range"][1]))[0] for c in chunks])
     np.testing.assert_array_equal(covered, np.arange(len(t)))
     with pytest.raises(InputError):
         chunk_ranges(s, 0)
@@ -45,8 +44,11 @@ def test_chunks_cover_every_frame_once(synthetic_sessions):
 
 def test_chunk_jobs_need_a_chunkable_task(synthetic_sessions, tmp_path):
     jobs = make_jobs("stats", synthetic_sessions[:2], tmp_path, chunk_frames=5)
-    assert [j["key"] for j in jobs[:3]] == ["session_0@f000000-000005", "session_0@f000005-000010",
-                                           "session_0@f000010-000012"]
+    assert [j["key"] for j in jobs[:3]] == [
+        "session_0@f000000-000005",
+        "session_0@f000005-000010",
+        "session_0@f000010-000012",
+    ]
     assert set(jobs[0]["chunk_args"]) == {"time_range", "frames"}
     with pytest.raises(InputError, match="cannot process part of a session"):
         make_jobs("json:dumps", synthetic_sessions[:1], tmp_path, chunk_frames=5)
@@ -72,11 +74,18 @@ def test_registry():
     assert chunk_params(resolve(TASKS["stats"])) == ["time_range", "frames"]
 
 
-@pytest.mark.parametrize("task,params,expect", [
-    ("reconstruct", {"method": "tsdf", "screenshot": False}, {"open3d", "trimesh", "yourdfpy", "vtrack.fusion.tsdf"}),
-    ("track", {"shape": "known_shape"}, {"open3d", "vtrack.tracking.tracker", "vtrack.frames.session"}),
-    ("bench", {"reconstruction": {"method": "tsdf"}}, {"open3d", "vtrack.fusion.tsdf", "vtrack.tracking.tracker"}),
-])
+@pytest.mark.parametrize(
+    "task,params,expect",
+    [
+        (
+            "reconstruct",
+            {"method": "tsdf", "screenshot": False},
+            {"open3d", "trimesh", "yourdfpy", "vtrack.fusion.tsdf"},
+        ),
+        ("track", {"shape": "known_shape"}, {"open3d", "vtrack.tracking.tracker", "vtrack.frames.session"}),
+        ("bench", {"reconstruction": {"method": "tsdf"}}, {"open3d", "vtrack.fusion.tsdf", "vtrack.tracking.tracker"}),
+    ],
+)
 def test_warm_up_imports_what_the_task_uses(task, params, expect):
     """Batch workers warm a task before timing: its module's ``warm_up(**params)`` hook must import the heavy
     dependencies the task loads lazily (else each worker's first task pays ~2 s of imports)."""
@@ -84,9 +93,11 @@ def test_warm_up_imports_what_the_task_uses(task, params, expect):
     import subprocess
     import sys
 
-    code = ("import json, sys; from vtrack.batch.worker import warm_up; from vtrack.batch.tasks import target_of; "
-            f"warm_up(target_of({task!r}), json.loads({json.dumps(json.dumps(params))})); "
-            "print(json.dumps(sorted(sys.modules)))")
+    code = (
+        "import json, sys; from vtrack.batch.worker import warm_up; from vtrack.batch.tasks import target_of; "
+        f"warm_up(target_of({task!r}), json.loads({json.dumps(json.dumps(params))})); "
+        "print(json.dumps(sorted(sys.modules)))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
     loaded = set(json.loads(out.stdout.strip().splitlines()[-1]))
     assert expect <= loaded, expect - loaded

@@ -16,8 +16,9 @@ from vtrack.batch.engines import RayEngine  # noqa: E402
 def without_timing(metrics):
     """Metrics minus wall-clock fields (``*seconds``, ``ms_per_*``), which differ run to run."""
     if isinstance(metrics, dict):
-        return {k: without_timing(v) for k, v in metrics.items()
-                if not (k.endswith("seconds") or k.startswith("ms_per"))}
+        return {
+            k: without_timing(v) for k, v in metrics.items() if not (k.endswith("seconds") or k.startswith("ms_per"))
+        }
     return metrics
 
 
@@ -39,10 +40,12 @@ def _engine(ray_cluster) -> RayEngine:
 
 
 def test_ray_matches_local(ray_cluster, three_case, tmp_path):
-    local = run_batch(three_case.task, three_case.sessions, tmp_path / "local", engine="local", workers=2,
-                      params=three_case.params)
-    on_ray = run_batch(three_case.task, three_case.sessions, tmp_path / "ray", engine=_engine(ray_cluster),
-                       params=three_case.params)
+    local = run_batch(
+        three_case.task, three_case.sessions, tmp_path / "local", engine="local", workers=2, params=three_case.params
+    )
+    on_ray = run_batch(
+        three_case.task, three_case.sessions, tmp_path / "ray", engine=_engine(ray_cluster), params=three_case.params
+    )
     assert on_ray["run"]["engine"] == "ray" and on_ray["run"]["ok"] == 3
     assert local["run"]["ok"] == 3
     m_local = {r["key"]: without_timing(r["metrics"]) for r in local["results"]}
@@ -53,14 +56,14 @@ def test_ray_matches_local(ray_cluster, three_case, tmp_path):
     for key in m_local:
         a = json.loads((tmp_path / "local" / key / "batch_result.json").read_text())["files"]
         b = json.loads((tmp_path / "ray" / key / "batch_result.json").read_text())["files"]
-        assert {k: v["sha256"] for k, v in a.items() if k.endswith(".ply")} == \
-               {k: v["sha256"] for k, v in b.items() if k.endswith(".ply")}
+        assert {k: v["sha256"] for k, v in a.items() if k.endswith(".ply")} == {
+            k: v["sha256"] for k, v in b.items() if k.endswith(".ply")
+        }
 
 
 def test_ray_crash_retried_and_reported(ray_cluster, synthetic_sessions, tmp_path):
     plan = {"session_0": {"mode": "exit", "times": 1}, "session_1": {"mode": "kill", "times": 99}}
-    rep = run_batch("stats", synthetic_sessions[:3], tmp_path, engine=_engine(ray_cluster), retries=1,
-                    fault_plan=plan)
+    rep = run_batch("stats", synthetic_sessions[:3], tmp_path, engine=_engine(ray_cluster), retries=1, fault_plan=plan)
     by = {r["key"]: r for r in rep["results"]}
     assert by["session_0"]["status"] == "ok" and by["session_0"]["attempts"] == 2
     assert "WorkerCrashedError" in by["session_0"]["attempt_errors"][0]

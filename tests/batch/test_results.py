@@ -11,8 +11,16 @@ from vtrack.batch import results
 
 
 def _job(tmp_path: Path, key: str = "s0") -> dict:
-    return {"key": key, "target": "m:f", "params_digest": "p1", "session_fingerprint": "f1", "chunk": None,
-            "session": "/data/s0", "params": {}, "out_root": str(tmp_path)}
+    return {
+        "key": key,
+        "target": "m:f",
+        "params_digest": "p1",
+        "session_fingerprint": "f1",
+        "chunk": None,
+        "session": "/data/s0",
+        "params": {},
+        "out_root": str(tmp_path),
+    }
 
 
 def _make_result(folder: Path, job: dict, payload: bytes = b"mesh-bytes") -> dict:
@@ -77,13 +85,24 @@ def test_metrics_sanitised_and_summary_written(tmp_path):
     bad: list[str] = []
     from vtrack.io.jsonio import to_jsonable
 
-    m = to_jsonable({"a": np.float32(1.5), "b": float("nan"), "c": {"d": np.inf, "e": np.int64(3)},
-                     "arr": np.array([1.0, 2.0])}, bad)
+    m = to_jsonable(
+        {"a": np.float32(1.5), "b": float("nan"), "c": {"d": np.inf, "e": np.int64(3)}, "arr": np.array([1.0, 2.0])},
+        bad,
+    )
     assert m == {"a": 1.5, "b": None, "c": {"d": None, "e": 3}, "arr": [1.0, 2.0]}
     assert bad == ["b", "c.d"]
-    recs = [{"key": "s0", "session": "/x", "chunk": None, "status": "ok", "attempts": 1, "seconds": 0.5,
-             "metrics": m}, {"key": "s1", "session": "/y", "chunk": {"frames": [0, 5]}, "status": "failed",
-                             "attempts": 3, "error": "boom", "metrics": None}]
+    recs = [
+        {"key": "s0", "session": "/x", "chunk": None, "status": "ok", "attempts": 1, "seconds": 0.5, "metrics": m},
+        {
+            "key": "s1",
+            "session": "/y",
+            "chunk": {"frames": [0, 5]},
+            "status": "failed",
+            "attempts": 3,
+            "error": "boom",
+            "metrics": None,
+        },
+    ]
     paths = results.write_summary(tmp_path, recs, {"task": "t"})
     lines = paths["csv"].read_text().splitlines()
     assert lines[0].startswith("key,session,chunk,status,attempts,seconds,host,error,metric.a")

@@ -48,12 +48,21 @@ def test_write_results_files(tmp_path: Path) -> None:
 
 def test_add_group_means():
     t = BenchTable(stage="x", error_key="err")
-    for obj, occ, err, frames in (("a", "none", 1.0, 10), ("b", "none", 3.0, 20), ("a", "heavy", 9.0, 5),
-                                  ("c", "none", float("nan"), 1), ("a", "medium", 2.0, 7)):
+    for obj, occ, err, frames in (
+        ("a", "none", 1.0, 10),
+        ("b", "none", 3.0, 20),
+        ("a", "heavy", 9.0, 5),
+        ("c", "none", float("nan"), 1),
+        ("a", "medium", 2.0, 7),
+    ):
         t.add(method="m", object=obj, occlusion=occ, err=err, frames=frames)
-    t.add_group_means(by=("method", "occlusion"), means=("err",), sums=("frames",),
-                      where=lambda r: r["occlusion"] != "heavy",
-                      label=lambda key, rows: {"object": "all", "worst": max(r["err"] for r in rows[:2])})
+    t.add_group_means(
+        by=("method", "occlusion"),
+        means=("err",),
+        sums=("frames",),
+        where=lambda r: r["occlusion"] != "heavy",
+        label=lambda key, rows: {"object": "all", "worst": max(r["err"] for r in rows[:2])},
+    )
     added = t.rows[5:]
     # one group of three (NaN ignored in the mean); the single-row "medium" group is below min_rows=2
     assert len(added) == 1

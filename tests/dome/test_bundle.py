@@ -21,8 +21,10 @@ def test_shipped_bundles_are_version_2_and_inference_never_imports_training():
 
     for kind in ("gnn", "cnn"):
         assert read_bundle(weights_dir() / f"{kind}.pt")["version"] == BUNDLE_VERSION == 2
-    code = ("import sys, numpy as np; from vtrack.dome.reconstruct import DomeReconstructor; "
-            "DomeReconstructor(); print('TRAIN' if 'vtrack.dome.train' in sys.modules else 'CLEAN')")
+    code = (
+        "import sys, numpy as np; from vtrack.dome.reconstruct import DomeReconstructor; "
+        "DomeReconstructor(); print('TRAIN' if 'vtrack.dome.train' in sys.modules else 'CLEAN')"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().endswith("CLEAN")

@@ -55,10 +55,10 @@ def test_reference_frame_features_are_zero() -> None:
     img = DomeSimulator(cfg).reference_image()
     a = graph_arrays(img, reference_markers(img), DomeGeometry(cfg))
     assert a["x"].shape[1] == NODE_IN and len(a["x"]) > 300
-    assert np.allclose(a["x"][:, NODE_DIM:NODE_DIM + 4], 0) and np.all(a["x"][:, -1] == 1)
+    assert np.allclose(a["x"][:, NODE_DIM : NODE_DIM + 4], 0) and np.all(a["x"][:, -1] == 1)
     assert a["edge_attr"].shape[1] == EDGE_DIM + EDGE_REL_DIM and np.allclose(a["edge_attr"][:, EDGE_DIM:], 0)
     b = graph_arrays(img, reference_markers(img).centers, DomeGeometry(cfg))  # bare centres accepted
-    assert np.allclose(b["x"][:, NODE_DIM:NODE_DIM + 4], 0)
+    assert np.allclose(b["x"][:, NODE_DIM : NODE_DIM + 4], 0)
 
 
 def test_edge_strain_measures_stretch_and_ignores_unmatched() -> None:

@@ -172,8 +172,9 @@ def test_reconstructor_uses_the_reference_at_the_operating_pressure():
     for P in (0.0, 8.0):
         ref_img, _ = rec.reference(P)
         assert np.array_equal(ref_img, sim.reference_image(P))
-        img = sim.sample(np.random.default_rng(3), Press("none", np.array([0.0, 0.0, 1.0]), 0.0, 0.0, 0.0,
-                                                          np.zeros(2), P))["image"]
+        img = sim.sample(
+            np.random.default_rng(3), Press("none", np.array([0.0, 0.0, 1.0]), 0.0, 0.0, 0.0, np.zeros(2), P)
+        )["image"]
         res = rec.reconstruct(img, pressure_kpa=P)
         radius = np.linalg.norm(res.dense_mm, axis=1)
         assert abs(np.median(radius) - (R + 0.03 * P)) < 0.05, P

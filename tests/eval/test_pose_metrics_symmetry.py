@@ -5,9 +5,17 @@ from __future__ import annotations
 import pytest
 
 
-@pytest.mark.parametrize("name,expected", [("005_tomato_soup_can", True), ("055_baseball", True),
-                                           ("006_mustard_bottle", False), ("010_potted_meat_can", False),
-                                           ("011_banana", False), ("025_mug", False)])
+@pytest.mark.parametrize(
+    "name,expected",
+    [
+        ("005_tomato_soup_can", True),
+        ("055_baseball", True),
+        ("006_mustard_bottle", False),
+        ("010_potted_meat_can", False),
+        ("011_banana", False),
+        ("025_mug", False),
+    ],
+)
 def test_rotational_symmetry_of_the_ycb_objects(shared_data, name, expected):
     from vtrack.eval.pose_metrics import is_rotationally_symmetric
     from vtrack.io.mesh import load_mesh

@@ -148,9 +148,9 @@ def test_temporal_state_and_reset(frames):
     d2 = depth.copy()
     rr, cc = np.nonzero(gt)
     r_c, c_c = int(rr.mean()), int(cc.mean())
-    d2[r_c - 5:r_c + 5, c_c + 25:c_c + 35] = float(depth[gt].min()) - 0.06
+    d2[r_c - 5 : r_c + 5, c_c + 25 : c_c + 35] = float(depth[gt].min()) - 0.06
     r1 = seg.segment(d2, q)
-    assert not r1.mask[r_c - 5:r_c + 5, c_c + 25:c_c + 35].any()
+    assert not r1.mask[r_c - 5 : r_c + 5, c_c + 25 : c_c + 35].any()
     assert _iou(r1.mask, r0.mask) > 0.9
     seg.reset()
     assert seg._prev_centroid is None
@@ -184,8 +184,11 @@ def _full_raycast_hand(seg, q) -> np.ndarray:
     from vtrack.kinematics.hand import decimated_link_meshes
 
     poses = seg.kin.link_poses(q)
-    meshes = [(v @ poses[k][0][:3, :3].T + poses[k][0][:3, 3], f)
-              for k, parts in decimated_link_meshes(seg.kin).items() for v, f in parts]
+    meshes = [
+        (v @ poses[k][0][:3, :3].T + poses[k][0][:3, 3], f)
+        for k, parts in decimated_link_meshes(seg.kin).items()
+        for v, f in parts
+    ]
     T = seg.T_world_camera
     d = np.stack([seg._rx, seg._ry, np.ones_like(seg._rx)], -1) @ T[:3, :3].T
     return Raycaster(meshes).cast(np.broadcast_to(T[:3, 3], d.shape), d)["t"]

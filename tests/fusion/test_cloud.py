@@ -58,8 +58,15 @@ def test_voxel_downsample_keeps_modalities_and_balance():
     v = rng.uniform(-0.05, 0.05, (20000, 3))
     t = rng.uniform(-0.005, 0.005, (500, 3))
     n = len(v) + len(t)
-    c = UnifiedCloud(np.vstack([v, t]), np.tile([0, 0, 1.0], (n, 1)), [VISION] * len(v) + [TOUCH] * len(t),
-                     np.zeros(n), np.zeros(n), np.ones(n), np.zeros(n))
+    c = UnifiedCloud(
+        np.vstack([v, t]),
+        np.tile([0, 0, 1.0], (n, 1)),
+        [VISION] * len(v) + [TOUCH] * len(t),
+        np.zeros(n),
+        np.zeros(n),
+        np.ones(n),
+        np.zeros(n),
+    )
     d = c.voxel_downsample(0.01, touch_voxel_size=0.002)
     cnt = d.counts()
     assert 900 < cnt["vision"] < 1100  # 10 x 10 x 10 voxels
@@ -71,8 +78,15 @@ def test_voxel_downsample_keeps_modalities_and_balance():
 
 def test_ply_export_round_trip(tmp_path):
     n = 10
-    c = UnifiedCloud(np.arange(30.0).reshape(10, 3) * 1e-3, np.tile([1, 0, 0.0], (n, 1)), [0] * 5 + [1] * 5,
-                     np.arange(n), np.linspace(0, 1, n), np.full(n, 0.5), np.arange(n) * 0.1)
+    c = UnifiedCloud(
+        np.arange(30.0).reshape(10, 3) * 1e-3,
+        np.tile([1, 0, 0.0], (n, 1)),
+        [0] * 5 + [1] * 5,
+        np.arange(n),
+        np.linspace(0, 1, n),
+        np.full(n, 0.5),
+        np.arange(n) * 0.1,
+    )
     d = read_ply_points(c.to_ply(tmp_path / "c.ply"))
     np.testing.assert_array_equal(d["modality"], [0] * 5 + [1] * 5)
     np.testing.assert_allclose(d["t"], np.linspace(0, 1, n), atol=1e-6)

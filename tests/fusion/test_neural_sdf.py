@@ -73,15 +73,17 @@ def test_online_step_respects_budget(soup_obs):
 
 
 def test_neural_sdf_path_never_imports_open3d():
-    code = ("import sys, numpy as np\n"
-            "from vtrack.fusion.neural_sdf import NeuralSDFReconstructor\n"
-            "rng = np.random.default_rng(0)\n"
-            "P = rng.normal(size=(2000, 3)); P /= np.linalg.norm(P, axis=1, keepdims=True)\n"
-            "r = NeuralSDFReconstructor(bounds=[[-0.1]*3, [0.1]*3], batch=256)\n"
-            "r.integrate(P * 0.05, P, 0)\n"
-            "r.step(10)\n"
-            "v, f = r.extract_mesh(cell_mm=8)\n"
-            "assert len(f) > 0\n"
-            "assert 'open3d' not in sys.modules, 'open3d imported'\n")
+    code = (
+        "import sys, numpy as np\n"
+        "from vtrack.fusion.neural_sdf import NeuralSDFReconstructor\n"
+        "rng = np.random.default_rng(0)\n"
+        "P = rng.normal(size=(2000, 3)); P /= np.linalg.norm(P, axis=1, keepdims=True)\n"
+        "r = NeuralSDFReconstructor(bounds=[[-0.1]*3, [0.1]*3], batch=256)\n"
+        "r.integrate(P * 0.05, P, 0)\n"
+        "r.step(10)\n"
+        "v, f = r.extract_mesh(cell_mm=8)\n"
+        "assert len(f) > 0\n"
+        "assert 'open3d' not in sys.modules, 'open3d imported'\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -80,9 +80,24 @@ def test_neural_sdf_session_and_cli(tiny_session, blind_session, tmp_path):
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
-    r = CliRunner().invoke(app, ["reconstruct", str(blind_session), "--out", str(tmp_path / "n"), "--method",
-                                 "neural_sdf", "--iters", "60", "--no-screenshot", "--gt", str(tiny_session),
-                                 "--json", str(tmp_path / "m.json")])
+    r = CliRunner().invoke(
+        app,
+        [
+            "reconstruct",
+            str(blind_session),
+            "--out",
+            str(tmp_path / "n"),
+            "--method",
+            "neural_sdf",
+            "--iters",
+            "60",
+            "--no-screenshot",
+            "--gt",
+            str(tiny_session),
+            "--json",
+            str(tmp_path / "m.json"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "m.json").read_text())
     assert KEYS <= set(m) and m["method"] == "neural_sdf" and m["iterations"] == 60 and m["blind"]
@@ -105,10 +120,12 @@ def test_bad_input_is_one_line_error(tmp_path):
 
 
 def test_tsdf_session_path_does_not_import_torch(tiny_session, tmp_path):
-    code = ("import sys\n"
-            "from vtrack.fusion.reconstruct import reconstruct_session\n"
-            f"reconstruct_session({str(tiny_session)!r}, {str(tmp_path)!r}, method='tsdf', poses='gt', "
-            "screenshot=False)\n"
-            "assert 'torch' not in sys.modules, 'torch imported'\n")
+    code = (
+        "import sys\n"
+        "from vtrack.fusion.reconstruct import reconstruct_session\n"
+        f"reconstruct_session({str(tiny_session)!r}, {str(tmp_path)!r}, method='tsdf', poses='gt', "
+        "screenshot=False)\n"
+        "assert 'torch' not in sys.modules, 'torch imported'\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -43,17 +43,19 @@ def test_tsdf_touch_only_gives_patches(soup_obs):
 
 
 def test_tsdf_never_imports_torch():
-    code = ("import sys, numpy as np\n"
-            "from vtrack.fusion.tsdf import TSDFReconstructor\n"
-            "r = TSDFReconstructor()\n"
-            "K = np.array([[50., 0, 16], [0, 50., 12], [0, 0, 1]])\n"
-            "d = np.full((24, 32), 0.3, np.float32)\n"
-            "assert r.integrate_depth(d, K, np.eye(4))\n"
-            "assert r.integrate_points(np.random.default_rng(0).normal(size=(50, 3)) * 0.003 + [0, 0, 0.25],"
-            " np.tile([0, 0, -1.0], (50, 1)))\n"
-            "v, f = r.extract_mesh()\n"
-            "assert len(f) > 0\n"
-            "assert 'torch' not in sys.modules, 'torch imported'\n")
+    code = (
+        "import sys, numpy as np\n"
+        "from vtrack.fusion.tsdf import TSDFReconstructor\n"
+        "r = TSDFReconstructor()\n"
+        "K = np.array([[50., 0, 16], [0, 50., 12], [0, 0, 1]])\n"
+        "d = np.full((24, 32), 0.3, np.float32)\n"
+        "assert r.integrate_depth(d, K, np.eye(4))\n"
+        "assert r.integrate_points(np.random.default_rng(0).normal(size=(50, 3)) * 0.003 + [0, 0, 0.25],"
+        " np.tile([0, 0, -1.0], (50, 1)))\n"
+        "v, f = r.extract_mesh()\n"
+        "assert len(f) > 0\n"
+        "assert 'torch' not in sys.modules, 'torch imported'\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
 

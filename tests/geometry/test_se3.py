@@ -18,7 +18,7 @@ twist = arrays(np.float64, (6,), elements=st.floats(-3.0, 3.0, allow_nan=False))
 
 def _rand_T(rng: np.random.Generator, n: int) -> np.ndarray:
     phi = rng.normal(size=(n, 3))
-    phi *= (rng.uniform(0, np.pi, size=(n, 1)) / np.linalg.norm(phi, axis=1, keepdims=True))
+    phi *= rng.uniform(0, np.pi, size=(n, 1)) / np.linalg.norm(phi, axis=1, keepdims=True)
     return se3.make_transform(se3.so3_exp(phi), rng.normal(size=(n, 3)))
 
 

@@ -26,8 +26,12 @@ from vtrack.paths import default_scene_path
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
 URDF = SHARED / "robots" / "allegro_digit" / "allegro_digit_left.urdf"
 PRESSES = SHARED / "gelsight_ball_presses"
-HYP = settings(max_examples=12, deadline=None, derandomize=True,
-               suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+HYP = settings(
+    max_examples=12,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 
 
 # ----------------------------------------------------------------------------------------- helpers
@@ -108,8 +112,9 @@ SCENE_MUTATIONS = [  # (path in the scene dict, bad value, field named in the er
 ]
 
 
-@pytest.mark.parametrize("where,value,field", SCENE_MUTATIONS,
-                         ids=[m[2] + str(i) for i, m in enumerate(SCENE_MUTATIONS)])
+@pytest.mark.parametrize(
+    "where,value,field", SCENE_MUTATIONS, ids=[m[2] + str(i) for i, m in enumerate(SCENE_MUTATIONS)]
+)
 def test_scene_out_of_range_refused(tmp_path, where, value, field) -> None:
     d = base_scene()
     d.setdefault("sim", {})
@@ -168,14 +173,23 @@ def test_non_watertight_mesh_warns(tmp_path) -> None:
     assert trimesh.Trimesh(m.vertices, m.faces).is_watertight
 
 
-_SCENE_NUMBERS = [("cameras", 0, "fx"), ("cameras", 0, "depth_scale"), ("cameras", 0, "height"),
-                  ("tactile", 1, "gel_thickness_mm"), ("tactile", 2, "width"), ("object", "scale")]
+_SCENE_NUMBERS = [
+    ("cameras", 0, "fx"),
+    ("cameras", 0, "depth_scale"),
+    ("cameras", 0, "height"),
+    ("tactile", 1, "gel_thickness_mm"),
+    ("tactile", 2, "width"),
+    ("object", "scale"),
+]
 
 
 @HYP
-@given(which=st.sampled_from(_SCENE_NUMBERS),
-       value=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12),
-                       st.text(max_size=5), st.none()))
+@given(
+    which=st.sampled_from(_SCENE_NUMBERS),
+    value=st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True), st.integers(-(10**12), 10**12), st.text(max_size=5), st.none()
+    ),
+)
 def test_scene_number_mutations_hypothesis(tmp_path_factory, which, value) -> None:
     tmp = tmp_path_factory.mktemp("scene")
     d = base_scene()
@@ -236,9 +250,16 @@ def test_missing_and_bitflipped_chunks(tmp_path) -> None:
     assert "missing" in probs[0].message and "checksum" in probs[1].message.lower()
 
 
-@pytest.mark.parametrize("manifest", ["{not json", "[]", json.dumps({"format": "other"}),
-                                      json.dumps({"format": "vtrack-session", "version": 99, "streams": {}}),
-                                      json.dumps({"format": "vtrack-session", "version": 1, "streams": 5})])
+@pytest.mark.parametrize(
+    "manifest",
+    [
+        "{not json",
+        "[]",
+        json.dumps({"format": "other"}),
+        json.dumps({"format": "vtrack-session", "version": 99, "streams": {}}),
+        json.dumps({"format": "vtrack-session", "version": 1, "streams": 5}),
+    ],
+)
 def test_bad_manifests(tmp_path, manifest) -> None:
     s = tiny_session(tmp_path / "s")
     (s / "manifest.json").write_text(manifest)
@@ -246,9 +267,12 @@ def test_bad_manifests(tmp_path, manifest) -> None:
 
 
 @HYP
-@given(key=st.sampled_from(["n_committed", "t", "fields", "kind", "version", "streams"]),
-       value=st.one_of(st.integers(-5, 10**9), st.floats(), st.text(max_size=4), st.none(),
-                       st.lists(st.integers(), max_size=3)))
+@given(
+    key=st.sampled_from(["n_committed", "t", "fields", "kind", "version", "streams"]),
+    value=st.one_of(
+        st.integers(-5, 10**9), st.floats(), st.text(max_size=4), st.none(), st.lists(st.integers(), max_size=3)
+    ),
+)
 def test_manifest_mutations_hypothesis(tmp_path_factory, key, value) -> None:
     s = tiny_session(tmp_path_factory.mktemp("m") / "s")
     m = json.loads((s / "manifest.json").read_text())
@@ -301,8 +325,11 @@ def test_generate_force_on_user_folder_cli(tmp_path) -> None:
     d.mkdir()
     (d / "notes.txt").write_text("x")
     before = snapshot(tmp_path)
-    refused(["generate", default_scene_path(), "--out", d, "--seconds", "0.2", "--force", "--quiet"], str(d),
-            "not a vtrack session")
+    refused(
+        ["generate", default_scene_path(), "--out", d, "--seconds", "0.2", "--force", "--quiet"],
+        str(d),
+        "not a vtrack session",
+    )
     assert snapshot(tmp_path) == before
 
 
@@ -338,13 +365,16 @@ def test_import_pickle_code_execution_refused(tmp_path, monkeypatch) -> None:
         assert not (tmp_path / "PWNED_BY_PICKLE").exists() and not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("data,names", [
-    ({"time": np.arange(5) / 30.0}, ["nothing to import"]),  # issue #22: wrote an empty session
-    ({"nope": 1}, ["time"]),
-    ([1, 2, 3], ["dict"]),
-    ({"time": np.array([np.nan, 1.0])}, ["time"]),
-    ({"time": np.arange(4.0), "allegro": {"joint_state": np.zeros((4, 15))}}, ["joint_state"]),
-])
+@pytest.mark.parametrize(
+    "data,names",
+    [
+        ({"time": np.arange(5) / 30.0}, ["nothing to import"]),  # issue #22: wrote an empty session
+        ({"nope": 1}, ["time"]),
+        ([1, 2, 3], ["dict"]),
+        ({"time": np.array([np.nan, 1.0])}, ["time"]),
+        ({"time": np.arange(4.0), "allegro": {"joint_state": np.zeros((4, 15))}}, ["joint_state"]),
+    ],
+)
 def test_import_bad_data_pkl(tmp_path, data, names) -> None:
     src = _feelsight(tmp_path, data)
     refused(["import", "feelsight", src, "--out", tmp_path / "out"], "data.pkl", *names)
@@ -412,8 +442,12 @@ def test_calibrate_with_wrong_labels_is_not_written(tmp_path) -> None:
         for i, r in enumerate(rows[1:]):
             q = rows[1 + perm[i]]
             w.writerow([r[0], 640 - float(q[1]), 480 - float(q[2]), q[3]])
-    err = refused(["calibrate", root, "--out", tmp_path / "c.npz", "--method", "lut"], "c.npz", "not written",
-                  "held-out normal error")
+    err = refused(
+        ["calibrate", root, "--out", tmp_path / "c.npz", "--method", "lut"],
+        "c.npz",
+        "not written",
+        "held-out normal error",
+    )
     assert float(err.split("normal error ")[1].split(" deg")[0]) > 15.0
     assert not (tmp_path / "c.npz").exists()
 
@@ -462,8 +496,12 @@ def dome_images(tmp_path_factory) -> dict[str, Path]:
 
     d = tmp_path_factory.mktemp("dome")
     rng = np.random.default_rng(0)
-    imgs = {"noise": rng.integers(0, 256, (160, 160)).astype(np.uint8), "black": np.zeros((160, 160), np.uint8),
-            "white": np.full((160, 160), 255, np.uint8), "reference": DomeSimulator().reference_image(0.0)}
+    imgs = {
+        "noise": rng.integers(0, 256, (160, 160)).astype(np.uint8),
+        "black": np.zeros((160, 160), np.uint8),
+        "white": np.full((160, 160), 255, np.uint8),
+        "reference": DomeSimulator().reference_image(0.0),
+    }
     out = {}
     for k, v in imgs.items():
         out[k] = d / f"{k}.png"
@@ -515,14 +553,17 @@ def test_viewer_path_errors(tmp_path) -> None:
     refused(["view", tmp_path / "nope"], "nope")
 
 
-@pytest.mark.parametrize("host,origin,ok", [
-    ("127.0.0.1:8080", "", True),  # non-browser client
-    ("127.0.0.1:8080", "http://127.0.0.1:8080", True),  # the viewer's own page
-    ("localhost:8080", "http://localhost:8080", True),
-    ("127.0.0.1:8080", "http://evil.example", False),  # another site's page in the same browser
-    ("evil.example:8080", "http://evil.example:8080", False),  # DNS rebinding
-    ("127.0.0.1:8080", "null", False),  # sandboxed iframe / file:// page
-])
+@pytest.mark.parametrize(
+    "host,origin,ok",
+    [
+        ("127.0.0.1:8080", "", True),  # non-browser client
+        ("127.0.0.1:8080", "http://127.0.0.1:8080", True),  # the viewer's own page
+        ("localhost:8080", "http://localhost:8080", True),
+        ("127.0.0.1:8080", "http://evil.example", False),  # another site's page in the same browser
+        ("evil.example:8080", "http://evil.example:8080", False),  # DNS rebinding
+        ("127.0.0.1:8080", "null", False),  # sandboxed iframe / file:// page
+    ],
+)
 def test_viewer_origin_check(host, origin, ok) -> None:
     from vtrack.viz.viewer import request_allowed
 
@@ -545,9 +586,14 @@ def test_viewer_server_rejects_cross_origin_websocket() -> None:
         def status(origin: str) -> int:
             c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
             c.putrequest("GET", "/", skip_host=True)
-            for k, v in {"Host": f"127.0.0.1:{port}", "Origin": origin, "Upgrade": "websocket",
-                         "Connection": "Upgrade", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==",
-                         "Sec-WebSocket-Version": "13"}.items():
+            for k, v in {
+                "Host": f"127.0.0.1:{port}",
+                "Origin": origin,
+                "Upgrade": "websocket",
+                "Connection": "Upgrade",
+                "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==",
+                "Sec-WebSocket-Version": "13",
+            }.items():
                 c.putheader(k, v)
             c.endheaders()
             return c.getresponse().status

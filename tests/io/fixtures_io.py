@@ -20,8 +20,15 @@ def tactile_image(i: int, h: int = 40, w: int = 30) -> np.ndarray:
     return np.clip(base + blob[..., None], 0, 255).astype(np.uint8)
 
 
-def write_feelsight(root: Path, n: int = 10, cams: tuple[str, ...] = ("front-left",), cam_hw=(48, 64),
-                    tac_hw=(40, 30), sim: bool = True, rate_hz: float = 30.0) -> Path:
+def write_feelsight(
+    root: Path,
+    n: int = 10,
+    cams: tuple[str, ...] = ("front-left",),
+    cam_hw=(48, 64),
+    tac_hw=(40, 30),
+    sim: bool = True,
+    rate_hz: float = 30.0,
+) -> Path:
     """Write a FeelSight log folder ``root`` with ``n`` frames; returns ``root``.
 
     Tactile image content repeats every 50 frames (encoded once, written as bytes) to keep large
@@ -58,13 +65,13 @@ def write_feelsight(root: Path, n: int = 10, cams: tuple[str, ...] = ("front-lef
         for i in range(n):
             rgb = np.zeros((H, W, 3), np.uint8)
             rgb[..., 0] = 200  # red in RGB -> stored as BGR by cv2.imwrite after conversion
-            rgb[H // 4:H // 2, W // 4:W // 2] = (0, 255, 0)
+            rgb[H // 4 : H // 2, W // 4 : W // 2] = (0, 255, 0)
             imwrite(root / "realsense" / c / "image" / f"{i}.jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), "rgb")
             depth[i] = 0.5 + 0.001 * i
             depth[i, 0, 0] = np.nan  # invalid pixel
             if sim:
                 seg = np.zeros((H, W), np.uint8)
-                seg[H // 4:H // 2, W // 4:W // 2] = 255
+                seg[H // 4 : H // 2, W // 4 : W // 2] = 255
                 imwrite(root / "realsense" / c / "seg" / f"{i}.jpg", seg, "seg")
         np.savez_compressed(root / "realsense" / c / "depth.npz", depth=depth)
         T = np.eye(4)
@@ -107,20 +114,36 @@ def _ros_messages(store, n: int, cam_hw=(24, 32), tac_hw=(40, 30), compressed_ta
         Tr = T["geometry_msgs/msg/Transform"]
         V = T["geometry_msgs/msg/Vector3"]
         Q = T["geometry_msgs/msg/Quaternion"]
-        return T["tf2_msgs/msg/TFMessage"](transforms=[TS(
-            header=header(t_ns, parent), child_frame_id=child,
-            transform=Tr(translation=V(x=xyz[0], y=xyz[1], z=xyz[2]), rotation=Q(x=0.0, y=0.0, z=0.0, w=1.0)))])
+        return T["tf2_msgs/msg/TFMessage"](
+            transforms=[
+                TS(
+                    header=header(t_ns, parent),
+                    child_frame_id=child,
+                    transform=Tr(translation=V(x=xyz[0], y=xyz[1], z=xyz[2]), rotation=Q(x=0.0, y=0.0, z=0.0, w=1.0)),
+                )
+            ]
+        )
 
     t0 = 1_700_000_000 * 10**9
     yield "/tf_static", "tf2_msgs/msg/TFMessage", t0, tf(t0, "world", "camera_color_optical_frame", (0.5, 0, 0.3))
-    calib = {"d": np.zeros(5), "k": np.array([40.0, 0, W / 2, 0, 40.0, H / 2, 0, 0, 1]), "r": np.eye(3).ravel(),
-             "p": np.zeros(12)}
+    calib = {
+        "d": np.zeros(5),
+        "k": np.array([40.0, 0, W / 2, 0, 40.0, H / 2, 0, 0, 1]),
+        "r": np.eye(3).ravel(),
+        "p": np.zeros(12),
+    }
     if ros1:
         calib = {k.upper(): v for k, v in calib.items()}
     info = T["sensor_msgs/msg/CameraInfo"](
-        header=header(t0, "camera_color_optical_frame"), height=H, width=W, distortion_model="plumb_bob",
-        binning_x=0, binning_y=0, **calib,
-        roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+        header=header(t0, "camera_color_optical_frame"),
+        height=H,
+        width=W,
+        distortion_model="plumb_bob",
+        binning_x=0,
+        binning_y=0,
+        **calib,
+        roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )
     yield "/camera/color/camera_info", "sensor_msgs/msg/CameraInfo", t0, info
     Image = T["sensor_msgs/msg/Image"]
     Comp = T["sensor_msgs/msg/CompressedImage"]
@@ -132,26 +155,72 @@ def _ros_messages(store, n: int, cam_hw=(24, 32), tac_hw=(40, 30), compressed_ta
             i = k // 2
             rgb = np.zeros((H, W, 3), np.uint8)
             rgb[..., 0] = i % 256
-            yield "/camera/color/image_raw", "sensor_msgs/msg/Image", t, Image(
-                header=header(t, "camera_color_optical_frame"), height=H, width=W, encoding="rgb8",
-                is_bigendian=0, step=W * 3, data=rgb.ravel())
+            yield (
+                "/camera/color/image_raw",
+                "sensor_msgs/msg/Image",
+                t,
+                Image(
+                    header=header(t, "camera_color_optical_frame"),
+                    height=H,
+                    width=W,
+                    encoding="rgb8",
+                    is_bigendian=0,
+                    step=W * 3,
+                    data=rgb.ravel(),
+                ),
+            )
             d = np.full((H, W), 500 + i, np.uint16)
-            yield "/camera/aligned_depth_to_color/image_raw", "sensor_msgs/msg/Image", t + 2_000_000, Image(
-                header=header(t + 2_000_000, "camera_color_optical_frame"), height=H, width=W, encoding="16UC1",
-                is_bigendian=0, step=W * 2, data=d.view(np.uint8).ravel())
+            yield (
+                "/camera/aligned_depth_to_color/image_raw",
+                "sensor_msgs/msg/Image",
+                t + 2_000_000,
+                Image(
+                    header=header(t + 2_000_000, "camera_color_optical_frame"),
+                    height=H,
+                    width=W,
+                    encoding="16UC1",
+                    is_bigendian=0,
+                    step=W * 2,
+                    data=d.view(np.uint8).ravel(),
+                ),
+            )
             yield "/tf", "tf2_msgs/msg/TFMessage", t, tf(t, "world", "object", (0.001 * i, 0.0, 0.1))
         img = tactile_image(k, *tac_hw)
         if compressed_tactile:
             ok, buf = cv2.imencode(".png", img)
-            yield "/digit_index/image_raw/compressed", "sensor_msgs/msg/CompressedImage", t, Comp(
-                header=header(t, "digit"), format="png", data=buf.ravel())
+            yield (
+                "/digit_index/image_raw/compressed",
+                "sensor_msgs/msg/CompressedImage",
+                t,
+                Comp(header=header(t, "digit"), format="png", data=buf.ravel()),
+            )
         else:
-            yield "/digit_index/image_raw", "sensor_msgs/msg/Image", t, Image(
-                header=header(t, "digit"), height=tac_hw[0], width=tac_hw[1], encoding="bgr8", is_bigendian=0,
-                step=tac_hw[1] * 3, data=img.ravel())
-        yield "/joint_states", "sensor_msgs/msg/JointState", t, Joint(
-            header=header(t, ""), name=[f"joint_{j}.0" for j in range(16)],
-            position=np.full(16, 0.01 * k), velocity=np.zeros(0), effort=np.zeros(0))
+            yield (
+                "/digit_index/image_raw",
+                "sensor_msgs/msg/Image",
+                t,
+                Image(
+                    header=header(t, "digit"),
+                    height=tac_hw[0],
+                    width=tac_hw[1],
+                    encoding="bgr8",
+                    is_bigendian=0,
+                    step=tac_hw[1] * 3,
+                    data=img.ravel(),
+                ),
+            )
+        yield (
+            "/joint_states",
+            "sensor_msgs/msg/JointState",
+            t,
+            Joint(
+                header=header(t, ""),
+                name=[f"joint_{j}.0" for j in range(16)],
+                position=np.full(16, 0.01 * k),
+                velocity=np.zeros(0),
+                effort=np.zeros(0),
+            ),
+        )
         yield "/chatter", "std_msgs/msg/String", t, T["std_msgs/msg/String"](data="hello")
 
 
@@ -212,8 +281,15 @@ def write_mcap(path: Path, n: int = 10, **kw) -> Path:
 
 
 # --- vtrack session -----------------------------------------------------------------------
-def write_live_session(path: Path, seconds: float = 1.0, cam_hw=(480, 640), tac_hw=(320, 240), n_tactile: int = 4,
-                       cam_hz: float = 30.0, tac_hz: float = 60.0) -> Path:
+def write_live_session(
+    path: Path,
+    seconds: float = 1.0,
+    cam_hw=(480, 640),
+    tac_hw=(320, 240),
+    n_tactile: int = 4,
+    cam_hz: float = 30.0,
+    tac_hz: float = 60.0,
+) -> Path:
     """A session with one RGB-D camera (cam_hz), ``n_tactile`` DIGIT streams and joints (tac_hz);
     frame content is cheap, slowly varying synthetic data (so compression behaves like real data)."""
     from vtrack.io.importers.scene_build import camera_entry, finalize_scene, tactile_entry
@@ -225,9 +301,12 @@ def write_live_session(path: Path, seconds: float = 1.0, cam_hw=(480, 640), tac_
     th, tw = tac_hw
     names = ["digit_index", "digit_middle", "digit_ring", "digit_thumb"][:n_tactile]
     K = np.array([[500.0, 0, W / 2], [0, 500.0, H / 2], [0, 0, 1]])
-    scene = {"name": "live_test", "object": {"name": "object"},
-             "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, cam_hz)],
-             "tactile": [tactile_entry(n, "digit", tw, th, tac_hz) for n in names]}
+    scene = {
+        "name": "live_test",
+        "object": {"name": "object"},
+        "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, cam_hz)],
+        "tactile": [tactile_entry(n, "digit", tw, th, tac_hz) for n in names],
+    }
     sd = finalize_scene(scene)
     sc = scene_from_dict(sd, check_files=False)
     yy, xx = np.mgrid[0:H, 0:W]
@@ -269,8 +348,9 @@ def video_frame(i: int, size=(320, 240)) -> np.ndarray:
     return cv2.resize(tactile_image(i % 200, 40, 30), size, interpolation=cv2.INTER_NEAREST)
 
 
-def write_sphere_session(path: Path, seconds: float = 1.0, hw=(60, 80), radius: float = 0.03,
-                         speed: float = 0.01, hz: float = 30.0) -> Path:
+def write_sphere_session(
+    path: Path, seconds: float = 1.0, hw=(60, 80), radius: float = 0.03, speed: float = 0.01, hz: float = 30.0
+) -> Path:
     """A session of a sphere (``assets/object.ply``) moving along world x at ``speed`` m/s, seen by
     one camera at the world origin looking along +z (depth rendered exactly, with mask), plus the
     ground-truth ``gt/object_pose``."""
@@ -283,8 +363,13 @@ def write_sphere_session(path: Path, seconds: float = 1.0, hw=(60, 80), radius: 
 
     H, W = hw
     K = np.array([[60.0, 0, (W - 1) / 2], [0, 60.0, (H - 1) / 2], [0, 0, 1]])
-    sd = finalize_scene({"name": "sphere", "object": {"name": "sphere"},
-                         "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, hz)]})
+    sd = finalize_scene(
+        {
+            "name": "sphere",
+            "object": {"name": "sphere"},
+            "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, hz)],
+        }
+    )
     sc = scene_from_dict(sd, check_files=False)
     v, u = np.mgrid[0:H, 0:W]
     rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, dtype=float)], -1)

@@ -17,8 +17,9 @@ def test_ply_round_trip_with_scalars(tmp_path: Path) -> None:
     N = rng.normal(size=(100, 3))
     mod = rng.integers(0, 2, 100)
     conf = rng.random(100)
-    write_ply_points(tmp_path / "c.ply", P, normals=N, colors=rng.random((100, 3)),
-                     scalars={"modality": mod, "confidence": conf})
+    write_ply_points(
+        tmp_path / "c.ply", P, normals=N, colors=rng.random((100, 3)), scalars={"modality": mod, "confidence": conf}
+    )
     d = read_ply_points(tmp_path / "c.ply")
     assert np.allclose(d["x"], P[:, 0], atol=1e-6) and np.array_equal(d["modality"], mod)
     assert np.allclose(d["confidence"], conf, atol=1e-6)

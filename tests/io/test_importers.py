@@ -132,8 +132,12 @@ def test_topic_map_and_pairing_tolerance(tmp_path):
     from vtrack.io.importers.rosbag import import_rosbag
 
     src = write_ros2_bag(tmp_path / "in_bag", n=6)
-    rep = import_rosbag(src, tmp_path / "s", pair_tolerance_s=0.001,
-                        topic_map={"/digit_index/image_raw": "tactile/left_pad", "/joint_states": "ignore"})
+    rep = import_rosbag(
+        src,
+        tmp_path / "s",
+        pair_tolerance_s=0.001,
+        topic_map={"/digit_index/image_raw": "tactile/left_pad", "/joint_states": "ignore"},
+    )
     s = open_session(tmp_path / "s")
     assert "tactile/left_pad" in s and "joints" not in s
     assert "camera/camera" not in s  # depth is 2 ms after colour: nothing pairs within 1 ms

@@ -36,24 +36,28 @@ def test_import_commands_and_clear_errors(tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "/notes: unsupported encoding" in res.output and "/chatter (std_msgs/msg/String): ignored" in res.output
     # The real console entry point: exit status 2, one line naming the file, no traceback.
-    out = subprocess.run([sys.executable, "-m", "vtrack_apps.cli", "import", "rosbag", str(mc), "--out",
-                          str(tmp_path / "b")], capture_output=True, text=True, timeout=120,
-                         env={**os.environ, "OMP_NUM_THREADS": "1"})
+    out = subprocess.run(
+        [sys.executable, "-m", "vtrack_apps.cli", "import", "rosbag", str(mc), "--out", str(tmp_path / "b")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
     assert out.returncode == 2 and "x.mcap" in out.stderr and "vtrack import mcap" in out.stderr
     assert "Traceback" not in out.stderr
 
 
 def test_record_commands(tmp_path: Path) -> None:
     vid = write_tactile_video(tmp_path / "d.avi", n=12)
-    res = invoke("record", "tactile", "--out", tmp_path / "t", "--camera", f"digit_index={vid}:digit",
-                 "--no-realtime")
+    res = invoke("record", "tactile", "--out", tmp_path / "t", "--camera", f"digit_index={vid}:digit", "--no-realtime")
     assert res.exit_code == 0, res.output
     assert open_session(tmp_path / "t")["tactile/digit_index"].n == 12
     bad = invoke("record", "tactile", "--out", tmp_path / "t2", "--camera", "oops")
     assert isinstance(bad.exception, InputError) and "NAME=SOURCE" in str(bad.exception)
     pytest.importorskip("depthai")
-    res = invoke("record", "oak", "--simulate", "--out", tmp_path / "o", "--frames", "6", "--width", "64",
-                 "--height", "40")
+    res = invoke(
+        "record", "oak", "--simulate", "--out", tmp_path / "o", "--frames", "6", "--width", "64", "--height", "40"
+    )
     assert res.exit_code == 0, res.output
     assert open_session(tmp_path / "o")["camera/oak"].n == 6
 

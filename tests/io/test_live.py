@@ -111,12 +111,12 @@ def test_recorder_feeds_live_consumers_while_writing(tmp_path):
     th = threading.Thread(target=lambda: out.update(pipe.run()))
     th.start()
     try:
-        stats = record_oak_simulated(tmp_path / "s", OakConfig(width=64, height=40), n_frames=15, status=False,
-                                     on_frame=src.push)
+        stats = record_oak_simulated(
+            tmp_path / "s", OakConfig(width=64, height=40), n_frames=15, status=False, on_frame=src.push
+        )
     finally:
         src.close()
         th.join(30)
     null = out["consumers"]["null"]
     assert out["source"]["emitted"]["camera/oak"] == stats.written["camera/oak"] == 15
     assert null["processed_total"] + null["dropped_total"] == 15
-

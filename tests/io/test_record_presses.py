@@ -42,12 +42,26 @@ def _press_video(path: Path, presses: list[tuple[float, float, float]], seed: in
 def test_record_presses_from_video(tmp_path):
     from vtrack.io.recorders.presses import record_presses
 
-    truth = [(160, 120, 1.2), (90, 80, 1.0), (230, 170, 1.3), (120, 160, 0.75), (304, 60, 1.1),
-             (200, 90, 1.15), (100, 120, 1.25)]
+    truth = [
+        (160, 120, 1.2),
+        (90, 80, 1.0),
+        (230, 170, 1.3),
+        (120, 160, 0.75),
+        (304, 60, 1.1),
+        (200, 90, 1.15),
+        (100, 120, 1.25),
+    ]
     video = _press_video(tmp_path / "presses.avi", truth)
     lines: list[str] = []
-    rep = record_presses(str(video), tmp_path / "set", sensor="gelsight_mini", ball_radius_mm=R_MM, mm_per_px=MPP,
-                         n_presses=50, echo=lines.append)
+    rep = record_presses(
+        str(video),
+        tmp_path / "set",
+        sensor="gelsight_mini",
+        ball_radius_mm=R_MM,
+        mm_per_px=MPP,
+        n_presses=50,
+        echo=lines.append,
+    )
     # the 0.75 mm contact (depth 0.14 mm) is seen as an episode but too faint to label: not saved, with advice
     assert rep.background_frames == 15 and rep.episodes == len(truth) and rep.presses_saved == len(truth) - 1
     assert len(rep.warnings) == 2
@@ -77,5 +91,11 @@ def test_record_presses_refuses_non_empty_folder_and_short_video(tmp_path):
         record_presses(str(video), d, sensor="gelsight_mini", ball_radius_mm=2.0, mm_per_px=MPP)
     assert (d / "notes.txt").read_text() == "keep me"
     with pytest.raises(InputError, match="before the 30 background frames"):
-        record_presses(str(video), tmp_path / "new", sensor="gelsight_mini", ball_radius_mm=2.0, mm_per_px=MPP,
-                       background_frames=30)
+        record_presses(
+            str(video),
+            tmp_path / "new",
+            sensor="gelsight_mini",
+            ball_radius_mm=2.0,
+            mm_per_px=MPP,
+            background_frames=30,
+        )

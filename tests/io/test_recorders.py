@@ -71,8 +71,14 @@ def test_tactile_recorder_from_video_file_with_csv_joints(tmp_path):
     names = [f"joint_{j}.0" for j in range(16)]
     rows = ["t," + ",".join(names)] + [f"{k / 100:.2f}," + ",".join(["0.5"] * 16) for k in range(60)]
     (tmp_path / "q.csv").write_text("\n".join(rows) + "\n")
-    stats = record_tactile(tmp_path / "s", [TactileCamera("digit_index", str(vid), "digit")],
-                           joints=CsvJointSource(tmp_path / "q.csv"), flush_every=5, status=False, realtime=False)
+    stats = record_tactile(
+        tmp_path / "s",
+        [TactileCamera("digit_index", str(vid), "digit")],
+        joints=CsvJointSource(tmp_path / "q.csv"),
+        flush_every=5,
+        status=False,
+        realtime=False,
+    )
     s = open_session(tmp_path / "s")
     tac = s["tactile/digit_index"]
     assert tac.n == 24 == stats.written["tactile/digit_index"]
@@ -128,9 +134,24 @@ def test_sigkill_mid_recording_keeps_every_flushed_frame(tmp_path):
     vid = write_tactile_video(tmp_path / "digit.avi", n=600)  # 10 s at 60 fps, paced in real time
     out = tmp_path / "rec"
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "vtrack_apps.cli", "record", "tactile", "--out", str(out),
-                             "--camera", f"digit_index={vid}:digit", "--flush-every", "5"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "vtrack_apps.cli",
+            "record",
+            "tactile",
+            "--out",
+            str(out),
+            "--camera",
+            f"digit_index={vid}:digit",
+            "--flush-every",
+            "5",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
+    )
     try:
         t_end = time.time() + 60
         seen = 0

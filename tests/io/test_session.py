@@ -133,8 +133,9 @@ _KILLED_WRITER = textwrap.dedent(
 @pytest.mark.parametrize("flush_every", [1, 7])
 def test_killed_writer_keeps_every_flushed_frame(tmp_path: Path, flush_every: int) -> None:
     path = tmp_path / "rec"
-    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, str(path), str(flush_every)],
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_WRITER, str(path), str(flush_every)], stdout=subprocess.PIPE, text=True
+    )
     last = -1
     t0 = time.time()
     while time.time() - t0 < 60:

@@ -83,10 +83,16 @@ def test_poses_csv_round_trip_and_interpolation(tmp_path):
     assert np.allclose(parse_pose("1,2,3,0,0,0,1")[:3, 3], [1, 2, 3])
 
 
-@pytest.mark.parametrize("text,match", [("t,x\n1,2\n", "header"), ("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,0\n", "zero"),
-                                        ("t,x,y,z,qx,qy,qz,qw\n0,a,0,0,0,0,0,1\n", "line 2"),
-                                        ("t,x,y,z,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n0,0,0,0,0,0,0,1\n", "increasing"),
-                                        ("t,x,y,z,qx,qy,qz,qw\n", "no rows")])
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("t,x\n1,2\n", "header"),
+        ("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,0\n", "zero"),
+        ("t,x,y,z,qx,qy,qz,qw\n0,a,0,0,0,0,0,1\n", "line 2"),
+        ("t,x,y,z,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n0,0,0,0,0,0,0,1\n", "increasing"),
+        ("t,x,y,z,qx,qy,qz,qw\n", "no rows"),
+    ],
+)
 def test_bad_poses_file(tmp_path, text, match):
     from vtrack.io.poses import read_poses_csv
 

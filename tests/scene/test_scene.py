@@ -99,5 +99,9 @@ def test_pose_forms() -> None:
     with pytest.raises(InputError, match="only one of"):
         scene_from_dict({"name": "p", "object": {"T_world_object": {"rpy": [0, 0, 0], "quat_xyzw": [0, 0, 0, 1]}}})
     with pytest.raises(InputError, match="rigid"):
-        scene_from_dict({"name": "p", "object": {"T_world_object": {"matrix": [[2, 0, 0, 0], [0, 1, 0, 0],
-                                                                             [0, 0, 1, 0], [0, 0, 0, 1]]}}})
+        scene_from_dict(
+            {
+                "name": "p",
+                "object": {"T_world_object": {"matrix": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}},
+            }
+        )

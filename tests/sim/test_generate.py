@@ -93,8 +93,9 @@ def test_rendered_depth_lies_on_object_and_hand(exact_session):
     q = hk.reorder(r["joints"].sample("q", [t], mode="linear")[0], r["joints"].attrs["joint_names"])
     meshes = hk.hand_meshes(q)
     v = np.concatenate([m[0] for m in meshes])
-    f = np.concatenate([m[1] + off for m, off in zip(meshes, np.cumsum([0] + [len(m[0]) for m in meshes[:-1]]),
-                                                         strict=True)])
+    f = np.concatenate(
+        [m[1] + off for m, off in zip(meshes, np.cumsum([0] + [len(m[0]) for m in meshes[:-1]]), strict=True)]
+    )
     d_hand = _mesh_distance(v, f, pw[~on_obj])
     assert np.median(d_obj) < 1e-3
     assert np.median(d_hand) < 1e-3  # hand rendered from decimated meshes: small extra error
@@ -160,8 +161,13 @@ def test_same_seed_same_session(scene, tmp_path):
     a = open_session(generate_session(scene, tmp_path / "a", seconds=0.1, seed=7))
     b = open_session(generate_session(scene, tmp_path / "b", seconds=0.1, seed=7))
     c = open_session(generate_session(scene, tmp_path / "c", seconds=0.1, seed=8))
-    for name, field in [("camera/cam0", "depth"), ("camera/cam0", "rgb"), ("tactile/digit_thumb", "image"),
-                        ("joints", "q"), ("gt/tactile/digit_middle", "height_mm")]:
+    for name, field in [
+        ("camera/cam0", "depth"),
+        ("camera/cam0", "rgb"),
+        ("tactile/digit_thumb", "image"),
+        ("joints", "q"),
+        ("gt/tactile/digit_middle", "height_mm"),
+    ]:
         np.testing.assert_array_equal(a[name][field][:], b[name][field][:])
     assert not np.array_equal(a["camera/cam0"]["depth"][:], c["camera/cam0"]["depth"][:])
 
@@ -206,8 +212,22 @@ def test_cli_generate(scene, tmp_path):
     from vtrack.paths import default_scene_path
 
     out = tmp_path / "cli"
-    res = CliRunner().invoke(app, ["generate", str(default_scene_path()), "--out", str(out), "--seconds", "0.1",
-                                   "--seed", "2", "--occlusion", "medium", "--quiet"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "generate",
+            str(default_scene_path()),
+            "--out",
+            str(out),
+            "--seconds",
+            "0.1",
+            "--seed",
+            "2",
+            "--occlusion",
+            "medium",
+            "--quiet",
+        ],
+    )
     assert res.exit_code == 0, res.output
     r = open_session(out)
     assert r.scene().sim.seed == 2 and len(r["camera/cam0"]) == 3

@@ -79,8 +79,9 @@ def digit_press_calibration(tmp_path_factory, shared_data):
     from vtrack.tactile.pressset import load_press_set
 
     # as many presses as the simulator's own sensor calibrations, over the whole gel (edges included)
-    d = render_press_set("digit", tmp_path_factory.mktemp("ps") / "digit", n=SIM_PRESSES, mm_per_px=MPP, width=W,
-                         height=H, seed=5)
+    d = render_press_set(
+        "digit", tmp_path_factory.mktemp("ps") / "digit", n=SIM_PRESSES, mm_per_px=MPP, width=W, height=H, seed=5
+    )
     ps = load_press_set(d)
     train, test = ps.split("every:4:3")
     return ps, calibrate(ps, "mlp", train), test
@@ -93,8 +94,11 @@ def test_simulated_press_set_calibrates(digit_press_calibration):
     ps, calib, test = digit_press_calibration
     assert len(ps.presses) == 60 and ps.shape == (H, W) and ps.ball_radius_mm == 3.0
     # presses reach the gel's edges (partial circles): what the sessions' large contacts need
-    edge = [p for p in ps.presses if min(p.center_xy_px[0], W - p.center_xy_px[0], p.center_xy_px[1],
-                                         H - p.center_xy_px[1]) < p.contact_radius_px]
+    edge = [
+        p
+        for p in ps.presses
+        if min(p.center_xy_px[0], W - p.center_xy_px[0], p.center_xy_px[1], H - p.center_xy_px[1]) < p.contact_radius_px
+    ]
     assert len(edge) >= 5
     res = evaluate_presses(ps, test, TactilePipeline(calib).height)
     # measured: 6.6 deg held-out median normal error (MLP; the elastomer blur rounds the ball edge)

@@ -49,8 +49,12 @@ def test_empty_and_nan_depth_everywhere():
     from vtrack.fusion.tsdf import TSDFReconstructor
 
     cam = PinholeCamera.from_fov(32, 24, 1.0)
-    for d in (np.zeros((24, 32), np.uint16), np.full((24, 32), np.nan, np.float32),
-              np.full((24, 32), np.inf, np.float32), np.full((24, 32), -1.0, np.float32)):
+    for d in (
+        np.zeros((24, 32), np.uint16),
+        np.full((24, 32), np.nan, np.float32),
+        np.full((24, 32), np.inf, np.float32),
+        np.full((24, 32), -1.0, np.float32),
+    ):
         c = from_rgbd(d, cam, np.eye(4))
         assert len(c) == 0
         t = TSDFReconstructor()
@@ -72,8 +76,11 @@ def test_no_contacts_for_a_whole_session():
     h = np.zeros((32, 24), np.float32)
     assert len(from_tactile(h, np.zeros_like(h, np.uint8), 0.1, np.eye(4))) == 0
     for method in ("tsdf", "neural_sdf"):
-        res = reconstruct_observations([], method, n_iters=5) if method == "neural_sdf" else \
-            reconstruct_observations([], method)
+        res = (
+            reconstruct_observations([], method, n_iters=5)
+            if method == "neural_sdf"
+            else reconstruct_observations([], method)
+        )
         assert len(res["faces"]) == 0
     box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
     m = mesh_metrics(np.zeros((0, 3)), np.zeros((0, 3), int), box.vertices, box.faces)

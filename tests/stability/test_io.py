@@ -33,10 +33,24 @@ def test_sigkill_at_any_moment_leaves_an_openable_or_absent_session(tmp_path, de
 
     vid = write_tactile_video(tmp_path / "v.avi", n=400)
     out = tmp_path / "rec"
-    proc = subprocess.Popen([sys.executable, "-m", "vtrack_apps.cli", "record", "tactile", "--out", str(out),
-                             "--camera", f"d={vid}:digit", "--flush-every", "3"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "vtrack_apps.cli",
+            "record",
+            "tactile",
+            "--out",
+            str(out),
+            "--camera",
+            f"d={vid}:digit",
+            "--flush-every",
+            "3",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
     time.sleep(delay)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(10)
@@ -55,8 +69,9 @@ def test_sigkill_at_any_moment_leaves_an_openable_or_absent_session(tmp_path, de
 
 
 def _img(enc, h, w, data, step, big=0):
-    return SimpleNamespace(encoding=enc, height=h, width=w, step=step, is_bigendian=big,
-                           data=np.frombuffer(data, np.uint8))
+    return SimpleNamespace(
+        encoding=enc, height=h, width=w, step=step, is_bigendian=big, data=np.frombuffer(data, np.uint8)
+    )
 
 
 def test_ros_image_decoding_edge_cases():

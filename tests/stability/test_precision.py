@@ -118,8 +118,14 @@ def _lut_calibration(B=16, H=60, W=80):
     table = np.stack([0.7 * np.tanh((cb - cr) / 50.0), 0.7 * np.tanh((cg - 0.5 * cr) / 50.0)], -1)
     bg = np.zeros((H, W, 3), np.uint8)
     bg[:] = (120, 110, 100)
-    cal = Calibration("lut", "test", 0.03, bg, {"lut": table.astype(np.float32), "lut_lo": np.float64(lo),
-                                                "lut_step": np.float64(step)}, {})
+    cal = Calibration(
+        "lut",
+        "test",
+        0.03,
+        bg,
+        {"lut": table.astype(np.float32), "lut_lo": np.float64(lo), "lut_step": np.float64(step)},
+        {},
+    )
     return cal, table, lo, step
 
 
@@ -172,8 +178,9 @@ def test_mlp_numpy_float32_inference_matches_float64():
     # float64 reference forward pass (features as in calibration._mlp_features)
     rows, cols = np.nonzero(mask)
     dI = img.astype(np.float64) - bg
-    f = np.column_stack([dI[rows, cols] / 64.0, img[rows, cols] / 255.0 - 0.5, cols * (2.0 / W) - 1.0,
-                         rows * (2.0 / H) - 1.0])
+    f = np.column_stack(
+        [dI[rows, cols] / 64.0, img[rows, cols] / 255.0 - 0.5, cols * (2.0 / W) - 1.0, rows * (2.0 / H) - 1.0]
+    )
     for i in range(3):
         f = f @ params[f"W{i}"].astype(np.float64) + params[f"b{i}"].astype(np.float64)
         if i < 2:
@@ -205,8 +212,10 @@ def test_depth_uint16_mm_quantisation_roundtrip_within_half_mm():
     d = _depths()
     cam = PinholeCamera(fx=500.0, fy=500.0, cx=40.0, cy=25.0, width=80, height=50)
     img = d.reshape(50, 80)
-    for name, q in (("float32 metres", encode_depth(img.astype(np.float32), 0.001)),
-                    ("float64 metres", encode_depth(img.astype(np.float64), 0.001))):
+    for name, q in (
+        ("float32 metres", encode_depth(img.astype(np.float32), 0.001)),
+        ("float64 metres", encode_depth(img.astype(np.float64), 0.001)),
+    ):
         assert q.dtype == np.uint16
         back = cam.depth_to_meters(q, 0.001)
         err = float(np.abs(back - img).max())
@@ -290,8 +299,9 @@ def test_cloud_ply_timestamp_keeps_epoch_time(tmp_path):
     from vtrack.io.export import read_ply_points
 
     t0 = 1_763_884_837.25  # float32 spacing here is 128 s
-    c = from_contact_points(np.array([[0.0, 0.0, 0.001], [0.001, 0.0, 0.001]]), np.array([[0, 0, 1.0]] * 2),
-                            np.eye(4), t=t0)
+    c = from_contact_points(
+        np.array([[0.0, 0.0, 0.001], [0.001, 0.0, 0.001]]), np.array([[0, 0, 1.0]] * 2), np.eye(4), t=t0
+    )
     p = read_ply_points(c.to_ply(tmp_path / "t.ply"))
     err = float(np.abs(p["t"].astype(np.float64) - t0).max())
     _log("cloud PLY timestamp at epoch time", err, "s")
@@ -307,8 +317,22 @@ def test_sim_gel_heights_float32_raycast_within_1um():
     # object: a large box whose -z face is the plane z = 0 of the object frame (outward winding, as the
     # simulator's mesh loader guarantees)
     V = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (0.0, 0.04)])
-    F = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
-                  [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])[:, ::-1]
+    F = np.array(
+        [
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6],
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7],
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5],
+        ]
+    )[:, ::-1]
     rc = Raycaster([(V, F)])
     # sensor below the plane, slightly tilted, pressed in by 0.7 mm at its centre
     ang = np.deg2rad(3.0)
@@ -336,8 +360,22 @@ def test_sim_depth_render_float32_rays_near_and_at_10m():
     from vtrack.sim.rgbd import render_geometry
 
     V = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.05, 0.05) for z in (0.0, 0.04)])
-    F = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
-                  [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    F = np.array(
+        [
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6],
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7],
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5],
+        ]
+    )
     rc = Raycaster([(V, F)])
     u = np.linspace(-0.08, 0.08, 24)
     rays = np.stack([*np.meshgrid(u, u), np.ones((24, 24))], -1)  # z = 1 per ray: t is the depth

@@ -179,8 +179,21 @@ def test_cli_errors_are_one_line(tmp_path):
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-m", "vtrack_apps.cli", "tactile", "eval-presses", str(tmp_path / "nope"),
-                        "--calib", str(tmp_path / "c.npz")], capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vtrack_apps.cli",
+            "tactile",
+            "eval-presses",
+            str(tmp_path / "nope"),
+            "--calib",
+            str(tmp_path / "c.npz"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 2
     assert "press-set folder not found" in r.stderr and "Traceback" not in r.stderr
 

@@ -46,8 +46,7 @@ def test_frames_without_vision(grid, seq):
 
 def test_frames_without_contact_and_regrasp(mesh):
     # all fingers lift off for frames 12..27, then re-grasp
-    s = make_sequence(mesh, n_frames=40, width=120, height=90, seed=4,
-                      contact_schedule=lambda i, k: not (12 <= i < 28))
+    s = make_sequence(mesh, n_frames=40, width=120, height=90, seed=4, contact_schedule=lambda i, k: not (12 <= i < 28))
     assert s.frames[15].touch_points is None and s.frames[15].free_points is not None
     grid = SDFGrid.from_mesh(mesh, voxel=0.002)
     tr = WindowTracker(grid, s.gt[0])

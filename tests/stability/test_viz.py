@@ -30,9 +30,16 @@ def test_constant_time_nan_scalars_single_frame(tmp_path):
 
     n = 500
     rng = np.random.default_rng(0)
-    d = _rec(tmp_path, rng.normal(size=(n, 3)) * 0.01, scalars={
-        "modality": np.ones(n, np.int32), "t": np.full(n, 2.0),
-        "tactile_value": np.full(n, np.nan, np.float32), "confidence": np.full(n, np.inf, np.float32)})
+    d = _rec(
+        tmp_path,
+        rng.normal(size=(n, 3)) * 0.01,
+        scalars={
+            "modality": np.ones(n, np.int32),
+            "t": np.full(n, 2.0),
+            "tactile_value": np.full(n, np.nan, np.float32),
+            "confidence": np.full(n, np.inf, np.float32),
+        },
+    )
     v = ViewData(d)
     assert v.n_frames == 1 and not v.cloud.has_time and v.recon_frame == "world"
     for mode, c in v.cloud.colors.items():
@@ -134,4 +141,3 @@ def test_decimation_budget_edge_cases():
     assert len(decimate_indices(np.ones(7, np.int64), 1)) == 1
     idx = decimate_indices(np.r_[np.ones(3, np.int64), np.zeros(1000, np.int64)], 10)
     assert len(idx) == 10 and set(range(3)) <= set(idx.tolist())
-

@@ -30,4 +30,3 @@ def mlp_calib(gelsight_set):
 
     torch.set_num_threads(1)
     return cached_calibration(gelsight_set, "mlp", "every:4:3", TrainOptions(**TEST_MLP))
-

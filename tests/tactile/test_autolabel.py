@@ -80,8 +80,12 @@ def test_auto_labels_agree_with_hand_labels_on_shared_gelsight(shared_data):
     ps = load_press_set(shared_data / "gelsight_ball_presses", labels="hand")
     dets = {d.file: d for d in auto_label(ps.root, ps.ball_radius_px)}
     assert all(d.ok for d in dets.values()), [d.reason for d in dets.values() if not d.ok]
-    c = np.array([np.hypot(dets[p.file].center_x_px - p.center_xy_px[0],
-                           dets[p.file].center_y_px - p.center_xy_px[1]) for p in ps.presses])
+    c = np.array(
+        [
+            np.hypot(dets[p.file].center_x_px - p.center_xy_px[0], dets[p.file].center_y_px - p.center_xy_px[1])
+            for p in ps.presses
+        ]
+    )
     r = np.array([dets[p.file].contact_radius_px / p.contact_radius_px - 1.0 for p in ps.presses])
     assert np.median(c) < 2.5 and np.percentile(c, 90) < 5.0, np.percentile(c, [50, 90])
     assert abs(np.median(r)) < 0.07 and np.percentile(np.abs(r), 90) < 0.10, np.percentile(r, [10, 50, 90])
@@ -143,7 +147,6 @@ def test_too_few_usable_presses_names_the_reasons(shared_data, tmp_path):
         load_press_set(root, labels="nonsense")
     with pytest.raises(InputError, match="labels.csv not found"):
         load_press_set(root, labels="hand")
-
 
 
 def test_method_auto_chooses_by_cross_validation_on_training_presses_only(shared_data):

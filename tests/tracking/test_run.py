@@ -75,8 +75,16 @@ def test_other_modes(tiny_session, kw):
 def test_oracle_init_is_labelled(tiny_session, user_mesh):
     from vtrack.tracking.run import track_session
 
-    m = track_session(tiny_session, "", shape="known_shape", mesh=user_mesh, init="gt", init_perturb=(0.003, 0.03),
-                      write=False, max_frames=10)
+    m = track_session(
+        tiny_session,
+        "",
+        shape="known_shape",
+        mesh=user_mesh,
+        init="gt",
+        init_perturb=(0.003, 0.03),
+        write=False,
+        max_frames=10,
+    )
     assert "[oracle]" in m["init"] and "init" in m["oracle"] and not m["blind"]
 
 
@@ -84,9 +92,27 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
-    r = CliRunner().invoke(app, ["track", str(blind_session), "--mesh", str(user_mesh), "--init-pose",
-                                 "0,0,0,0,0,0,1", "--modalities", "vision", "--window", "2", "--max-frames", "8",
-                                 "--out", str(tmp_path / "o"), "--json", str(tmp_path / "m.json")])
+    r = CliRunner().invoke(
+        app,
+        [
+            "track",
+            str(blind_session),
+            "--mesh",
+            str(user_mesh),
+            "--init-pose",
+            "0,0,0,0,0,0,1",
+            "--modalities",
+            "vision",
+            "--window",
+            "2",
+            "--max-frames",
+            "8",
+            "--out",
+            str(tmp_path / "o"),
+            "--json",
+            str(tmp_path / "m.json"),
+        ],
+    )
     assert r.exit_code == 0, r.output
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["frames"] == 8 and m["modalities"] == ["vision"] and m["init"] == "user prior (--init-pose)"

@@ -42,8 +42,13 @@ def test_gradient_matches_finite_differences():
     P = np.array([0.1, -0.2, 0.3]) + cells * 0.01
     _, grad = g.query(P)
     e = 1e-6
-    num = np.stack([(g.query(P + e * np.eye(3)[k], False)[0] - g.query(P - e * np.eye(3)[k], False)[0]) / (2 * e)
-                    for k in range(3)], 1)
+    num = np.stack(
+        [
+            (g.query(P + e * np.eye(3)[k], False)[0] - g.query(P - e * np.eye(3)[k], False)[0]) / (2 * e)
+            for k in range(3)
+        ],
+        1,
+    )
     assert np.abs(num - grad).max() < 1e-3 * np.abs(grad).max()
 
 

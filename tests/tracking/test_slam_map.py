@@ -106,8 +106,7 @@ def test_map_box_grows_with_points_outside_it():
     big = rng.normal(0, 0.03, (500, 3))
     tr2 = SLAMTracker(np.eye(4), extent=0.05)
     tr2._ensure_box(big)
-    r = np.percentile(np.linalg.norm(big - 0.5 * (np.percentile(big, 1, 0) + np.percentile(big, 99, 0)), axis=1),
-                      99.5)
+    r = np.percentile(np.linalg.norm(big - 0.5 * (np.percentile(big, 1, 0) + np.percentile(big, 99, 0)), axis=1), 99.5)
     assert np.allclose(tr2._box[1] - tr2._box[0], 2 * (r + tr2.box_margin))  # turned any way, it fits
     far = P + np.array([0.12, 0.0, 0.0])
     tr._ensure_box(far)
@@ -115,4 +114,5 @@ def test_map_box_grows_with_points_outside_it():
     assert tr._box_grew and np.all(lo2 <= lo) and hi2[0] >= far[:, 0].max() + tr.trunc
     # growth is whole grid voxels: old samples stay on the lattice
     assert np.allclose(((hi2 - hi) / tr.grid_voxel) % 1.0, 0.0, atol=1e-6) or np.allclose(
-        ((hi2 - hi) / tr.grid_voxel) % 1.0, 1.0, atol=1e-6)
+        ((hi2 - hi) / tr.grid_voxel) % 1.0, 1.0, atol=1e-6
+    )

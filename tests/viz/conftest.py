@@ -42,24 +42,50 @@ def make_view_fixture(root: Path, with_hand: bool = True, n_cloud: int = 6000) -
     scene_d: dict = {
         "name": "viz_tiny",
         "object": {"name": "box", "mesh": str(obj_path)},
-        "cameras": [{"name": "cam0", "width": 64, "height": 48, "fx": 60.0, "fy": 60.0,
-                     "look_at": {"eye": [0.4, 0.0, 0.2], "target": [0.0, 0.0, 0.05]}}],
-        "tactile": [{"name": "digit_index", "type": "digit", "width": 24, "height": 32, "mm_per_px": 0.9},
-                    {"name": "digit_thumb", "type": "digit", "width": 24, "height": 32, "mm_per_px": 0.9}],
+        "cameras": [
+            {
+                "name": "cam0",
+                "width": 64,
+                "height": 48,
+                "fx": 60.0,
+                "fy": 60.0,
+                "look_at": {"eye": [0.4, 0.0, 0.2], "target": [0.0, 0.0, 0.05]},
+            }
+        ],
+        "tactile": [
+            {"name": "digit_index", "type": "digit", "width": 24, "height": 32, "mm_per_px": 0.9},
+            {"name": "digit_thumb", "type": "digit", "width": 24, "height": 32, "mm_per_px": 0.9},
+        ],
         "sim": {"seconds": N_FRAMES / RATE_HZ, "penetration_mm": [0.5, 1.6]},
     }
     hand = with_hand and urdf.exists()
     if hand:
-        scene_d["hand"] = {"urdf": str(urdf), "sensors": [
-            {"sensor": "digit_index", "link": "link_3.0_tip",
-             "T_link_sensor": {"xyz": [0.022, 0.0, 0.015], "rpy": [0.0, 1.5707963, 0.0]}},
-            {"sensor": "digit_thumb", "link": "link_15.0_tip",
-             "T_link_sensor": {"xyz": [0.022, 0.0, 0.015], "rpy": [0.0, 1.5707963, 0.0]}}]}
+        scene_d["hand"] = {
+            "urdf": str(urdf),
+            "sensors": [
+                {
+                    "sensor": "digit_index",
+                    "link": "link_3.0_tip",
+                    "T_link_sensor": {"xyz": [0.022, 0.0, 0.015], "rpy": [0.0, 1.5707963, 0.0]},
+                },
+                {
+                    "sensor": "digit_thumb",
+                    "link": "link_15.0_tip",
+                    "T_link_sensor": {"xyz": [0.022, 0.0, 0.015], "rpy": [0.0, 1.5707963, 0.0]},
+                },
+            ],
+        }
     scene = scene_from_dict(scene_d, check_files=False)
     rng = np.random.default_rng(0)
     t = np.arange(N_FRAMES) / RATE_HZ
-    T_gt = np.stack([se3.make_transform(se3.rpy_to_matrix(np.array([0.0, 0.0, 0.8 * ti])),
-                                        np.array([0.0, 0.005 * np.sin(3 * ti), 0.08])) for ti in t])
+    T_gt = np.stack(
+        [
+            se3.make_transform(
+                se3.rpy_to_matrix(np.array([0.0, 0.0, 0.8 * ti])), np.array([0.0, 0.005 * np.sin(3 * ti), 0.08])
+            )
+            for ti in t
+        ]
+    )
     sess = root / "session"
     with SessionWriter(sess, scene) as w:
         cam = scene.cameras[0]
@@ -104,10 +130,17 @@ def make_view_fixture(root: Path, with_hand: bool = True, n_cloud: int = 6000) -
     modality = np.zeros(n_cloud, np.int32)
     modality[-n_touch:] = 1
     pt_t = np.sort(rng.uniform(0, t[-1], n_cloud))
-    write_ply_points(rec / "cloud.ply", pts, scalars={
-        "modality": modality, "sensor_id": np.where(modality == 1, rng.integers(0, 2, n_cloud), 0).astype(np.int32),
-        "t": pt_t, "confidence": rng.uniform(0.2, 1.0, n_cloud).astype(np.float32),
-        "tactile_value": np.where(modality == 1, rng.uniform(0.1, 1.5, n_cloud), 0.0).astype(np.float32)})
+    write_ply_points(
+        rec / "cloud.ply",
+        pts,
+        scalars={
+            "modality": modality,
+            "sensor_id": np.where(modality == 1, rng.integers(0, 2, n_cloud), 0).astype(np.int32),
+            "t": pt_t,
+            "confidence": rng.uniform(0.2, 1.0, n_cloud).astype(np.float32),
+            "tactile_value": np.where(modality == 1, rng.uniform(0.1, 1.5, n_cloud), 0.0).astype(np.float32),
+        },
+    )
     box.export(rec / "mesh.ply")
     (rec / "result.json").write_text(json.dumps({"kind": "reconstruction", "session": str(sess), "frame": "object"}))
     trk = demo / "tracking"

@@ -90,15 +90,18 @@ def test_poses_csv_reader(view_fixture, tmp_path):
         read_poses_csv(bad)
 
 
-@pytest.mark.parametrize("case, match", [
-    ("missing", "path does not exist"),
-    ("empty", "not a vtrack session or result folder"),
-    ("corrupt_json", "corrupt result.json"),
-    ("bad_kind", "unknown result kind"),
-    ("no_ply", "neither mesh.ply nor cloud.ply"),
-    ("no_poses", "poses.csv is missing"),
-    ("bad_file", "expected a folder"),
-])
+@pytest.mark.parametrize(
+    "case, match",
+    [
+        ("missing", "path does not exist"),
+        ("empty", "not a vtrack session or result folder"),
+        ("corrupt_json", "corrupt result.json"),
+        ("bad_kind", "unknown result kind"),
+        ("no_ply", "neither mesh.ply nor cloud.ply"),
+        ("no_poses", "poses.csv is missing"),
+        ("bad_file", "expected a folder"),
+    ],
+)
 def test_bad_paths_give_clear_errors(tmp_path, case, match):
     d = tmp_path / "x"
     if case != "missing":
@@ -139,8 +142,11 @@ def test_load_cloud_decimates_and_colours(tmp_path):
     P = rng.normal(size=(n, 3))
     P[:10] = np.nan
     mod = (rng.random(n) < 0.1).astype(np.int32)
-    write_ply_points(tmp_path / "cloud.ply", P, scalars={"modality": mod, "t": rng.uniform(0, 2, n),
-                                                          "tactile_value": rng.uniform(0, 2, n)})
+    write_ply_points(
+        tmp_path / "cloud.ply",
+        P,
+        scalars={"modality": mod, "t": rng.uniform(0, 2, n), "tactile_value": rng.uniform(0, 2, n)},
+    )
     notes: list[str] = []
     c = load_cloud(tmp_path / "cloud.ply", max_points=5000, notes=notes)
     assert len(c) == 5000 and c.n_total == n

@@ -91,11 +91,12 @@ def test_plots(view_fixture, tmp_path):
     assert cv2.imread(str(p2)).shape[0] > 100
     with pytest.raises(InputError, match="lengths differ"):
         plot_error_over_time(tmp_path / "e3.png", t, {"a": e[:10]})
-    rows = [{"method": "m1", "setting": s, "ms": ms, "error": err}
-            for s, ms, err in (("a", 1.0, 5.0), ("b", 10.0, 2.0), ("c", 20.0, 3.0), ("d", 100.0, 1.0))]
+    rows = [
+        {"method": "m1", "setting": s, "ms": ms, "error": err}
+        for s, ms, err in (("a", 1.0, 5.0), ("b", 10.0, 2.0), ("c", 20.0, 3.0), ("d", 100.0, 1.0))
+    ]
     rows.append({"method": "m2", "setting": "x", "ms": float("nan"), "error": 0.1})
-    assert list(pareto_front([r["ms"] for r in rows], [r["error"] for r in rows])) == [True, True, False, True,
-                                                                                        False]
+    assert list(pareto_front([r["ms"] for r in rows], [r["error"] for r in rows])) == [True, True, False, True, False]
     assert list(pareto_front([1, 2], [0.9, 0.5], higher_is_better=True)) == [True, False]
     assert cv2.imread(str(plot_speed_vs_error(tmp_path / "p.png", rows))) is not None
     # Translation error is the 0.002 * k / 12 m drift of the fixture's estimate, in mm.

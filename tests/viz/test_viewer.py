@@ -46,7 +46,7 @@ def test_scrubbing_shows_cloud_prefix_and_moves_object(viewer):
     n5 = d.cloud.count_until(d.times[5])
     k = int(np.searchsorted(viewer.bins.edges, n5, side="right")) - 1
     assert viewer.bins.shown[k] == n5 - viewer.bins.edges[k] or n5 == viewer.bins.edges[k]
-    assert all(not h.visible for h in viewer.bins.handles[k + 1:])
+    assert all(not h.visible for h in viewer.bins.handles[k + 1 :])
 
 
 def test_gui_controls(viewer):

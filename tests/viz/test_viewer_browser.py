@@ -36,7 +36,6 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-
 def _terminate(proc: subprocess.Popen) -> None:
     """Stop a child process: terminate, then kill if it does not exit within 10 s."""
     if proc.poll() is None:
@@ -47,6 +46,7 @@ def _terminate(proc: subprocess.Popen) -> None:
             proc.kill()
             proc.wait(5)
 
+
 class _Server:
     """`vtrack view PATH --port N` in a subprocess; stderr collected line by line."""
 
@@ -54,8 +54,13 @@ class _Server:
         vtrack = Path(sys.executable).parent / "vtrack"
         cmd = [str(vtrack)] if vtrack.exists() else [sys.executable, "-m", "vtrack_apps.cli"]
         env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-        self.proc = subprocess.Popen([*cmd, "view", str(path), "--port", str(port)], stdout=subprocess.PIPE,
-                                     stderr=subprocess.STDOUT, text=True, env=env)
+        self.proc = subprocess.Popen(
+            [*cmd, "view", str(path), "--port", str(port)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env=env,
+        )
         self.lines: list[str] = []
         self._t = threading.Thread(target=self._read, daemon=True)
         self._t.start()
@@ -84,10 +89,22 @@ class _DevTools:
     requests, take screenshots until the scene shows up."""
 
     def __init__(self, tmp: Path, size=(1200, 800)) -> None:
-        cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--disable-dev-shm-usage", "--remote-debugging-port=0", f"--user-data-dir={tmp / 'chrome-profile'}",
-               f"--window-size={size[0]},{size[1]}", "about:blank"]
+        cmd = [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-dev-shm-usage",
+            "--remote-debugging-port=0",
+            f"--user-data-dir={tmp / 'chrome-profile'}",
+            f"--window-size={size[0]},{size[1]}",
+            "about:blank",
+        ]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         self.browser_ws = None
         end = time.monotonic() + 60
@@ -143,8 +160,14 @@ class _DevTools:
         async with websockets.connect(self.page_ws(), max_size=64 << 20) as ws:
             for m in ("Network.enable", "Page.enable", "Runtime.enable"):
                 await self._call(ws, m)
-            await self._call(ws, "Emulation.setDeviceMetricsOverride", width=self.size[0], height=self.size[1],
-                             deviceScaleFactor=1, mobile=False)
+            await self._call(
+                ws,
+                "Emulation.setDeviceMetricsOverride",
+                width=self.size[0],
+                height=self.size[1],
+                deviceScaleFactor=1,
+                mobile=False,
+            )
             t0 = time.monotonic()
             await self._call(ws, "Page.navigate", url=url)
             img = None
@@ -169,9 +192,12 @@ def _scene_stats(img: np.ndarray) -> dict[str, float]:
     # 3D canvas without the GUI panel (top right) and viser's "software WebGL" notice (top left, with an
     # orange bar that would pass for touch points).
     canvas = img[170:, :800]
-    return {"non_bg": float((np.abs(canvas.astype(np.int32) - 255).max(-1) > 30).mean()),
-            "colours": float(len(np.unique(canvas.reshape(-1, 3), axis=0))),
-            "vision": float(_near(canvas, VISION_RGB, 50)), "touch": float(_near(canvas, TOUCH_RGB, 50))}
+    return {
+        "non_bg": float((np.abs(canvas.astype(np.int32) - 255).max(-1) > 30).mean()),
+        "colours": float(len(np.unique(canvas.reshape(-1, 3), axis=0))),
+        "vision": float(_near(canvas, VISION_RGB, 50)),
+        "touch": float(_near(canvas, TOUCH_RGB, 50)),
+    }
 
 
 def _scene_ready(img: np.ndarray) -> bool:
@@ -206,6 +232,9 @@ def test_viewer_page_renders_scene_in_headless_chromium(view_fixture, tmp_path):
     connected = [ln for ln in srv.lines if "client" in ln and "connected" in ln]
     assert connected and "client 0 connected" in connected[0]
     # Offline: every request the page made went to the viewer itself (or inline data/blob URLs).
-    external = [u for u in browser.requests
-                if not u.startswith((f"http://127.0.0.1:{port}", f"ws://127.0.0.1:{port}", "data:", "blob:"))]
+    external = [
+        u
+        for u in browser.requests
+        if not u.startswith((f"http://127.0.0.1:{port}", f"ws://127.0.0.1:{port}", "data:", "blob:"))
+    ]
     assert browser.requests and not external, external

@@ -23,8 +23,10 @@ from vtrack.batch.worker import execute, init_local_worker, warm_up
 from vtrack.errors import VtrackError
 from vtrack.threads import thread_env
 
-RAY_MISSING = ("the Ray engine needs the optional 'ray' package: pip install 'vtrack[distributed]' "
-               "(or pip install 'ray>=2.30'), or use --engine local")
+RAY_MISSING = (
+    "the Ray engine needs the optional 'ray' package: pip install 'vtrack[distributed]' "
+    "(or pip install 'ray>=2.30'), or use --engine local"
+)
 
 
 def _crash(token: Any, error: str) -> tuple[Any, dict[str, Any]]:
@@ -37,8 +39,9 @@ FORKSERVER_PRELOAD = ("vtrack.batch.worker", "vtrack.batch.results", "numpy", "z
 
 class _Slot:
     def __init__(self, ctx: Any, threads: int) -> None:
-        self.executor = cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=init_local_worker,
-                                               initargs=(threads, os.getpid()))
+        self.executor = cf.ProcessPoolExecutor(
+            max_workers=1, mp_context=ctx, initializer=init_local_worker, initargs=(threads, os.getpid())
+        )
         self.token: int | None = None
         self.future: cf.Future | None = None
         self.procs: list[Any] = []
@@ -97,14 +100,17 @@ class LocalEngine:
     def describe(self) -> dict[str, Any]:
         return {"engine": "local", "workers": self.workers, "start_method": self._ctx.get_start_method()}
 
-    def start(self, warm_target: str | None = None, warm_params: dict[str, Any] | None = None,
-              pin_cpus: bool = False) -> None:
+    def start(
+        self, warm_target: str | None = None, warm_params: dict[str, Any] | None = None, pin_cpus: bool = False
+    ) -> None:
         # Workers inherit the environment at spawn time: cap threads before numpy loads in them.
         os.environ.update(thread_env(self.threads))
         self._slots = [_Slot(self._ctx, self.threads) for _ in range(self.workers)]
         if warm_target:
-            futs = [s.executor.submit(warm_up, warm_target, warm_params, i if pin_cpus else None, self.threads)
-                    for i, s in enumerate(self._slots)]
+            futs = [
+                s.executor.submit(warm_up, warm_target, warm_params, i if pin_cpus else None, self.threads)
+                for i, s in enumerate(self._slots)
+            ]
             cf.wait(futs)
 
     def free(self) -> int:
@@ -193,8 +199,14 @@ class RayEngine:
 
     name = "ray"
 
-    def __init__(self, workers: int | None = None, address: str | None = None, threads: int = 1,
-                 object_store_mb: int = 200, runtime_env: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        workers: int | None = None,
+        address: str | None = None,
+        threads: int = 1,
+        object_store_mb: int = 200,
+        runtime_env: dict[str, Any] | None = None,
+    ) -> None:
         self.workers = workers
         self.address = address
         self.threads = threads
@@ -210,11 +222,16 @@ class RayEngine:
         return self._capacity
 
     def describe(self) -> dict[str, Any]:
-        return {"engine": "ray", "workers": self._capacity, "address": self.address or "local",
-                "started_cluster": self._owns}
+        return {
+            "engine": "ray",
+            "workers": self._capacity,
+            "address": self.address or "local",
+            "started_cluster": self._owns,
+        }
 
-    def start(self, warm_target: str | None = None, warm_params: dict[str, Any] | None = None,
-              pin_cpus: bool = False) -> None:
+    def start(
+        self, warm_target: str | None = None, warm_params: dict[str, Any] | None = None, pin_cpus: bool = False
+    ) -> None:
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
         os.environ.update(thread_env(self.threads))
         try:
@@ -231,9 +248,14 @@ class RayEngine:
                 ray.init(address=self.address, **common)
             else:
                 n = max(1, int(self.workers or os.cpu_count() or 1))
-                ray.init(address="local", num_cpus=n, include_dashboard=False,
-                         object_store_memory=int(self.object_store_mb) << 20,
-                         _node_ip_address="127.0.0.1", **common)
+                ray.init(
+                    address="local",
+                    num_cpus=n,
+                    include_dashboard=False,
+                    object_store_memory=int(self.object_store_mb) << 20,
+                    _node_ip_address="127.0.0.1",
+                    **common,
+                )
             self._owns = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self._capacity = max(1, int(self.workers)) if self.workers else max(1, cpus)
@@ -241,8 +263,12 @@ class RayEngine:
         self._remote = ray.remote(num_cpus=1, max_retries=0)(execute)
         if warm_target:
             warm = ray.remote(num_cpus=1, max_retries=0)(warm_up)
-            ray.get([warm.remote(warm_target, warm_params, i if pin_cpus else None, self.threads)
-                     for i in range(self._capacity)])
+            ray.get(
+                [
+                    warm.remote(warm_target, warm_params, i if pin_cpus else None, self.threads)
+                    for i in range(self._capacity)
+                ]
+            )
 
     def free(self) -> int:
         return self._capacity - len(self._refs)
@@ -290,8 +316,9 @@ class RayEngine:
         self._refs = {}
 
 
-def make_engine(engine: str, workers: int | None = None, address: str | None = None, threads: int = 1,
-                **options: Any) -> LocalEngine | RayEngine:
+def make_engine(
+    engine: str, workers: int | None = None, address: str | None = None, threads: int = 1, **options: Any
+) -> LocalEngine | RayEngine:
     """Engine by name ("local" | "ray")."""
     if engine == "local":
         if address:
@@ -300,4 +327,3 @@ def make_engine(engine: str, workers: int | None = None, address: str | None = N
     if engine == "ray":
         return RayEngine(workers, address=address, threads=threads, **options)
     raise VtrackError(f"unknown engine '{engine}' (choose local or ray)")
-

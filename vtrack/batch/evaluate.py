@@ -30,8 +30,12 @@ def _call(task: str, session_dir: str, out_dir: Path, options: dict[str, Any]) -
     return {**metrics, "seconds": time.perf_counter() - t0, "available": True}
 
 
-def warm_up(stages: list[str] | None = None, reconstruction: dict[str, Any] | None = None,
-            tracking: dict[str, Any] | None = None, **shared: Any) -> None:
+def warm_up(
+    stages: list[str] | None = None,
+    reconstruction: dict[str, Any] | None = None,
+    tracking: dict[str, Any] | None = None,
+    **shared: Any,
+) -> None:
     """Run the warm-up hooks of the stages :func:`bench_session` will call (batch workers, before timing)."""
     own = {"reconstruction": reconstruction or {}, "tracking": tracking or {}}
     for stage in stages or STAGES:
@@ -43,9 +47,15 @@ def warm_up(stages: list[str] | None = None, reconstruction: dict[str, Any] | No
             hook(**{**shared, **own[stage]})
 
 
-def bench_session(session_dir: str, out_dir: str, *, stages: list[str] | None = None,
-                  reconstruction: dict[str, Any] | None = None, tracking: dict[str, Any] | None = None,
-                  **shared: Any) -> dict[str, Any]:
+def bench_session(
+    session_dir: str,
+    out_dir: str,
+    *,
+    stages: list[str] | None = None,
+    reconstruction: dict[str, Any] | None = None,
+    tracking: dict[str, Any] | None = None,
+    **shared: Any,
+) -> dict[str, Any]:
     """Run the evaluation stages on one session.
 
     Args:
@@ -56,8 +66,9 @@ def bench_session(session_dir: str, out_dir: str, *, stages: list[str] | None = 
     wanted = list(stages or STAGES)
     unknown = set(wanted) - set(STAGES)
     if unknown:
-        raise InputError("unknown bench stage", field="stages", expected=f"subset of {list(STAGES)}",
-                         got=sorted(unknown))
+        raise InputError(
+            "unknown bench stage", field="stages", expected=f"subset of {list(STAGES)}", got=sorted(unknown)
+        )
     own = {"reconstruction": reconstruction or {}, "tracking": tracking or {}}
     metrics: dict[str, Any] = {}
     ran = 0
@@ -70,6 +81,7 @@ def bench_session(session_dir: str, out_dir: str, *, stages: list[str] | None = 
         ran += 1
     if not ran:
         # Not retryable (an InputError): installing the stage is the fix, not another attempt.
-        raise InputError("no bench stage is available", field="stages",
-                         expected=", ".join(TASKS[STAGES[s]] for s in wanted))
+        raise InputError(
+            "no bench stage is available", field="stages", expected=", ".join(TASKS[STAGES[s]] for s in wanted)
+        )
     return metrics

@@ -143,8 +143,14 @@ def chunk_ranges(session: Path, chunk_frames: int) -> list[dict[str, Any]]:
     return out
 
 
-def make_jobs(task: str, sessions: list[Path], out_root: Path, params: dict[str, Any] | None = None,
-              chunk_frames: int | None = None, threads: int = 1) -> list[dict[str, Any]]:
+def make_jobs(
+    task: str,
+    sessions: list[Path],
+    out_root: Path,
+    params: dict[str, Any] | None = None,
+    chunk_frames: int | None = None,
+    threads: int = 1,
+) -> list[dict[str, Any]]:
     """One job per session, or per chunk when ``chunk_frames`` is given.
 
     Job keys: ``key`` (result folder name), ``task``, ``target`` (``module:function``),
@@ -164,8 +170,12 @@ def make_jobs(task: str, sessions: list[Path], out_root: Path, params: dict[str,
         # Importing the task here (driver side) is the price of checking its signature up front.
         accepted = chunk_params(resolve(target))
         if not accepted:
-            raise InputError("this task cannot process part of a session (it accepts neither "
-                             "'time_range' nor 'frames'): run without --chunk-frames", field="task", got=target)
+            raise InputError(
+                "this task cannot process part of a session (it accepts neither "
+                "'time_range' nor 'frames'): run without --chunk-frames",
+                field="task",
+                got=target,
+            )
     jobs = []
     for s in sessions:
         fp = session_fingerprint(s)
@@ -176,9 +186,19 @@ def make_jobs(task: str, sessions: list[Path], out_root: Path, params: dict[str,
             if ch is not None:
                 key = f"{key}@f{ch['frames'][0]:06d}-{ch['frames'][1]:06d}"
                 chunk_args = {p: ch[p] for p in accepted}
-            jobs.append({
-                "key": key, "task": task, "target": target, "session": str(s), "out_root": str(out_root),
-                "params": params, "params_digest": digest, "session_fingerprint": fp, "chunk": ch,
-                "chunk_args": chunk_args, "threads": int(threads),
-            })
+            jobs.append(
+                {
+                    "key": key,
+                    "task": task,
+                    "target": target,
+                    "session": str(s),
+                    "out_root": str(out_root),
+                    "params": params,
+                    "params_digest": digest,
+                    "session_fingerprint": fp,
+                    "chunk": ch,
+                    "chunk_args": chunk_args,
+                    "threads": int(threads),
+                }
+            )
     return jobs

@@ -66,8 +66,12 @@ def _fsync_dir(path: Path) -> None:
 
 def expected_identity(job: dict[str, Any]) -> dict[str, Any]:
     """The manifest fields that must match for a result to belong to ``job``."""
-    return {"task": job["target"], "params_digest": job["params_digest"],
-            "session_fingerprint": job["session_fingerprint"], "chunk": job["chunk"]}
+    return {
+        "task": job["target"],
+        "params_digest": job["params_digest"],
+        "session_fingerprint": job["session_fingerprint"],
+        "chunk": job["chunk"],
+    }
 
 
 def read_valid_result(folder: Path, job: dict[str, Any], check_hashes: bool = True) -> dict[str, Any] | None:
@@ -99,9 +103,17 @@ def read_valid_result(folder: Path, job: dict[str, Any], check_hashes: bool = Tr
 
 def write_manifest(folder: Path, job: dict[str, Any], metrics: dict[str, Any], extra: dict[str, Any]) -> dict:
     """Hash the folder's files and write the manifest last (fsynced)."""
-    man = {"format": RESULT_FORMAT, "version": RESULT_VERSION, **expected_identity(job),
-           "key": job["key"], "session": job["session"], "params": job["params"],
-           "metrics": metrics, "files": file_table(folder), **extra}
+    man = {
+        "format": RESULT_FORMAT,
+        "version": RESULT_VERSION,
+        **expected_identity(job),
+        "key": job["key"],
+        "session": job["session"],
+        "params": job["params"],
+        "metrics": metrics,
+        "files": file_table(folder),
+        **extra,
+    }
     write_json(folder / RESULT_MANIFEST, man, indent=1, fsync=True)
     _fsync_dir(folder)
     return man
@@ -173,10 +185,16 @@ def summary_rows(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     rows = []
     for r in records:
         ch = r.get("chunk")
-        row = {"key": r["key"], "session": r["session"],
-               "chunk": "" if not ch else f"{ch['frames'][0]}-{ch['frames'][1]}",
-               "status": r["status"], "attempts": r.get("attempts", 0),
-               "seconds": r.get("seconds"), "host": r.get("host", ""), "error": r.get("error", "")}
+        row = {
+            "key": r["key"],
+            "session": r["session"],
+            "chunk": "" if not ch else f"{ch['frames'][0]}-{ch['frames'][1]}",
+            "status": r["status"],
+            "attempts": r.get("attempts", 0),
+            "seconds": r.get("seconds"),
+            "host": r.get("host", ""),
+            "error": r.get("error", ""),
+        }
         for k, v in _flatten(r.get("metrics") or {}).items():
             row[f"metric.{k}"] = v
         rows.append(row)

@@ -50,8 +50,9 @@ class _Lock:
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode(errors="replace").strip()
             os.close(fd)
-            raise InputError(f"another batch is writing to this folder ({holder or 'unknown process'})",
-                             path=self.path.parent) from None
+            raise InputError(
+                f"another batch is writing to this folder ({holder or 'unknown process'})", path=self.path.parent
+            ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()} on {platform.node()}".encode(), 0)
         self.fd = fd
@@ -80,11 +81,21 @@ def load_fault_plan(plan: str | Path | dict | None) -> dict[str, dict[str, Any]]
     try:
         data = json.loads(Path(plan).read_text())
     except (OSError, ValueError) as e:
-        raise InputError("cannot read the fault plan", path=plan, field=FAULT_PLAN_ENV,
-                         expected="a JSON file {key: {mode, times, delay_s}}", got=type(e).__name__) from None
+        raise InputError(
+            "cannot read the fault plan",
+            path=plan,
+            field=FAULT_PLAN_ENV,
+            expected="a JSON file {key: {mode, times, delay_s}}",
+            got=type(e).__name__,
+        ) from None
     if not isinstance(data, dict):
-        raise InputError("the fault plan must be a JSON object", path=plan, field=FAULT_PLAN_ENV,
-                         expected="{key: {mode, times, delay_s}}", got=type(data).__name__)
+        raise InputError(
+            "the fault plan must be a JSON object",
+            path=plan,
+            field=FAULT_PLAN_ENV,
+            expected="{key: {mode, times, delay_s}}",
+            got=type(data).__name__,
+        )
     return data
 
 
@@ -92,13 +103,25 @@ def _fault_for(job: dict[str, Any], plan: dict[str, Any]) -> dict[str, Any] | No
     return plan.get(job["key"]) or plan.get(Path(job["session"]).name) or plan.get("*")
 
 
-def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine: str | LocalEngine | RayEngine
-              = "local", workers: int | None = None, address: str | None = None, retries: int = 2,
-              params: dict[str, Any] | None = None, chunk_frames: int | None = None, force: bool = False,
-              threads: int = 1, timeout_s: float | None = None, warm_up: bool = True,
-              pin_cpus: bool | None = None,
-              on_event: Callable[[Event], None] | None = None,
-              fault_plan: str | Path | dict | None = None) -> dict[str, Any]:
+def run_batch(
+    task: str,
+    sessions: list[str | Path],
+    out: str | Path,
+    *,
+    engine: str | LocalEngine | RayEngine = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    retries: int = 2,
+    params: dict[str, Any] | None = None,
+    chunk_frames: int | None = None,
+    force: bool = False,
+    threads: int = 1,
+    timeout_s: float | None = None,
+    warm_up: bool = True,
+    pin_cpus: bool | None = None,
+    on_event: Callable[[Event], None] | None = None,
+    fault_plan: str | Path | dict | None = None,
+) -> dict[str, Any]:
     """Run ``task`` over sessions; see the module docstring for the guarantees.
 
     Args:
@@ -150,10 +173,19 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
                     job["fault"] = fault
                 todo.append(job)
         run_info: dict[str, Any] = {
-            "task": task, "target": jobs[0]["target"] if jobs else task, "params": params or {},
-            "out": str(out_root), "jobs": len(jobs), "cached": len(records), "to_run": len(todo),
-            "retries": retries, "threads_per_task": threads, "removed_leftovers": removed,
-            "chunk_frames": chunk_frames, "started_unix": time.time(), "host": platform.node(),
+            "task": task,
+            "target": jobs[0]["target"] if jobs else task,
+            "params": params or {},
+            "out": str(out_root),
+            "jobs": len(jobs),
+            "cached": len(records),
+            "to_run": len(todo),
+            "retries": retries,
+            "threads_per_task": threads,
+            "removed_leftovers": removed,
+            "chunk_frames": chunk_frames,
+            "started_unix": time.time(),
+            "host": platform.node(),
         }
         emit({"type": "start", "total": len(jobs), "cached": len(records), "to_run": len(todo)})
         for rec in records.values():
@@ -177,31 +209,52 @@ def run_batch(task: str, sessions: list[str | Path], out: str | Path, *, engine:
         run_info["removed_leftovers"] += results.clean_leftovers(out_root)
         ran = sum(1 for r in records.values() if r["status"] == "ok")
         wall = t_end - t_ready
-        run_info.update({
-            "engine_start_seconds": round(t_ready - t_start, 3), "wall_seconds": round(wall, 3),
-            "ok": ran, "failed": sum(1 for r in records.values() if r["status"] == "failed"),
-            "attempts": stats["attempts"], "crashes": stats["crashes"],
-            "tasks_per_min": round(60.0 * ran / wall, 3) if wall > 0 and ran else None,
-            # CPU the tasks actually got / (wall x workers): < 1 means the workers waited for cores.
-            "task_cpu_seconds": round(sum(r.get("cpu_seconds") or 0.0 for r in records.values()
-                                          if r["status"] == "ok"), 3),
-        })
+        run_info.update(
+            {
+                "engine_start_seconds": round(t_ready - t_start, 3),
+                "wall_seconds": round(wall, 3),
+                "ok": ran,
+                "failed": sum(1 for r in records.values() if r["status"] == "failed"),
+                "attempts": stats["attempts"],
+                "crashes": stats["crashes"],
+                "tasks_per_min": round(60.0 * ran / wall, 3) if wall > 0 and ran else None,
+                # CPU the tasks actually got / (wall x workers): < 1 means the workers waited for cores.
+                "task_cpu_seconds": round(
+                    sum(r.get("cpu_seconds") or 0.0 for r in records.values() if r["status"] == "ok"), 3
+                ),
+            }
+        )
         n_workers = run_info.get("workers") or 1
-        run_info["cpu_utilisation"] = (round(run_info["task_cpu_seconds"] / (wall * n_workers), 3)
-                                       if wall > 0 and ran else None)
+        run_info["cpu_utilisation"] = (
+            round(run_info["task_cpu_seconds"] / (wall * n_workers), 3) if wall > 0 and ran else None
+        )
         ordered = [records[k] for k in keys]
         paths = results.write_summary(out_root, ordered, run_info)
         emit({"type": "end", "run": run_info})
         return {"run": run_info, "results": ordered, "paths": {k: str(v) for k, v in paths.items()}}
 
 
-def _record(job: dict[str, Any], status: str, attempts: int, man: dict[str, Any] | None = None,
-            outcome: dict[str, Any] | None = None, errors: list[str] | None = None) -> dict[str, Any]:
+def _record(
+    job: dict[str, Any],
+    status: str,
+    attempts: int,
+    man: dict[str, Any] | None = None,
+    outcome: dict[str, Any] | None = None,
+    errors: list[str] | None = None,
+) -> dict[str, Any]:
     src = man or outcome or {}
-    rec = {"key": job["key"], "session": job["session"], "chunk": job["chunk"], "status": status,
-           "attempts": attempts, "seconds": src.get("seconds"), "cpu_seconds": src.get("cpu_seconds"),
-           "host": src.get("host", ""),
-           "metrics": src.get("metrics"), "result_dir": str(Path(job["out_root"]) / job["key"])}
+    rec = {
+        "key": job["key"],
+        "session": job["session"],
+        "chunk": job["chunk"],
+        "status": status,
+        "attempts": attempts,
+        "seconds": src.get("seconds"),
+        "cpu_seconds": src.get("cpu_seconds"),
+        "host": src.get("host", ""),
+        "metrics": src.get("metrics"),
+        "result_dir": str(Path(job["out_root"]) / job["key"]),
+    }
     if errors:
         rec["error"] = errors[-1]
         rec["attempt_errors"] = errors
@@ -211,9 +264,18 @@ def _record(job: dict[str, Any], status: str, attempts: int, man: dict[str, Any]
     return rec
 
 
-def _loop(eng: Any, todo: collections.deque, records: dict[str, dict[str, Any]], retries: int,
-          timeout_s: float | None, emit: Callable[[Event], None], out_root: Path, run_info: dict[str, Any],
-          stats: dict[str, int], pin_cpus: bool) -> None:
+def _loop(
+    eng: Any,
+    todo: collections.deque,
+    records: dict[str, dict[str, Any]],
+    retries: int,
+    timeout_s: float | None,
+    emit: Callable[[Event], None],
+    out_root: Path,
+    run_info: dict[str, Any],
+    stats: dict[str, int],
+    pin_cpus: bool,
+) -> None:
     inflight: dict[Any, tuple[dict[str, Any], float, int]] = {}
     free_slots = set(range(eng.capacity))
     attempts: dict[str, int] = collections.Counter()

@@ -89,8 +89,14 @@ def _pose_stats(stream: Any, idx: np.ndarray) -> dict[str, Any]:
     return {"frames": int(len(idx)), "path_length_m": path, "rotation_rad": rot}
 
 
-def session_stats(session_dir: str, out_dir: str, *, time_range: tuple[float, float] | None = None,
-                  frames: tuple[int, int] | None = None, voxel_m: float = 0.005) -> dict[str, Any]:
+def session_stats(
+    session_dir: str,
+    out_dir: str,
+    *,
+    time_range: tuple[float, float] | None = None,
+    frames: tuple[int, int] | None = None,
+    voxel_m: float = 0.005,
+) -> dict[str, Any]:
     """Summarise a session (or the part of it in ``time_range``, s); writes ``out_dir/stats.json``.
 
     ``frames`` is accepted for chunked batches but ``time_range`` (always passed with it by the
@@ -113,8 +119,13 @@ def session_stats(session_dir: str, out_dir: str, *, time_range: tuple[float, fl
             per_stream[name] = _tactile_stats(s, idx)
         elif "T_world_object" in s.fields:
             per_stream[name] = _pose_stats(s, idx)
-    out = {"session": str(Path(session_dir)), "complete": reader.complete, "time_range": time_range,
-           "frames": frames, "streams": per_stream}
+    out = {
+        "session": str(Path(session_dir)),
+        "complete": reader.complete,
+        "time_range": time_range,
+        "frames": frames,
+        "streams": per_stream,
+    }
     write_json(Path(out_dir, "stats.json"), out, indent=1)
     metrics: dict[str, Any] = {"complete": reader.complete}
     for name, st in per_stream.items():

@@ -35,31 +35,53 @@ def _sphere_mesh(radius: float, n_lat: int = 16, n_lon: int = 32) -> tuple[np.nd
     return V, np.asarray(F, dtype=np.int64)
 
 
-def write_synthetic_session(path: str | Path, *, seed: int = 0, frames: int = 20, width: int = 160,
-                            height: int = 120, rate_hz: float = 30.0, overwrite: bool = True) -> Path:
+def write_synthetic_session(
+    path: str | Path,
+    *,
+    seed: int = 0,
+    frames: int = 20,
+    width: int = 160,
+    height: int = 120,
+    rate_hz: float = 30.0,
+    overwrite: bool = True,
+) -> Path:
     """Write a synthetic session folder and return its path (m, s; depth uint16 mm)."""
     rng = np.random.default_rng(seed)
     fx = fy = 0.9 * width
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     T_world_camera = np.eye(4)
-    cam = StreamSpec(kind="rgbd", frame="camera/cam0", rate_hz=rate_hz,
-                     fields={"rgb": FieldSpec((height, width, 3), "uint8", "sRGB"),
-                             "depth": FieldSpec((height, width), "uint16", "0.001 m"),
-                             "mask": FieldSpec((height, width), "uint8", "label")},
-                     attrs={"K": K.tolist(), "width": width, "height": height, "depth_scale": 0.001,
-                            "T_world_camera": T_world_camera.tolist()})
-    tac = StreamSpec(kind="tactile", frame="sensor/pad", rate_hz=rate_hz,
-                     fields={"image": FieldSpec((24, 32, 3), "uint8", "BGR")})
-    pose = StreamSpec(kind="pose", frame="object", rate_hz=rate_hz,
-                      fields={"T_world_object": FieldSpec((4, 4), "float64", "m")})
+    cam = StreamSpec(
+        kind="rgbd",
+        frame="camera/cam0",
+        rate_hz=rate_hz,
+        fields={
+            "rgb": FieldSpec((height, width, 3), "uint8", "sRGB"),
+            "depth": FieldSpec((height, width), "uint16", "0.001 m"),
+            "mask": FieldSpec((height, width), "uint8", "label"),
+        },
+        attrs={
+            "K": K.tolist(),
+            "width": width,
+            "height": height,
+            "depth_scale": 0.001,
+            "T_world_camera": T_world_camera.tolist(),
+        },
+    )
+    tac = StreamSpec(
+        kind="tactile", frame="sensor/pad", rate_hz=rate_hz, fields={"image": FieldSpec((24, 32, 3), "uint8", "BGR")}
+    )
+    pose = StreamSpec(
+        kind="pose", frame="object", rate_hz=rate_hz, fields={"T_world_object": FieldSpec((4, 4), "float64", "m")}
+    )
     u, v = np.meshgrid(np.arange(width), np.arange(height))
     ray = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u, dtype=float)], -1)
     ray /= np.linalg.norm(ray, axis=-1, keepdims=True)
     phase = rng.uniform(0, 2 * np.pi)
     radius = 0.05
-    with SessionWriter(path, None, overwrite=overwrite, flush_every=64, info={"generator": "vtrack.batch.synthetic",
-                                                                "seed": seed}) as w:
+    with SessionWriter(
+        path, None, overwrite=overwrite, flush_every=64, info={"generator": "vtrack.batch.synthetic", "seed": seed}
+    ) as w:
         w.add_stream("camera/cam0", cam)
         w.add_stream("tactile/pad", tac)
         w.add_stream("gt/object_pose", pose)
@@ -82,8 +104,10 @@ def write_synthetic_session(path: str | Path, *, seed: int = 0, frames: int = 20
             T = np.eye(4)
             T[:3, :3] = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
             T[:3, 3] = c
-            blob = np.exp(-(((np.arange(32) - 16) ** 2)[None, :] + ((np.arange(24) - 12) ** 2)[:, None])
-                          / (2 * (2 + 4 * abs(np.sin(a))) ** 2))
+            blob = np.exp(
+                -(((np.arange(32) - 16) ** 2)[None, :] + ((np.arange(24) - 12) ** 2)[:, None])
+                / (2 * (2 + 4 * abs(np.sin(a))) ** 2)
+            )
             img = np.clip(100 + 120 * blob[..., None] + rng.normal(0, 2, (24, 32, 3)), 0, 255).astype(np.uint8)
             w.append("camera/cam0", t, rgb=rgb, depth=depth, mask=hit.astype(np.uint8))
             w.append("tactile/pad", t, image=img)

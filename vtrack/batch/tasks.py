@@ -46,8 +46,9 @@ def target_of(task: str) -> str:
         return TASKS[task]
     if ":" in task:
         return task
-    raise InputError("unknown batch task", field="task", expected=f"one of {sorted(TASKS)} or 'module:function'",
-                     got=task)
+    raise InputError(
+        "unknown batch task", field="task", expected=f"one of {sorted(TASKS)} or 'module:function'", got=task
+    )
 
 
 def is_available(task: str) -> bool:
@@ -90,8 +91,11 @@ def warm_up_hook(target: str) -> Callable[..., Any] | None:
 def accepted_params(fn: Callable[..., Any]) -> tuple[set[str], bool]:
     """Names of the keyword parameters ``fn`` accepts, and whether it takes ``**kwargs``."""
     sig = inspect.signature(fn)
-    names = {p.name for p in sig.parameters.values()
-             if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)}
+    names = {
+        p.name
+        for p in sig.parameters.values()
+        if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    }
     var_kw = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values())
     return names, var_kw
 

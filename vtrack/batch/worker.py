@@ -133,8 +133,13 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     c0 = time.process_time()
-    out = {"key": job["key"], "attempt": job.get("attempt", 1), "host": platform.node(), "pid": os.getpid(),
-           "started_unix": time.time()}
+    out = {
+        "key": job["key"],
+        "attempt": job.get("attempt", 1),
+        "host": platform.node(),
+        "pid": os.getpid(),
+        "started_unix": time.time(),
+    }
     out_root = Path(job["out_root"])
     tmp = out_root / f"{results.TMP_PREFIX}{job['key']}-{uuid.uuid4().hex[:8]}"
     try:
@@ -156,19 +161,34 @@ def execute(job: dict[str, Any]) -> dict[str, Any]:
         metrics = to_jsonable(metrics, bad)
         seconds = time.perf_counter() - t0
         cpu_seconds = time.process_time() - c0
-        results.write_manifest(tmp, job, metrics, {
-            "attempt": out["attempt"], "host": out["host"], "pid": out["pid"], "seconds": seconds,
-            "cpu_seconds": cpu_seconds,
-            "nonfinite": bad, "finished_unix": time.time(), "vtrack_version": _version(),
-        })
+        results.write_manifest(
+            tmp,
+            job,
+            metrics,
+            {
+                "attempt": out["attempt"],
+                "host": out["host"],
+                "pid": out["pid"],
+                "seconds": seconds,
+                "cpu_seconds": cpu_seconds,
+                "nonfinite": bad,
+                "finished_unix": time.time(),
+                "vtrack_version": _version(),
+            },
+        )
         _inject_fault(job, "before_commit")
         out["commit"] = results.commit(tmp, out_root / job["key"], job)
         out.update(status="ok", metrics=metrics, nonfinite=bad, seconds=seconds, cpu_seconds=cpu_seconds)
     except Exception as e:
         # Bad input is deterministic: retrying it would only fail again.
         retryable = not (isinstance(e, VtrackError) and isinstance(e, ValueError))
-        out.update(status="error", retryable=retryable, error=f"{type(e).__name__}: {e}",
-                   traceback=traceback.format_exc(limit=8), seconds=time.perf_counter() - t0)
+        out.update(
+            status="error",
+            retryable=retryable,
+            error=f"{type(e).__name__}: {e}",
+            traceback=traceback.format_exc(limit=8),
+            seconds=time.perf_counter() - t0,
+        )
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -203,4 +223,3 @@ def _version() -> str:
     from vtrack import __version__
 
     return __version__
-

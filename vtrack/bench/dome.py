@@ -35,23 +35,41 @@ def run(quick: bool = False) -> BenchTable:
         if te is None:
             te = make_dataset(n_test, 12345, cfg)
             tb = template_baseline(te, geo)
-            table.add(method="template", setting="no deformation", ms=0.0, n_dense=cfg.n_dense,
-                      **{k: round(v, 4) for k, v in tb.items() if not k.startswith("force")},
-                      force_mae=round(tb["force_mae"], 4), force_mae_nop=round(tb["force_mae"], 4))
+            table.add(
+                method="template",
+                setting="no deformation",
+                ms=0.0,
+                n_dense=cfg.n_dense,
+                **{k: round(v, 4) for k, v in tb.items() if not k.startswith("force")},
+                force_mae=round(tb["force_mae"], 4),
+                force_mae_nop=round(tb["force_mae"], 4),
+            )
         bte = Batcher(method, te, geo, f"{n_test}-12345-{cfg.to_dict()}")
         for n_dense in (256, 512, cfg.n_dense):
             sub = np.linspace(0, cfg.n_dense - 1, n_dense).round().astype(int)
             model.decoder.set_dense(geo.dense_rest[sub])
             pred = predict(model, heads, bte)
-            gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"][:, sub], "contact": te["contact_coarse"],
-                  "force": te["force_n"], "dense_rest": geo.dense_rest[sub]}
+            gt = {
+                "coarse": te["coarse_mm"],
+                "dense": te["dense_mm"][:, sub],
+                "contact": te["contact_coarse"],
+                "force": te["force_n"],
+                "dense_rest": geo.dense_rest[sub],
+            }
             m = evaluate_predictions(pred, gt)
-            ms, cpu_ms = time_end_to_end(method, path, te["image"][:n_time], te["pressure_kpa"][:n_time],
-                                         geo.dense_rest[sub])
-            table.add(method=method, setting=f"fine {n_dense} pts", ms=round(ms, 2), cpu_ms=round(cpu_ms, 2),
-                      n_dense=n_dense,
-                      **{k: round(v, 4) for k, v in m.items() if not k.startswith("force")},
-                      force_mae=round(m["force_mae"], 4), force_mae_nop=round(m["force_nop_mae"], 4))
+            ms, cpu_ms = time_end_to_end(
+                method, path, te["image"][:n_time], te["pressure_kpa"][:n_time], geo.dense_rest[sub]
+            )
+            table.add(
+                method=method,
+                setting=f"fine {n_dense} pts",
+                ms=round(ms, 2),
+                cpu_ms=round(cpu_ms, 2),
+                n_dense=n_dense,
+                **{k: round(v, 4) for k, v in m.items() if not k.startswith("force")},
+                force_mae=round(m["force_mae"], 4),
+                force_mae_nop=round(m["force_nop_mae"], 4),
+            )
         model.decoder.set_dense(geo.dense_rest)
     table.notes += [
         f"Held-out simulated test set: {n_test} presses (seed 12345), lengths in mm, force in N. "
@@ -66,4 +84,3 @@ def run(quick: bool = False) -> BenchTable:
         "Command: `vtrack bench dome`" + (" --quick" if quick else ""),
     ]
     return table
-

@@ -32,13 +32,32 @@ def _score(V, F, Vg, Fg) -> dict[str, Any]:
     from vtrack.eval.reconstruction import mesh_metrics
 
     m = mesh_metrics(V, F, Vg, Fg)
-    return {"fscore_1mm": m["fscore"]["1mm"], "fscore_2mm": m["fscore"]["2mm"], "fscore_5mm": m["fscore"]["5mm"],
-            "fscore_10mm": m["fscore"]["10mm"], "precision": m["precision"]["5mm"], "recall": m["recall"]["5mm"],
-            "chamfer_mm": m["chamfer_mm"] if m["chamfer_mm"] is not None else float("nan")}
+    return {
+        "fscore_1mm": m["fscore"]["1mm"],
+        "fscore_2mm": m["fscore"]["2mm"],
+        "fscore_5mm": m["fscore"]["5mm"],
+        "fscore_10mm": m["fscore"]["10mm"],
+        "precision": m["precision"]["5mm"],
+        "recall": m["recall"]["5mm"],
+        "chamfer_mm": m["chamfer_mm"] if m["chamfer_mm"] is not None else float("nan"),
+    }
 
 
-def _run(table: BenchTable, obs: list, Vg, Fg, *, method: str, mods: str, setting: str, object_name: str,
-         occlusion: str, load_s: float, online: bool = False, **opts: Any) -> None:
+def _run(
+    table: BenchTable,
+    obs: list,
+    Vg,
+    Fg,
+    *,
+    method: str,
+    mods: str,
+    setting: str,
+    object_name: str,
+    occlusion: str,
+    load_s: float,
+    online: bool = False,
+    **opts: Any,
+) -> None:
     from vtrack.fusion.reconstruct import reconstruct_observations
 
     sel = [o for o in obs if o.modality in MODS[mods]]
@@ -47,9 +66,16 @@ def _run(table: BenchTable, obs: list, Vg, Fg, *, method: str, mods: str, settin
     rec_s = time.perf_counter() - t0
     frames = max(1, len(sel))
     ms = res.get("ms_per_frame", 1e3 * rec_s / frames) if online else 1e3 * rec_s / frames
-    table.add(method=f"{method}/{mods}", setting=setting, object=object_name, occlusion=occlusion,
-              frames=len(sel), **_score(res["vertices"], res["faces"], Vg, Fg),
-              s_session=load_s + rec_s, ms=ms)
+    table.add(
+        method=f"{method}/{mods}",
+        setting=setting,
+        object=object_name,
+        occlusion=occlusion,
+        frames=len(sel),
+        **_score(res["vertices"], res["faces"], Vg, Fg),
+        s_session=load_s + rec_s,
+        ms=ms,
+    )
 
 
 def _quick(table: BenchTable) -> None:
@@ -62,17 +88,63 @@ def _quick(table: BenchTable) -> None:
         obs, V, F = make_observations(mesh, n_touch=30, touch_region="unseen", seed=0, **kw)
         load_s = time.perf_counter() - t0
         for mods in MODS:
-            _run(table, obs, V, F, method="tsdf", mods=mods, setting="voxel=2mm", object_name="soup_can",
-                 occlusion=occ, load_s=load_s, voxel_size=0.002)
-            _run(table, obs, V, F, method="neural_sdf", mods=mods, setting="iters=100", object_name="soup_can",
-                 occlusion=occ, load_s=load_s, n_iters=100, mesh_cell_mm=2.5)
+            _run(
+                table,
+                obs,
+                V,
+                F,
+                method="tsdf",
+                mods=mods,
+                setting="voxel=2mm",
+                object_name="soup_can",
+                occlusion=occ,
+                load_s=load_s,
+                voxel_size=0.002,
+            )
+            _run(
+                table,
+                obs,
+                V,
+                F,
+                method="neural_sdf",
+                mods=mods,
+                setting="iters=100",
+                object_name="soup_can",
+                occlusion=occ,
+                load_s=load_s,
+                n_iters=100,
+                mesh_cell_mm=2.5,
+            )
         if occ == "heavy":
             for vs in (0.0015, 0.003):
-                _run(table, obs, V, F, method="tsdf", mods="vision+touch", setting=f"voxel={vs * 1e3:g}mm",
-                     object_name="soup_can", occlusion=occ, load_s=load_s, voxel_size=vs)
+                _run(
+                    table,
+                    obs,
+                    V,
+                    F,
+                    method="tsdf",
+                    mods="vision+touch",
+                    setting=f"voxel={vs * 1e3:g}mm",
+                    object_name="soup_can",
+                    occlusion=occ,
+                    load_s=load_s,
+                    voxel_size=vs,
+                )
             for it in (40, 200):
-                _run(table, obs, V, F, method="neural_sdf", mods="vision+touch", setting=f"iters={it}",
-                     object_name="soup_can", occlusion=occ, load_s=load_s, n_iters=it, mesh_cell_mm=2.5)
+                _run(
+                    table,
+                    obs,
+                    V,
+                    F,
+                    method="neural_sdf",
+                    mods="vision+touch",
+                    setting=f"iters={it}",
+                    object_name="soup_can",
+                    occlusion=occ,
+                    load_s=load_s,
+                    n_iters=it,
+                    mesh_cell_mm=2.5,
+                )
 
 
 def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np.ndarray, float, dict]:
@@ -95,8 +167,9 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
     info: dict = {}
     if blind:
         kept: dict = {}
-        m, (times, est) = track_session(path, "", shape="slam", write=False, return_poses=True, keep_frames=kept,
-                                        keep_step=2)
+        m, (times, est) = track_session(
+            path, "", shape="slam", write=False, return_poses=True, keep_frames=kept, keep_step=2
+        )
         info = {"motion_err_mm": m.get("motion_err_mm")}
         frames, built, track = kept["frames"], kept["built"], PoseTrack(times, est)
         T_est_gt = se3.invert(est[0]) @ gt.poses_at(times[:1])[0]  # GT object frame in the SLAM frame
@@ -131,18 +204,62 @@ def _full(table: BenchTable, seconds: float) -> None:
             tag = "" if blind else " [oracle: GT poses, masks, height maps]"
             n0 = len(table.rows)
             for mods in MODS:
-                _run(table, obs, Vg, Fg, method="tsdf", mods=mods, setting="voxel=2mm" + tag, object_name=short,
-                     occlusion=occ, load_s=load_s, voxel_size=0.002)
+                _run(
+                    table,
+                    obs,
+                    Vg,
+                    Fg,
+                    method="tsdf",
+                    mods=mods,
+                    setting="voxel=2mm" + tag,
+                    object_name=short,
+                    occlusion=occ,
+                    load_s=load_s,
+                    voxel_size=0.002,
+                )
                 if (main or mods != "touch") and (blind or mods == "vision+touch"):
-                    _run(table, obs, Vg, Fg, method="neural_sdf", mods=mods, setting="iters=400" + tag,
-                         object_name=short, occlusion=occ, load_s=load_s, n_iters=400)
+                    _run(
+                        table,
+                        obs,
+                        Vg,
+                        Fg,
+                        method="neural_sdf",
+                        mods=mods,
+                        setting="iters=400" + tag,
+                        object_name=short,
+                        occlusion=occ,
+                        load_s=load_s,
+                        n_iters=400,
+                    )
             if blind and main and occ == "none":
                 for vs in (0.0015, 0.003):
-                    _run(table, obs, Vg, Fg, method="tsdf", mods="vision+touch", setting=f"voxel={vs * 1e3:g}mm",
-                         object_name=short, occlusion=occ, load_s=load_s, voxel_size=vs)
+                    _run(
+                        table,
+                        obs,
+                        Vg,
+                        Fg,
+                        method="tsdf",
+                        mods="vision+touch",
+                        setting=f"voxel={vs * 1e3:g}mm",
+                        object_name=short,
+                        occlusion=occ,
+                        load_s=load_s,
+                        voxel_size=vs,
+                    )
                 for it in (300, 600):
-                    _run(table, obs, Vg, Fg, method="neural_sdf", mods="vision+touch", setting=f"iters={it}",
-                         object_name=short, occlusion=occ, load_s=load_s, n_iters=it)
+                    _run(
+                        table,
+                        obs,
+                        Vg,
+                        Fg,
+                        method="neural_sdf",
+                        mods="vision+touch",
+                        setting=f"iters={it}",
+                        object_name=short,
+                        occlusion=occ,
+                        load_s=load_s,
+                        n_iters=it,
+                    )
             for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
                 r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
 
@@ -157,25 +274,44 @@ def run(quick: bool = False) -> BenchTable:
     seconds = float(os.environ.get("VTRACK_BENCH_FUSION_SECONDS", "5"))
     if quick:
         _quick(table)
-        table.notes.append("quick mode: ray-cast observations (vtrack.fusion.synthetic), soup can; 'heavy' = two "
-                           "views on a 60 deg arc, 30 touch patches on the unseen side.")
+        table.notes.append(
+            "quick mode: ray-cast observations (vtrack.fusion.synthetic), soup can; 'heavy' = two "
+            "views on a 60 deg arc, 30 touch patches on the unseen side."
+        )
     else:
         _full(table, seconds)
         # the aggregate: mean over the objects per (method, setting, occlusion), none / medium
         table.add_group_means(
             by=("method", "setting", "occlusion"),
-            means=("fscore_1mm", "fscore_2mm", "fscore_5mm", "fscore_10mm", "precision", "recall", "chamfer_mm",
-                   "s_session", "ms"),
+            means=(
+                "fscore_1mm",
+                "fscore_2mm",
+                "fscore_5mm",
+                "fscore_10mm",
+                "precision",
+                "recall",
+                "chamfer_mm",
+                "s_session",
+                "ms",
+            ),
             sums=("frames",),
             where=lambda r: r["occlusion"] in ("none", "medium") and r["object"] != "all",
-            label=lambda key, rows: {"object": "all", "n_objects": len(rows),
-                                     "fscore_5mm_min": float(min(r["fscore_5mm"] for r in rows))})
-        table.notes.append("full mode: simulator sessions of the default scene, BLIND by default (SLAM poses, "
-                           "segmentation and touch from the raw streams; scored after first-frame alignment); "
-                           "rows tagged [oracle] use GT poses, masks and height maps; every 2nd frame; cases: "
-                           + (os.environ.get("VTRACK_BENCH_FUSION_CASES") or f"default sweep, {seconds:g} s"))
-    table.notes.append("ms = reconstruction ms per frame (camera and tactile frames); s_session includes loading "
-                       "and meshing. Timings on a shared 2-core machine (other jobs running): noisy.")
+            label=lambda key, rows: {
+                "object": "all",
+                "n_objects": len(rows),
+                "fscore_5mm_min": float(min(r["fscore_5mm"] for r in rows)),
+            },
+        )
+        table.notes.append(
+            "full mode: simulator sessions of the default scene, BLIND by default (SLAM poses, "
+            "segmentation and touch from the raw streams; scored after first-frame alignment); "
+            "rows tagged [oracle] use GT poses, masks and height maps; every 2nd frame; cases: "
+            + (os.environ.get("VTRACK_BENCH_FUSION_CASES") or f"default sweep, {seconds:g} s")
+        )
+    table.notes.append(
+        "ms = reconstruction ms per frame (camera and tactile frames); s_session includes loading "
+        "and meshing. Timings on a shared 2-core machine (other jobs running): noisy."
+    )
     table.notes.append("Command: `vtrack bench fusion" + (" --quick`" if quick else "`"))
     for r in table.rows:
         for k, v in list(r.items()):

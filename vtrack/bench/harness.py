@@ -32,8 +32,7 @@ def benchmarks_dir() -> Path:
     return d
 
 
-def time_call(fn: Callable[[], Any], *, warmup: int = 1, repeat: int = 5,
-              min_seconds: float = 0.0) -> dict[str, float]:
+def time_call(fn: Callable[[], Any], *, warmup: int = 1, repeat: int = 5, min_seconds: float = 0.0) -> dict[str, float]:
     """Time ``fn()``: warm-up calls, then at least ``repeat`` timed calls (and ``min_seconds`` total).
 
     Returns median, p95, mean and min in milliseconds plus the number of timed calls.
@@ -49,21 +48,35 @@ def time_call(fn: Callable[[], Any], *, warmup: int = 1, repeat: int = 5,
         if len(times) > 10_000:
             break
     a = np.asarray(times)
-    return {"ms_median": float(np.median(a)), "ms_p95": float(np.percentile(a, 95)),
-            "ms_mean": float(a.mean()), "ms_min": float(a.min()), "n_timed": len(a)}
+    return {
+        "ms_median": float(np.median(a)),
+        "ms_p95": float(np.percentile(a, 95)),
+        "ms_mean": float(a.mean()),
+        "ms_min": float(a.min()),
+        "n_timed": len(a),
+    }
 
 
 def git_revision() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO_ROOT, capture_output=True,
-                              text=True, timeout=5).stdout.strip() or "unknown"
+        return (
+            subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], cwd=REPO_ROOT, capture_output=True, text=True, timeout=5
+            ).stdout.strip()
+            or "unknown"
+        )
     except Exception:
         return "unknown"
 
 
 def machine_info() -> dict[str, Any]:
-    info = {"machine": platform.machine(), "processor": platform.processor() or platform.machine(),
-            "cpus": os.cpu_count(), "python": platform.python_version(), "git": git_revision()}
+    info = {
+        "machine": platform.machine(),
+        "processor": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "git": git_revision(),
+    }
     try:
         import torch  # noqa: F401  (only if already importable; records the thread setting)
 
@@ -95,9 +108,15 @@ class BenchTable:
     def add(self, **row: Any) -> None:
         self.rows.append(row)
 
-    def add_group_means(self, by: tuple[str, ...], means: tuple[str, ...], where: Callable[[dict], bool],
-                        label: Callable[[tuple, list[dict]], dict[str, Any]], sums: tuple[str, ...] = (),
-                        min_rows: int = 2) -> None:
+    def add_group_means(
+        self,
+        by: tuple[str, ...],
+        means: tuple[str, ...],
+        where: Callable[[dict], bool],
+        label: Callable[[tuple, list[dict]], dict[str, Any]],
+        sums: tuple[str, ...] = (),
+        min_rows: int = 2,
+    ) -> None:
         """Append one row per group of the rows selected by ``where`` (grouped by the ``by`` columns):
         NaN-ignoring means of ``means``, totals of ``sums``, plus what ``label(group, rows)`` returns
         (e.g. ``object="all"``, a min or max). Groups smaller than ``min_rows`` are skipped."""
@@ -151,11 +170,16 @@ def write_results(table: BenchTable, out_dir: Path | None = None, columns: list[
     info = machine_info()
     info["threads"] = table.threads
     md_path = out_dir / f"{table.stage}.md"
-    lines = [f"# Benchmark: {table.stage}", "",
-             f"Error column: `{table.error_key}` ({'higher' if table.higher_is_better else 'lower'} is better); "
-             f"time column: `{table.time_key}`. Pareto-optimal rows are marked ★.", "",
-             f"Machine: {info['cpus']} CPUs, {info['processor']}, Python {info['python']}, "
-             f"threads {table.threads}, git `{info['git']}`, {time.strftime('%Y-%m-%d %H:%M')}.", ""]
+    lines = [
+        f"# Benchmark: {table.stage}",
+        "",
+        f"Error column: `{table.error_key}` ({'higher' if table.higher_is_better else 'lower'} is better); "
+        f"time column: `{table.time_key}`. Pareto-optimal rows are marked ★.",
+        "",
+        f"Machine: {info['cpus']} CPUs, {info['processor']}, Python {info['python']}, "
+        f"threads {table.threads}, git `{info['git']}`, {time.strftime('%Y-%m-%d %H:%M')}.",
+        "",
+    ]
     lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         cells = [_fmt(r.get(c, "")) for c in cols]
@@ -178,13 +202,24 @@ def plot_pareto(table: BenchTable, path: Path) -> None:
     from vtrack.viz.plots import plot_speed_vs_error
 
     if table.rows:
-        plot_speed_vs_error(path, table.rows, time_key=table.time_key, error_key=table.error_key,
-                            higher_is_better=table.higher_is_better, title=f"{table.stage}: speed against error")
+        plot_speed_vs_error(
+            path,
+            table.rows,
+            time_key=table.time_key,
+            error_key=table.error_key,
+            higher_is_better=table.higher_is_better,
+            title=f"{table.stage}: speed against error",
+        )
 
 
 def _update_index(out_dir: Path) -> None:
     stages = sorted(p.stem for p in out_dir.glob("*.md") if p.stem != "README")
-    lines = ["# Benchmarks", "", "Produced by `vtrack bench <stage>` (see each page for the command, machine and",
-             "git revision). Each stage: CSV, markdown table and Pareto plot (error against time).", ""]
+    lines = [
+        "# Benchmarks",
+        "",
+        "Produced by `vtrack bench <stage>` (see each page for the command, machine and",
+        "git revision). Each stage: CSV, markdown table and Pareto plot (error against time).",
+        "",
+    ]
     lines += [f"- [{s}]({s}.md) — [csv]({s}.csv), [plot]({s}.png)" for s in stages]
     (out_dir / "README.md").write_text("\n".join(lines) + "\n")

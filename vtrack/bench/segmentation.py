@@ -29,8 +29,12 @@ def gt_mask_field(reader: Any, cam: str) -> tuple[Any, str]:
     for name in (f"gt/camera/{cam}", f"camera/{cam}"):
         if name in reader and "mask" in reader[name].fields:
             return reader[name], "mask"
-    raise InputError("session has no ground-truth object mask", path=reader.path,
-                     field=f"gt/camera/{cam}.mask", expected="uint8 (H, W) mask")
+    raise InputError(
+        "session has no ground-truth object mask",
+        path=reader.path,
+        field=f"gt/camera/{cam}.mask",
+        expected="uint8 (H, W) mask",
+    )
 
 
 def segmenter_for_session(reader: Any, cam: str, stride: int, options: Any = None) -> Any:
@@ -50,9 +54,15 @@ def segmenter_for_session(reader: Any, cam: str, stride: int, options: Any = Non
     return HandAwareSegmenter(kin, pc, np.asarray(s.attrs["T_world_camera"]), options)
 
 
-def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, options: Any = None,
-                     max_frames: int | None = None, q_noise_rad: float = 0.0,
-                     min_visible: float = 0.1) -> dict[str, Any]:
+def evaluate_session(
+    path: str | Path,
+    cam: str | None = None,
+    stride: int = 4,
+    options: Any = None,
+    max_frames: int | None = None,
+    q_noise_rad: float = 0.0,
+    min_visible: float = 0.1,
+) -> dict[str, Any]:
     """Segment every camera frame of a session and score it against the GT mask.
 
     ``q_noise_rad`` adds Gaussian encoder noise (std, rad, seeded) to the joint vector the segmenter gets:
@@ -69,7 +79,7 @@ def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, 
     from vtrack.io.session import open_session
 
     r = open_session(path)
-    cams = sorted(n[len("camera/"):] for n in r.streams_of_kind("rgbd"))
+    cams = sorted(n[len("camera/") :] for n in r.streams_of_kind("rgbd"))
     if not cams:
         raise InputError("session has no camera stream", path=path, field="camera/<cam>")
     cam = cam or cams[0]
@@ -106,16 +116,29 @@ def evaluate_session(path: str | Path, cam: str | None = None, stride: int = 4, 
         other = (depth > 0) & ~gt
         if other.any():
             hand_left.append(float((res.mask & other).sum() / other.sum()))
-    return {"iou": np.asarray(ious), "ms": np.asarray(times), "hand_left": np.asarray(hand_left),
-            "hidden_empty": np.asarray(hidden, bool), "frames": n}
+    return {
+        "iou": np.asarray(ious),
+        "ms": np.asarray(times),
+        "hand_left": np.asarray(hand_left),
+        "hidden_empty": np.asarray(hidden, bool),
+        "frames": n,
+    }
 
 
 def _scores(m: dict[str, Any]) -> dict[str, Any]:
     """Table columns of one :func:`evaluate_session` result."""
-    return dict(frames=m["frames"], scored=len(m["iou"]), iou_median=_med(m["iou"]), iou_mean=_mean(m["iou"]),
-                iou_min=float(m["iou"].min()) if len(m["iou"]) else float("nan"), hand_left=_mean(m["hand_left"]),
-                hidden=len(m["hidden_empty"]), hidden_empty=_mean(m["hidden_empty"].astype(float)),
-                ms=_med(m["ms"]), ms_mean=_mean(m["ms"]))
+    return dict(
+        frames=m["frames"],
+        scored=len(m["iou"]),
+        iou_median=_med(m["iou"]),
+        iou_mean=_mean(m["iou"]),
+        iou_min=float(m["iou"].min()) if len(m["iou"]) else float("nan"),
+        hand_left=_mean(m["hand_left"]),
+        hidden=len(m["hidden_empty"]),
+        hidden_empty=_mean(m["hidden_empty"].astype(float)),
+        ms=_med(m["ms"]),
+        ms_mean=_mean(m["ms"]),
+    )
 
 
 def run(quick: bool = False) -> BenchTable:
@@ -140,25 +163,37 @@ def run(quick: bool = False) -> BenchTable:
             table.add(method="hand-aware", setting=f"{obj[4:]} {occ}", object=obj, occlusion=occ, **_scores(m))
     for occ, v in per_occ.items():
         a = np.asarray(v)
-        table.add(method="hand-aware", setting=f"all objects {occ}", object="all", occlusion=occ, frames=len(a),
-                  scored=len(a), iou_median=_med(a), iou_mean=_mean(a),
-                  iou_min=float(a.min()) if len(a) else float("nan"), hand_left=float("nan"), ms=float("nan"))
+        table.add(
+            method="hand-aware",
+            setting=f"all objects {occ}",
+            object="all",
+            occlusion=occ,
+            frames=len(a),
+            scored=len(a),
+            iou_median=_med(a),
+            iou_mean=_mean(a),
+            iou_min=float(a.min()) if len(a) else float("nan"),
+            hand_left=float("nan"),
+            ms=float("nan"),
+        )
     # Ablations on the default object: what each step buys.
     can = DEFAULT_OBJECT if DEFAULT_OBJECT in objects else objects[0]
-    ablations = {"no hand removal": (SegmentationOptions(hand_removal=False), 0.0),
-                 "splat silhouette only": (SegmentationOptions(exact_silhouette=False, fill_hand_edge=False), 0.0),
-                 "FK error: joint noise 1 deg": (SegmentationOptions(), np.deg2rad(1.0)),
-                 "FK error: joint noise 2 deg": (SegmentationOptions(), np.deg2rad(2.0)),
-                 "no crop": (SegmentationOptions(crop=False), 0.0),
-                 "no temporal": (SegmentationOptions(temporal=False), 0.0),
-                 "dilate 0": (SegmentationOptions(hand_dilate_px=0), 0.0),
-                 "dilate 2": (SegmentationOptions(hand_dilate_px=2), 0.0)}
+    ablations = {
+        "no hand removal": (SegmentationOptions(hand_removal=False), 0.0),
+        "splat silhouette only": (SegmentationOptions(exact_silhouette=False, fill_hand_edge=False), 0.0),
+        "FK error: joint noise 1 deg": (SegmentationOptions(), np.deg2rad(1.0)),
+        "FK error: joint noise 2 deg": (SegmentationOptions(), np.deg2rad(2.0)),
+        "no crop": (SegmentationOptions(crop=False), 0.0),
+        "no temporal": (SegmentationOptions(temporal=False), 0.0),
+        "dilate 0": (SegmentationOptions(hand_dilate_px=0), 0.0),
+        "dilate 2": (SegmentationOptions(hand_dilate_px=2), 0.0),
+    }
     for name, (opts, q_noise) in ablations.items():
         for occ in ("none", "medium") if quick else OCCLUSIONS:
-            m = evaluate_session(ycb_session(can, occ, seconds), options=opts, max_frames=frames,
-                                 q_noise_rad=float(q_noise))
-            table.add(method=f"ablation: {name}", setting=f"{can[4:]} {occ}", object=can, occlusion=occ,
-                      **_scores(m))
+            m = evaluate_session(
+                ycb_session(can, occ, seconds), options=opts, max_frames=frames, q_noise_rad=float(q_noise)
+            )
+            table.add(method=f"ablation: {name}", setting=f"{can[4:]} {occ}", object=can, occlusion=occ, **_scores(m))
     table.notes += [
         f"{'quick' if quick else 'full'} run, {time.perf_counter() - t_start:.0f} s wall; single thread; "
         f"{seconds:g} s sessions of the default scene (Allegro + 4 DIGIT, camera 640x480 at 30 Hz).",

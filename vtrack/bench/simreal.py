@@ -45,8 +45,10 @@ def _crop_box(press: Any, shape: tuple[int, int], scale: float = 1.0, k: float =
     H, W = shape
     cx, cy = press.center_xy_px[0] / scale, press.center_xy_px[1] / scale
     r = k * press.contact_radius_px / scale
-    return (slice(max(0, int(cy - r)), min(H, int(np.ceil(cy + r)) + 1)),
-            slice(max(0, int(cx - r)), min(W, int(np.ceil(cx + r)) + 1)))
+    return (
+        slice(max(0, int(cy - r)), min(H, int(np.ceil(cy + r)) + 1)),
+        slice(max(0, int(cx - r)), min(W, int(np.ceil(cx + r)) + 1)),
+    )
 
 
 def _frames(ps: Any, presses: list, scale: int) -> tuple[np.ndarray, list[tuple[Any, np.ndarray]]]:
@@ -82,8 +84,15 @@ def score(model: Any, ps: Any, presses: list, scale: int = 1) -> dict[str, float
         ms = (time.perf_counter() - t0) * 1e3
         sl = _crop_box(p, bg.shape[:2], scale)
         r, s, b = (x[sl].astype(np.float32) for x in (real, sim, bg))
-        rows.append({"mse": float(((s - r) ** 2).mean()), "ssim": ssim(s, r), "mse_bg": float(((b - r) ** 2).mean()),
-                     "ssim_bg": ssim(b, r), "ms": ms})
+        rows.append(
+            {
+                "mse": float(((s - r) ** 2).mean()),
+                "ssim": ssim(s, r),
+                "mse_bg": float(((b - r) ** 2).mean()),
+                "ssim_bg": ssim(b, r),
+                "ms": ms,
+            }
+        )
     return {k: float(np.median([x[k] for x in rows])) for k in rows[0]} | {"n_presses": len(rows)}
 
 
@@ -104,12 +113,15 @@ def fit_lights(model: Any, ps: Any, presses: list, scale: int = 4, max_nfev: int
     mpp = ps.mm_per_px * scale
     for p, _, _ in crops:
         d = press_depth_mm(ps.ball_radius_mm, p.contact_radius_px * ps.mm_per_px)
-        heights.append(ball_height(bg.shape[:2], (p.center_xy_px[0] / scale, p.center_xy_px[1] / scale),
-                                   ps.ball_radius_mm, d, mpp))
+        heights.append(
+            ball_height(bg.shape[:2], (p.center_xy_px[0] / scale, p.center_xy_px[1] / scale), ps.ball_radius_mm, d, mpp)
+        )
 
     def build(x: np.ndarray) -> Any:
-        lights = [replace(li, azimuth_deg=float(x[3 * i]), elevation_deg=float(x[3 * i + 1]),
-                          gain=float(x[3 * i + 2])) for i, li in enumerate(model.lights)]
+        lights = [
+            replace(li, azimuth_deg=float(x[3 * i]), elevation_deg=float(x[3 * i + 1]), gain=float(x[3 * i + 2]))
+            for i, li in enumerate(model.lights)
+        ]
         m = model.with_lights(lights)
         m.blur_mm, m.ks = float(x[-2]), float(x[-1])
         return m
@@ -126,12 +138,12 @@ def fit_lights(model: Any, ps: Any, presses: list, scale: int = 4, max_nfev: int
             out.append(((sim - real[sl]) / 16.0).ravel())
         return np.concatenate(out)
 
-    x0 = np.array([v for li in model.lights for v in (li.azimuth_deg, li.elevation_deg, li.gain)]
-                  + [model.blur_mm, model.ks])
+    x0 = np.array(
+        [v for li in model.lights for v in (li.azimuth_deg, li.elevation_deg, li.gain)] + [model.blur_mm, model.ks]
+    )
     lo = np.array([v for li in model.lights for v in (li.azimuth_deg - 90, 10.0, 0.0)] + [0.0, 0.0])
     hi = np.array([v for li in model.lights for v in (li.azimuth_deg + 90, 80.0, 400.0)] + [1.0, 1.0])
-    sol = least_squares(resid, np.clip(x0, lo, hi), bounds=(lo, hi), x_scale="jac", diff_step=1e-3,
-                        max_nfev=max_nfev)
+    sol = least_squares(resid, np.clip(x0, lo, hi), bounds=(lo, hi), x_scale="jac", diff_step=1e-3, max_nfev=max_nfev)
     return build(sol.x)
 
 
@@ -157,12 +169,30 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
     fit_s = time.perf_counter() - t0
     s_pre = score(preset, ps, test)
     s_fit = score(fitted, ps, test)
-    table.add(method="background only", setting="real background crop", ms=0.0, mse=s_pre["mse_bg"],
-              ssim=s_pre["ssim_bg"], n_test=s_pre["n_presses"])
-    table.add(method="optics preset", setting="gelsight, nominal", ms=s_pre["ms"], mse=s_pre["mse"],
-              ssim=s_pre["ssim"], n_test=s_pre["n_presses"])
-    table.add(method="optics fitted", setting=f"LEDs+blur+ks fitted on {len(train)} train presses ({fit_s:.0f} s)",
-              ms=s_fit["ms"], mse=s_fit["mse"], ssim=s_fit["ssim"], n_test=s_fit["n_presses"])
+    table.add(
+        method="background only",
+        setting="real background crop",
+        ms=0.0,
+        mse=s_pre["mse_bg"],
+        ssim=s_pre["ssim_bg"],
+        n_test=s_pre["n_presses"],
+    )
+    table.add(
+        method="optics preset",
+        setting="gelsight, nominal",
+        ms=s_pre["ms"],
+        mse=s_pre["mse"],
+        ssim=s_pre["ssim"],
+        n_test=s_pre["n_presses"],
+    )
+    table.add(
+        method="optics fitted",
+        setting=f"LEDs+blur+ks fitted on {len(train)} train presses ({fit_s:.0f} s)",
+        ms=s_fit["ms"],
+        mse=s_fit["mse"],
+        ssim=s_fit["ssim"],
+        n_test=s_fit["n_presses"],
+    )
     lights = "; ".join(f"az {li.azimuth_deg:.0f} el {li.elevation_deg:.0f} gain {li.gain:.0f}" for li in fitted.lights)
     table.notes += [
         f"Real set {root.name}: {ps.shape[1]}x{ps.shape[0]}, {ps.mm_per_px} mm/px, ball {ps.ball_radius_mm} mm; "
@@ -217,7 +247,10 @@ def session_tactile_accuracy(session: str | Path, max_frames: int = 0) -> dict[s
             nerr.append(np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0))))
     he = np.concatenate(herr) if herr else np.zeros(0)
     ne = np.concatenate(nerr) if nerr else np.zeros(0)
-    return {"frames": n_frames, "contact_pixels": int(he.size),
-            "height_err_mm_median": float(np.median(he)) if he.size else float("nan"),
-            "contact_iou": inter / union if union else float("nan"),
-            "normal_err_deg_median": float(np.median(ne)) if ne.size else float("nan")}
+    return {
+        "frames": n_frames,
+        "contact_pixels": int(he.size),
+        "height_err_mm_median": float(np.median(he)) if he.size else float("nan"),
+        "contact_iou": inter / union if union else float("nan"),
+        "normal_err_deg_median": float(np.median(ne)) if ne.size else float("nan"),
+    }

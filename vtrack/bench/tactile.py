@@ -36,17 +36,23 @@ def scaled_press_set(ps, factor: int):
         return ps
     H, W = ps.shape
     size = (W // factor, H // factor)
-    cache = {name: cv2.resize(ps.read(name), size, interpolation=cv2.INTER_AREA)
-             for name in [ps.background_file] + [p.file for p in ps.presses]}
+    cache = {
+        name: cv2.resize(ps.read(name), size, interpolation=cv2.INTER_AREA)
+        for name in [ps.background_file] + [p.file for p in ps.presses]
+    }
     # pixel centres: x_small = (x + 0.5) / f - 0.5
-    presses = [Press(p.file, tuple((c + 0.5) / factor - 0.5 for c in p.center_xy_px), p.contact_radius_px / factor,
-                     p.index) for p in ps.presses]
-    return PressSet(ps.root, presses, ps.sensor, ps.mm_per_px * factor, ps.ball_radius_mm, ps.background_file,
-                    _cache=cache)
+    presses = [
+        Press(p.file, tuple((c + 0.5) / factor - 0.5 for c in p.center_xy_px), p.contact_radius_px / factor, p.index)
+        for p in ps.presses
+    ]
+    return PressSet(
+        ps.root, presses, ps.sensor, ps.mm_per_px * factor, ps.ball_radius_mm, ps.background_file, _cache=cache
+    )
 
 
-def _row(table: BenchTable, ps, calib, test, method: str, setting: str, downsample: int, solver: str,
-         repeat: int) -> None:
+def _row(
+    table: BenchTable, ps, calib, test, method: str, setting: str, downsample: int, solver: str, repeat: int
+) -> None:
     from vtrack.bench.harness import time_call
     from vtrack.tactile.evaluation import evaluate_presses
     from vtrack.tactile.pipeline import TactilePipeline
@@ -67,14 +73,25 @@ def _row(table: BenchTable, ps, calib, test, method: str, setting: str, downsamp
     t = time_call(run, warmup=2, repeat=repeat)
     cpu = (time.process_time() - c0) * 1e3 / (t["n_timed"] + 2)
     H, W = ps.shape
-    table.add(method=method, setting=f"{setting} {W}x{H} ds{downsample}", resolution=f"{W}x{H}",
-              downsample=downsample, solver=solver,
-              ms=t["ms_median"], ms_min=t["ms_min"], cpu_ms=cpu, fps_cpu=1000.0 / max(cpu, 1e-9),
-              ms_height=float(np.median(stages["height"])), ms_contact=float(np.median(stages["contact"])),
-              ms_points=float(np.median(stages["points"])),
-              normal_err_deg=res["normal_err_deg_median"], radius_abs_err_pct=res["radius_abs_err_pct_median"],
-              radius_err_pct=res["radius_err_pct_median"], shape_rmse_um=res["shape_rmse_um_median"],
-              n_test=res["n_presses"])
+    table.add(
+        method=method,
+        setting=f"{setting} {W}x{H} ds{downsample}",
+        resolution=f"{W}x{H}",
+        downsample=downsample,
+        solver=solver,
+        ms=t["ms_median"],
+        ms_min=t["ms_min"],
+        cpu_ms=cpu,
+        fps_cpu=1000.0 / max(cpu, 1e-9),
+        ms_height=float(np.median(stages["height"])),
+        ms_contact=float(np.median(stages["contact"])),
+        ms_points=float(np.median(stages["points"])),
+        normal_err_deg=res["normal_err_deg_median"],
+        radius_abs_err_pct=res["radius_abs_err_pct_median"],
+        radius_err_pct=res["radius_err_pct_median"],
+        shape_rmse_um=res["shape_rmse_um_median"],
+        n_test=res["n_presses"],
+    )
 
 
 def notes(quick: bool, n_test: int) -> list[str]:
@@ -105,9 +122,10 @@ def run(quick: bool = False) -> BenchTable:
     ps = load_press_set(root)
     _, test_full = ps.split(HOLDOUT)
     if quick:
-        calibs = [("lut", "bins32", TrainOptions(lut_bins=32)),
-                  ("mlp", "h16", TrainOptions(mlp_hidden=16, mlp_epochs=4, inside_per_press=2000,
-                                              flat_per_press=1500))]
+        calibs = [
+            ("lut", "bins32", TrainOptions(lut_bins=32)),
+            ("mlp", "h16", TrainOptions(mlp_hidden=16, mlp_epochs=4, inside_per_press=2000, flat_per_press=1500)),
+        ]
         points = [(2, 1), (2, 2), (1, 2)]  # (image scale-down, working downsample)
         repeat, n_test = 5, 4
     else:

@@ -55,23 +55,53 @@ def _synth_rows(table: BenchTable, quick: bool) -> None:
             for op, opts in points.items():
                 tr = KnownShapeTracker(mesh, seq.gt[0], **opts)
                 err, ms, wall = _timed(tr, seq, drop)
-                table.add(method=f"known/{mode}", setting=f"synth {occ} {op}", data="synthetic", object=mesh.stem,
-                          occlusion=occ, noise=1.0, ms=ms, wall_ms=wall, drift_mm=float(err.mean() * 1e3),
-                          drift_max_mm=float(err.max() * 1e3))
+                table.add(
+                    method=f"known/{mode}",
+                    setting=f"synth {occ} {op}",
+                    data="synthetic",
+                    object=mesh.stem,
+                    occlusion=occ,
+                    noise=1.0,
+                    ms=ms,
+                    wall_ms=wall,
+                    drift_mm=float(err.mean() * 1e3),
+                    drift_max_mm=float(err.max() * 1e3),
+                )
         for op, opts in {"icp20": {"iterations": 20}, "icp5": {"iterations": 5}, "icp50": {"iterations": 50}}.items():
             tr = ICPTracker(mesh, seq.gt[0], **opts)
             err, ms, wall = _timed(tr, seq, ("touch",))
-            table.add(method="icp/vision", setting=f"synth {occ} {op}", data="synthetic", object=mesh.stem,
-                      occlusion=occ, noise=1.0, ms=ms, wall_ms=wall, drift_mm=float(err.mean() * 1e3),
-                      drift_max_mm=float(err.max() * 1e3))
+            table.add(
+                method="icp/vision",
+                setting=f"synth {occ} {op}",
+                data="synthetic",
+                object=mesh.stem,
+                occlusion=occ,
+                noise=1.0,
+                ms=ms,
+                wall_ms=wall,
+                drift_mm=float(err.mean() * 1e3),
+                drift_max_mm=float(err.max() * 1e3),
+            )
         if not quick or occ == "none":
-            for op, opts in {"refresh10": {"refresh_every": 10}, "default": {},
-                             "refresh2": {"refresh_every": 2}}.items():
+            for op, opts in {
+                "refresh10": {"refresh_every": 10},
+                "default": {},
+                "refresh2": {"refresh_every": 2},
+            }.items():
                 tr = SLAMTracker(seq.gt[0], **opts)
                 err, ms, wall = _timed(tr, seq)
-                table.add(method="slam/visuo-tactile", setting=f"synth {occ} {op}", data="synthetic",
-                          object=mesh.stem, occlusion=occ, noise=1.0, ms=ms, wall_ms=wall,
-                          drift_mm=float(err.mean() * 1e3), drift_max_mm=float(err.max() * 1e3))
+                table.add(
+                    method="slam/visuo-tactile",
+                    setting=f"synth {occ} {op}",
+                    data="synthetic",
+                    object=mesh.stem,
+                    occlusion=occ,
+                    noise=1.0,
+                    ms=ms,
+                    wall_ms=wall,
+                    drift_mm=float(err.mean() * 1e3),
+                    drift_max_mm=float(err.max() * 1e3),
+                )
 
 
 def session_cases(quick: bool) -> list[tuple[str, str, str, float, Path]]:
@@ -98,13 +128,19 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
     cases = session_cases(quick)
     for obj, occ, setting, noise, sess in cases:
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
-        runs = [("known/" + m + " [blind]", dict(shape="known_shape", mesh=mesh, modalities=mods))
-                for m, mods in MODES.items()]
+        runs = [
+            ("known/" + m + " [blind]", dict(shape="known_shape", mesh=mesh, modalities=mods))
+            for m, mods in MODES.items()
+        ]
         runs.append(("slam/visuo-tactile [blind]", dict(shape="slam")))
         runs.append(("slam/vision [blind]", dict(shape="slam", modalities=("vision",))))
         runs.append(("known/visuo-tactile [oracle]", dict(shape="known_shape", mesh=mesh, **oracle)))
-        runs.append(("icp/vision [oracle init+masks]", dict(shape="known_shape", method="icp", mesh=mesh, init="gt",
-                                                            segmentation="gt")))
+        runs.append(
+            (
+                "icp/vision [oracle init+masks]",
+                dict(shape="known_shape", method="icp", mesh=mesh, init="gt", segmentation="gt"),
+            )
+        )
         runs.append(("slam/visuo-tactile [oracle]", dict(shape="slam", tactile_source="gt", segmentation="gt")))
         for name, kw in runs:
             try:
@@ -112,18 +148,38 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
             except InputError as e:  # e.g. global registration found nothing with touch only: a result too
                 table.notes.append(f"{name} {setting}: {e}")
                 continue
-            table.add(method=name, setting=setting, data="sim", object=obj, occlusion=occ, noise=noise,
-                      ms=m["cpu_ms_per_frame_mean"], wall_ms=m["ms_per_frame_mean"], drift_mm=m["drift_mm"],
-                      add_s_mm=m["add_s_mm"], motion_err_mm=m["motion_err_mm"], rot_drift_deg=m["rot_drift_deg"],
-                      drift_max_mm=m["drift_max_mm"], frames=m["frames"], poses_per_s=m["poses_per_s"])
+            table.add(
+                method=name,
+                setting=setting,
+                data="sim",
+                object=obj,
+                occlusion=occ,
+                noise=noise,
+                ms=m["cpu_ms_per_frame_mean"],
+                wall_ms=m["ms_per_frame_mean"],
+                drift_mm=m["drift_mm"],
+                add_s_mm=m["add_s_mm"],
+                motion_err_mm=m["motion_err_mm"],
+                rot_drift_deg=m["rot_drift_deg"],
+                drift_max_mm=m["drift_max_mm"],
+                frames=m["frames"],
+                poses_per_s=m["poses_per_s"],
+            )
     # the aggregate: every YCB object, occlusion none and medium (means over objects)
     table.add_group_means(
         by=("method", "occlusion"),
         means=("ms", "wall_ms", "drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "poses_per_s"),
-        sums=("frames",), min_rows=1,
+        sums=("frames",),
+        min_rows=1,
         where=lambda r: r.get("data") == "sim" and r["noise"] == 1.0 and r["occlusion"] in ("none", "medium"),
-        label=lambda key, rows: {"setting": f"all {len(rows)} objects {key[1]}", "data": "sim", "object": "all",
-                                 "noise": 1.0, "drift_max_mm": float(max(r["drift_max_mm"] for r in rows))})
+        label=lambda key, rows: {
+            "setting": f"all {len(rows)} objects {key[1]}",
+            "data": "sim",
+            "object": "all",
+            "noise": 1.0,
+            "drift_max_mm": float(max(r["drift_max_mm"] for r in rows)),
+        },
+    )
     # operating points on the heavy-occlusion default scene (blind known shape)
     obj, occ, setting, noise, sess = next(c for c in cases if c[1] == "heavy")
     mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
@@ -131,11 +187,23 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
         if op == "default":
             continue  # already in the table
         m = track_session(sess, "", write=False, shape="known_shape", mesh=mesh, **opts)
-        table.add(method="known/visuo-tactile [blind]", setting=f"{setting} {op}", data="sim", object=obj,
-                  occlusion=occ, noise=noise, ms=m["cpu_ms_per_frame_mean"], wall_ms=m["ms_per_frame_mean"],
-                  drift_mm=m["drift_mm"], add_s_mm=m["add_s_mm"], motion_err_mm=m["motion_err_mm"],
-                  rot_drift_deg=m["rot_drift_deg"], drift_max_mm=m["drift_max_mm"], frames=m["frames"],
-                  poses_per_s=m["poses_per_s"])
+        table.add(
+            method="known/visuo-tactile [blind]",
+            setting=f"{setting} {op}",
+            data="sim",
+            object=obj,
+            occlusion=occ,
+            noise=noise,
+            ms=m["cpu_ms_per_frame_mean"],
+            wall_ms=m["ms_per_frame_mean"],
+            drift_mm=m["drift_mm"],
+            add_s_mm=m["add_s_mm"],
+            motion_err_mm=m["motion_err_mm"],
+            rot_drift_deg=m["rot_drift_deg"],
+            drift_max_mm=m["drift_max_mm"],
+            frames=m["frames"],
+            poses_per_s=m["poses_per_s"],
+        )
 
 
 def run(quick: bool = False) -> BenchTable:

@@ -90,8 +90,9 @@ def bundle_dome_config(bundle: dict) -> DomeConfig:
         raise InputError(f"dome bundle sensor config does not match this vtrack ({e})", field="cfg") from None
 
 
-def build_model(kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 4, gnn_layers: int = 3,
-                gnn_edge_strain: bool = True):
+def build_model(
+    kind: str, geo: DomeGeometry, hidden: int = 64, gnn_k: int = 4, gnn_layers: int = 3, gnn_edge_strain: bool = True
+):
     from vtrack.dome.nets import DomeCNN, DomeGNN
 
     if kind == "gnn":
@@ -109,10 +110,19 @@ def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: 
         return {k: (v.half() if v.is_floating_point() else v) for k, v in sd.items()}
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save({"version": BUNDLE_VERSION, "kind": kind, "cfg": cfg.to_dict(), "train": asdict(tc), "info": info,
-                "contact_calib": list(model.decoder.contact_calib), "recon": half(model.state_dict()),
-                **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()}},
-               path)
+    torch.save(
+        {
+            "version": BUNDLE_VERSION,
+            "kind": kind,
+            "cfg": cfg.to_dict(),
+            "train": asdict(tc),
+            "info": info,
+            "contact_calib": list(model.decoder.contact_calib),
+            "recon": half(model.state_dict()),
+            **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()},
+        },
+        path,
+    )
 
 
 def load_bundle(path: Path, with_heads: bool = True):

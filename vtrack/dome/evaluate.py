@@ -10,8 +10,9 @@ import numpy as np
 EVAL_KEYS = ("cd_coarse", "cd_fine", "hd95", "f2mm", "contact_l2", "force_mae", "ms_per_frame")
 
 
-def time_end_to_end(method: str, weights: Path, images: np.ndarray, pressures: np.ndarray,
-                    dense_rest: np.ndarray | None = None) -> tuple[float, float]:
+def time_end_to_end(
+    method: str, weights: Path, images: np.ndarray, pressures: np.ndarray, dense_rest: np.ndarray | None = None
+) -> tuple[float, float]:
     """Median (wall ms, CPU ms) per frame for image -> (marker graph ->) dense surface + force, one frame
     at a time, 1 thread. CPU time (``time.process_time``) is reported too because wall time on a shared
     machine includes waiting for the core."""
@@ -32,9 +33,15 @@ def time_end_to_end(method: str, weights: Path, images: np.ndarray, pressures: n
     return float(np.median(ts)), float(np.median(cs))
 
 
-def evaluate(weights_dir: Path | None = None, n_test: int = 300, test_seed: int = 12345,
-             methods: tuple[str, ...] = ("gnn", "cnn"), timing_frames: int = 40, dense_rest: np.ndarray | None = None,
-             data: dict | None = None) -> dict[str, dict[str, float]]:
+def evaluate(
+    weights_dir: Path | None = None,
+    n_test: int = 300,
+    test_seed: int = 12345,
+    methods: tuple[str, ...] = ("gnn", "cnn"),
+    timing_frames: int = 40,
+    dense_rest: np.ndarray | None = None,
+    data: dict | None = None,
+) -> dict[str, dict[str, float]]:
     """Metrics of each method on the simulated test set (same samples for every method)."""
     import torch
 
@@ -58,8 +65,13 @@ def evaluate(weights_dir: Path | None = None, n_test: int = 300, test_seed: int 
         te = data if data is not None else make_dataset(n_test, test_seed, cfg)
         bte = Batcher(m, te, geo, f"{len(te['image'])}-{test_seed}-{cfg.to_dict()}" if data is None else None)
         pred = predict(model, heads, bte)
-        gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
-              "force": te["force_n"], "dense_rest": geo.dense_rest}
+        gt = {
+            "coarse": te["coarse_mm"],
+            "dense": te["dense_mm"],
+            "contact": te["contact_coarse"],
+            "force": te["force_n"],
+            "dense_rest": geo.dense_rest,
+        }
         r = evaluate_predictions(pred, gt)
         k = min(timing_frames, len(te["image"]))
         r["ms_per_frame"], r["cpu_ms_per_frame"] = time_end_to_end(m, path, te["image"][:k], te["pressure_kpa"][:k])
@@ -78,11 +90,19 @@ def template_baseline(te: dict, geo) -> dict[str, float]:
 
     n = len(te["image"])
     infl = geo.reference_inflation_mm(np.asarray(te["pressure_kpa"], np.float64))[:, None, None]
-    pred = {"coarse": geo.coarse_rest * (1 + infl / geo.cfg.radius_mm),
-            "dense": geo.dense_rest * (1 + infl / geo.cfg.radius_mm),
-            "contact": np.zeros((n, geo.cfg.n_coarse)), "force": np.zeros((n, 3))}
-    gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
-          "force": te["force_n"], "dense_rest": geo.dense_rest}
+    pred = {
+        "coarse": geo.coarse_rest * (1 + infl / geo.cfg.radius_mm),
+        "dense": geo.dense_rest * (1 + infl / geo.cfg.radius_mm),
+        "contact": np.zeros((n, geo.cfg.n_coarse)),
+        "force": np.zeros((n, 3)),
+    }
+    gt = {
+        "coarse": te["coarse_mm"],
+        "dense": te["dense_mm"],
+        "contact": te["contact_coarse"],
+        "force": te["force_n"],
+        "dense_rest": geo.dense_rest,
+    }
     return evaluate_predictions(pred, gt)
 
 

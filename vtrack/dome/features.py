@@ -86,8 +86,9 @@ def _match(ms: MarkerSet, ref: MarkerSet, half: float) -> tuple[np.ndarray, np.n
     return partner, matched, spacing
 
 
-def edge_strain(ms: MarkerSet, ref: MarkerSet, edge_index: np.ndarray, half: float,
-                match: tuple | None = None) -> np.ndarray:
+def edge_strain(
+    ms: MarkerSet, ref: MarkerSet, edge_index: np.ndarray, half: float, match: tuple | None = None
+) -> np.ndarray:
     """Reference-relative edge features (m, 3) float32: ``[d_dx, d_dy, d_len]``, the change of the edge
     vector (and of its length) between the two markers from the reference frame to this frame, in units of
     the median rest-marker spacing; 0 for edges with an unmatched end.
@@ -114,14 +115,14 @@ def edge_strain(ms: MarkerSet, ref: MarkerSet, edge_index: np.ndarray, half: flo
 def match_reference(ms: MarkerSet, ref: MarkerSet, half: float, match: tuple | None = None) -> np.ndarray:
     """Reference-relative node features (n, 5) float32: ``[dx, dy, d_area, d_r, matched]``.
 
-    Each detected marker is matched one-to-one to a rest marker of the no-contact reference frame
-    (Hungarian assignment on pixel distance, ``scipy.optimize.linear_sum_assignment``), gated at 0.75
-    of the median rest-marker spacing so a vanished/merged marker does not steal a far partner. ``dx, dy``
-    is the image displacement from the partner in units of the median rest-marker spacing (a fixed
-normalisation of the image coordinates, ~8 px at 160 px for the simulated dome); unmatched markers take
-    their nearest rest marker for ``dx, dy`` and get ``matched = 0``. ``d_area`` is the area change in
-    units of the median rest area; ``d_r`` the change of equivalent radius sqrt(area/pi) in units of the
-    median rest radius (both 0 when unmatched, or when the reference has no areas).
+        Each detected marker is matched one-to-one to a rest marker of the no-contact reference frame
+        (Hungarian assignment on pixel distance, ``scipy.optimize.linear_sum_assignment``), gated at 0.75
+        of the median rest-marker spacing so a vanished/merged marker does not steal a far partner. ``dx, dy``
+        is the image displacement from the partner in units of the median rest-marker spacing (a fixed
+    normalisation of the image coordinates, ~8 px at 160 px for the simulated dome); unmatched markers take
+        their nearest rest marker for ``dx, dy`` and get ``matched = 0``. ``d_area`` is the area change in
+        units of the median rest area; ``d_r`` the change of equivalent radius sqrt(area/pi) in units of the
+        median rest radius (both 0 when unmatched, or when the reference has no areas).
     """
     n, m = len(ms), len(ref)
     out = np.zeros((n, REL_DIM), np.float32)
@@ -168,8 +169,13 @@ def graph_arrays(image: np.ndarray, ref: MarkerSet | np.ndarray, geo: DomeGeomet
     ea = np.concatenate([g.edge_attr, edge_strain(ms, ref, g.edge_index, half, match)], 1).astype(np.float32)
     pos = geo.backproject_to_dome(ms.centers) if n else np.zeros((0, 3))
     pos = pos / np.maximum(np.linalg.norm(pos, axis=1, keepdims=True), 1e-9)
-    return {"x": x.astype(np.float32), "edge_index": g.edge_index, "edge_attr": ea,
-            "pos": pos.astype(np.float32), "method": g.method}
+    return {
+        "x": x.astype(np.float32),
+        "edge_index": g.edge_index,
+        "edge_attr": ea,
+        "pos": pos.astype(np.float32),
+        "method": g.method,
+    }
 
 
 def reference_centers(ref_image: np.ndarray) -> np.ndarray:
@@ -203,9 +209,14 @@ def prepare_graphs(data: dict, geo: DomeGeometry, cache_key: str | None = None) 
         ps.append(a["pos"])
         no.append(no[-1] + len(a["x"]))
         eo.append(eo[-1] + a["edge_index"].shape[1])
-    out = {"x": np.concatenate(xs), "edge_index": np.concatenate(eis, 1) if eis else np.zeros((2, 0), np.int64),
-           "edge_attr": np.concatenate(eas) if eas else np.zeros((0, EDGE_DIM + EDGE_REL_DIM), np.float32),
-           "pos": np.concatenate(ps), "node_off": np.array(no), "edge_off": np.array(eo)}
+    out = {
+        "x": np.concatenate(xs),
+        "edge_index": np.concatenate(eis, 1) if eis else np.zeros((2, 0), np.int64),
+        "edge_attr": np.concatenate(eas) if eas else np.zeros((0, EDGE_DIM + EDGE_REL_DIM), np.float32),
+        "pos": np.concatenate(ps),
+        "node_off": np.array(no),
+        "edge_off": np.array(eo),
+    }
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp.npz")
@@ -228,16 +239,25 @@ def collate_graphs(graphs: list[dict[str, np.ndarray]]) -> dict:
         ps.append(g["pos"])
         bs.append(np.full(n, b, np.int64))
         off += n
-    return {"x": torch.from_numpy(np.concatenate(xs)), "edge_index": torch.from_numpy(np.concatenate(eis, 1)),
-            "edge_attr": torch.from_numpy(np.concatenate(eas)), "pos": torch.from_numpy(np.concatenate(ps)),
-            "batch": torch.from_numpy(np.concatenate(bs)), "n_graphs": len(graphs)}
+    return {
+        "x": torch.from_numpy(np.concatenate(xs)),
+        "edge_index": torch.from_numpy(np.concatenate(eis, 1)),
+        "edge_attr": torch.from_numpy(np.concatenate(eas)),
+        "pos": torch.from_numpy(np.concatenate(ps)),
+        "batch": torch.from_numpy(np.concatenate(bs)),
+        "n_graphs": len(graphs),
+    }
 
 
 def slice_graph(G: dict[str, np.ndarray], i: int) -> dict[str, np.ndarray]:
     a, b = G["node_off"][i], G["node_off"][i + 1]
     c, d = G["edge_off"][i], G["edge_off"][i + 1]
-    return {"x": G["x"][a:b], "edge_index": G["edge_index"][:, c:d], "edge_attr": G["edge_attr"][c:d],
-            "pos": G["pos"][a:b]}
+    return {
+        "x": G["x"][a:b],
+        "edge_index": G["edge_index"][:, c:d],
+        "edge_attr": G["edge_attr"][c:d],
+        "pos": G["pos"][a:b],
+    }
 
 
 def image_batch(images: np.ndarray, ref_image: np.ndarray) -> dict:

@@ -60,19 +60,32 @@ def check_image(image: np.ndarray, expected_size: int | None = None, *, path=Non
 
         a = cv2.cvtColor(a[..., :3].astype(np.uint8) if a.dtype != np.uint8 else a[..., :3], cv2.COLOR_BGR2GRAY)
     if a.ndim != 2 or min(a.shape) < 8:
-        raise InputError("bad image shape", path=path, field="image", expected="(H, W) or (H, W, 3), H, W >= 8",
-                         got=tuple(a.shape))
+        raise InputError(
+            "bad image shape", path=path, field="image", expected="(H, W) or (H, W, 3), H, W >= 8", got=tuple(a.shape)
+        )
     if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
         raise InputError("image holds NaN/Inf", path=path, field="image", expected="finite pixel values")
     if expected_size is not None and a.shape != (expected_size, expected_size):
-        raise InputError("image of the wrong size for this model", path=path, field="image",
-                         expected=f"{expected_size}x{expected_size} px (or pass resize=True)",
-                         got=f"{a.shape[1]}x{a.shape[0]}")
+        raise InputError(
+            "image of the wrong size for this model",
+            path=path,
+            field="image",
+            expected=f"{expected_size}x{expected_size} px (or pass resize=True)",
+            got=f"{a.shape[1]}x{a.shape[0]}",
+        )
     return a
 
 
-def extract_markers(image: np.ndarray, *, polarity: str = "auto", gamma: float = 0.8, mask_radius: float = 0.98,
-                    min_area: float = 2.0, split: bool = True, max_area_ratio: float = 6.0) -> MarkerSet:
+def extract_markers(
+    image: np.ndarray,
+    *,
+    polarity: str = "auto",
+    gamma: float = 0.8,
+    mask_radius: float = 0.98,
+    min_area: float = 2.0,
+    split: bool = True,
+    max_area_ratio: float = 6.0,
+) -> MarkerSet:
     """Detect markers in a grey image.
 
     Args:
@@ -118,7 +131,7 @@ def extract_markers(image: np.ndarray, *, polarity: str = "auto", gamma: float =
         next_label = n
         for b in keep[areas[keep - 1] > 1.6 * med]:
             x0, y0, w, h = stats[b, :4]
-            yy, xx = np.nonzero(lab[y0:y0 + h, x0:x0 + w] == b)
+            yy, xx = np.nonzero(lab[y0 : y0 + h, x0 : x0 + w] == b)
             pts = np.stack([xx, yy], 1).astype(np.float32)
             cov = np.cov(pts.T)
             ev = np.linalg.eigvalsh(cov)
@@ -185,8 +198,9 @@ def node_features(ms: MarkerSet, boundary: np.ndarray | None = None) -> np.ndarr
     med = float(np.median(ms.areas)) if n else 1.0
     eta = ms.axes[:, 1] / np.maximum(ms.axes[:, 0], 1e-9)
     b = np.zeros(n) if boundary is None else boundary.astype(np.float64)
-    f = np.stack([xr, yr, ms.areas / max(med, 1e-9), np.hypot(xr, yr), eta, np.sin(2 * ms.angles),
-                  np.cos(2 * ms.angles), b], 1)
+    f = np.stack(
+        [xr, yr, ms.areas / max(med, 1e-9), np.hypot(xr, yr), eta, np.sin(2 * ms.angles), np.cos(2 * ms.angles), b], 1
+    )
     return np.nan_to_num(f, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
 
 
@@ -238,9 +252,16 @@ def build_graph(ms: MarkerSet, *, knn_fallback: int = 4) -> MarkerGraph:
     if e.shape[1]:
         half = min(ms.image_size) / 2.0
         d = (ms.centers[e[1]] - ms.centers[e[0]]) / half
-        ea = np.stack([d[:, 0], d[:, 1], np.hypot(d[:, 0], d[:, 1]), x[e[1], 2] - x[e[0], 2],
-                       x[e[1], 4] - x[e[0], 4]], 1)
+        ea = np.stack(
+            [d[:, 0], d[:, 1], np.hypot(d[:, 0], d[:, 1]), x[e[1], 2] - x[e[0], 2], x[e[1], 4] - x[e[0], 4]], 1
+        )
     else:
         ea = np.zeros((0, EDGE_DIM))
-    return MarkerGraph(x, e.astype(np.int64), ea.astype(np.float32), ms.centers.astype(np.float32), method,
-                       {"n_markers": n, "n_split": ms.n_split})
+    return MarkerGraph(
+        x,
+        e.astype(np.int64),
+        ea.astype(np.float32),
+        ms.centers.astype(np.float32),
+        method,
+        {"n_markers": n, "n_split": ms.n_split},
+    )

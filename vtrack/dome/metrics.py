@@ -40,10 +40,16 @@ def evaluate_predictions(pred: dict[str, np.ndarray], gt: dict[str, np.ndarray])
         moved = np.linalg.norm(gt["dense"][i] - gt["dense_rest"], axis=1) > 0.5
         if moved.any():
             verr_def.append(e[moved].mean())
-    out = {"cd_coarse": float(np.mean(cdc)), "cd_fine": float(np.mean(cdf)), "hd95": float(np.mean(hd)),
-           "f2mm": float(np.mean(f2)), "f05mm": float(np.mean(f05)), "vertex_err": float(np.mean(verr)),
-           "vertex_err_moved": float(np.mean(verr_def)) if verr_def else 0.0,
-           "contact_l2": float(np.sqrt(np.mean((pred["contact"] - gt["contact"].astype(np.float64)) ** 2)))}
+    out = {
+        "cd_coarse": float(np.mean(cdc)),
+        "cd_fine": float(np.mean(cdf)),
+        "hd95": float(np.mean(hd)),
+        "f2mm": float(np.mean(f2)),
+        "f05mm": float(np.mean(f05)),
+        "vertex_err": float(np.mean(verr)),
+        "vertex_err_moved": float(np.mean(verr_def)) if verr_def else 0.0,
+        "contact_l2": float(np.sqrt(np.mean((pred["contact"] - gt["contact"].astype(np.float64)) ** 2))),
+    }
     for key, name in (("force", "force"), ("force_nop", "force_nop")):
         if key in pred:
             err = pred[key] - gt["force"]

@@ -96,8 +96,11 @@ def tactip_layout(rings: int, cap_deg: float) -> np.ndarray:
     for k in range(1, rings + 1):
         polar = np.deg2rad(cap_deg) * k / rings
         phi = np.arange(6 * k) * 2 * np.pi / (6 * k) + (0.5 if k % 2 else 0.0) * np.pi / (6 * k)
-        dirs.append(np.stack([np.sin(polar) * np.cos(phi), np.sin(polar) * np.sin(phi),
-                              np.full_like(phi, np.cos(polar))], axis=1))
+        dirs.append(
+            np.stack(
+                [np.sin(polar) * np.cos(phi), np.sin(polar) * np.sin(phi), np.full_like(phi, np.cos(polar))], axis=1
+            )
+        )
     return np.vstack([d.reshape(-1, 3) for d in dirs])
 
 

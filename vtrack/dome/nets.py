@@ -80,8 +80,16 @@ class CoarseToFineDecoder(nn.Module):
     (same function, much less CPU).
     """
 
-    def __init__(self, geo: DomeGeometry, feat_dim: int = 64, glob_dim: int = 128, hidden: int = 48,
-                 s_mm: float = 1.0, k_graph: int = 8, k_interp: int = 3) -> None:
+    def __init__(
+        self,
+        geo: DomeGeometry,
+        feat_dim: int = 64,
+        glob_dim: int = 128,
+        hidden: int = 48,
+        s_mm: float = 1.0,
+        k_graph: int = 8,
+        k_interp: int = 3,
+    ) -> None:
         super().__init__()
         self.R = geo.cfg.radius_mm
         self.s_mm = s_mm
@@ -120,8 +128,13 @@ class CoarseToFineDecoder(nn.Module):
         self.interp_idx = idx
         self.interp_w = idw_weights(dist / self.R)
 
-    def forward(self, feat: torch.Tensor, glob: torch.Tensor, coarse_only: bool = False,
-                ref_inflation_mm: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        feat: torch.Tensor,
+        glob: torch.Tensor,
+        coarse_only: bool = False,
+        ref_inflation_mm: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
         """feat (B, 256, F) per coarse point, glob (B, G) -> contact logits, coarse and dense positions (mm).
 
         The nets predict displacements from the reference (no-contact) state; ``ref_inflation_mm`` (B,) is
@@ -168,7 +181,7 @@ class GraphEncoder(nn.Module):
 
     def forward(self, x, edge_index, edge_attr, batch, n_graphs: int) -> tuple[torch.Tensor, torch.Tensor]:
         h = self.inp(x)
-        edge_attr = edge_attr[:, :self.edge_dim]  # graphs carry strain columns a model may not use
+        edge_attr = edge_attr[:, : self.edge_dim]  # graphs carry strain columns a model may not use
         for conv in self.convs:
             h = h + torch.relu(conv(h, edge_index, edge_attr))
         F = h.shape[1]
@@ -185,8 +198,9 @@ class DomeGNN(nn.Module):
 
     kind = "gnn"
 
-    def __init__(self, geo: DomeGeometry, hidden: int = 64, layers: int = 3, k_markers: int = 4,
-                 edge_strain: bool = True) -> None:
+    def __init__(
+        self, geo: DomeGeometry, hidden: int = 64, layers: int = 3, k_markers: int = 4, edge_strain: bool = True
+    ) -> None:
         super().__init__()
         from vtrack.dome.features import EDGE_REL_DIM
 
@@ -265,8 +279,15 @@ class ForceHead(nn.Module):
     feature] -> MLP -> F. ``use_pressure=False`` feeds P = 0 (the "without pressure" ablation).
     """
 
-    def __init__(self, geo: DomeGeometry, hidden: int = 64, glob_dim: int = 128, n_patches: int = 16,
-                 use_pressure: bool = True, dec_hidden: int = 48) -> None:
+    def __init__(
+        self,
+        geo: DomeGeometry,
+        hidden: int = 64,
+        glob_dim: int = 128,
+        n_patches: int = 16,
+        use_pressure: bool = True,
+        dec_hidden: int = 48,
+    ) -> None:
         super().__init__()
         self.use_pressure = use_pressure
         self.p_max = geo.cfg.pressure_max_kpa
@@ -295,14 +316,15 @@ class ForceHead(nn.Module):
         nrm = coarse_rest / coarse_rest.norm(dim=-1, keepdim=True)
         ind = torch.relu(-(out["disp_coarse"] * nrm).sum(-1, keepdim=True))  # inward indentation, mm
         prob = torch.sigmoid(out["contact_logit"]).unsqueeze(-1)
-        z = torch.cat([out["hidden"], out["disp_coarse"] / DISP_SCALE_MM, prob, ind, (coarse_rest / self.R
-                                                                                      ).expand(B, -1, 3)], -1)
+        z = torch.cat(
+            [out["hidden"], out["disp_coarse"] / DISP_SCALE_MM, prob, ind, (coarse_rest / self.R).expand(B, -1, 3)], -1
+        )
         hp = self.patch(torch.einsum("pn,bnf->bpf", self.pool, self.point(z)))  # (B, P, H)
         sums = torch.cat([(ind * prob).sum(1), ind.sum(1)], -1) / 10.0  # (B, 2)
         p = pressure_kpa.view(B, 1) / self.p_max if self.use_pressure else torch.zeros(B, 1)
         H = self.hidden
         gb = self.film(p)  # S19-S20: FiLM by the internal pressure
-        gamma, beta, g2, b2 = gb[:, :H], gb[:, H:2 * H], gb[:, 2 * H:2 * H + 2], gb[:, 2 * H + 2:]
+        gamma, beta, g2, b2 = gb[:, :H], gb[:, H : 2 * H], gb[:, 2 * H : 2 * H + 2], gb[:, 2 * H + 2 :]
         hp = hp * (1 + gamma.unsqueeze(1)) + beta.unsqueeze(1)
         sums = sums * (1 + g2) + b2
         return self.head(torch.cat([hp.amax(1), hp.mean(1), sums, out["glob"]], -1))

@@ -39,12 +39,23 @@ class DomeResult:
 
     def summary(self) -> dict[str, Any]:
         if not self.valid:  # no force/indentation numbers from an image the model cannot read
-            return {"valid": False, "n_markers": self.n_markers, "force_n": None, "contact_points": None,
-                    "max_indentation_mm": None, "invalid_reason": self.info.get("invalid_reason", "")}
-        return {"n_markers": self.n_markers, "graph": self.graph_method, "ms": round(self.ms, 2),
-                "force_n": [round(float(v), 4) for v in self.force_n],
-                "contact_points": int((self.contact_prob > 0.5).sum()),
-                "max_indentation_mm": float(self.info.get("max_indentation_mm", 0.0)), **self.info}
+            return {
+                "valid": False,
+                "n_markers": self.n_markers,
+                "force_n": None,
+                "contact_points": None,
+                "max_indentation_mm": None,
+                "invalid_reason": self.info.get("invalid_reason", ""),
+            }
+        return {
+            "n_markers": self.n_markers,
+            "graph": self.graph_method,
+            "ms": round(self.ms, 2),
+            "force_n": [round(float(v), 4) for v in self.force_n],
+            "contact_points": int((self.contact_prob > 0.5).sum()),
+            "max_indentation_mm": float(self.info.get("max_indentation_mm", 0.0)),
+            **self.info,
+        }
 
     def save(self, out_dir: Path) -> dict[str, Path]:
         """``mesh.ply`` (dense surface, mm), ``coarse.ply`` (coarse template + contact prob), ``result.json``."""
@@ -78,8 +89,9 @@ class DomeReconstructor:
             older protocol). Default: the simulator's reference frame at the frame's pressure.
     """
 
-    def __init__(self, method: str = "gnn", weights: str | Path | None = None,
-                 reference: np.ndarray | str | Path | None = None) -> None:
+    def __init__(
+        self, method: str = "gnn", weights: str | Path | None = None, reference: np.ndarray | str | Path | None = None
+    ) -> None:
         import torch
 
         from vtrack.dome.bundle import load_bundle
@@ -150,11 +162,17 @@ class DomeReconstructor:
     def _check_size(self, img: np.ndarray, path=None) -> None:
         S = self.cfg.image_size
         if img.shape[:2] != (S, S):
-            raise InputError("image of the wrong size for this model", path=path, field="image",
-                             expected=f"{S}x{S} px (pass resize=True to rescale)", got=f"{img.shape[1]}x{img.shape[0]}")
+            raise InputError(
+                "image of the wrong size for this model",
+                path=path,
+                field="image",
+                expected=f"{S}x{S} px (pass resize=True to rescale)",
+                got=f"{img.shape[1]}x{img.shape[0]}",
+            )
 
-    def reconstruct(self, image: np.ndarray | str | Path, pressure_kpa: float = 0.0, *,
-                    resize: bool = False) -> DomeResult:
+    def reconstruct(
+        self, image: np.ndarray | str | Path, pressure_kpa: float = 0.0, *, resize: bool = False
+    ) -> DomeResult:
         """Reconstruct one frame. ``pressure_kpa`` must lie in ``[0, cfg.pressure_max_kpa]``."""
         from vtrack.dome.markers import check_image
 
@@ -169,8 +187,12 @@ class DomeReconstructor:
         self._check_size(img, path)
         p = float(pressure_kpa)
         if not np.isfinite(p) or p < 0 or p > self.cfg.pressure_max_kpa:
-            raise InputError("internal pressure out of the trained range", field="pressure_kpa",
-                             expected=f"0 <= P <= {self.cfg.pressure_max_kpa} kPa", got=pressure_kpa)
+            raise InputError(
+                "internal pressure out of the trained range",
+                field="pressure_kpa",
+                expected=f"0 <= P <= {self.cfg.pressure_max_kpa} kPa",
+                got=pressure_kpa,
+            )
         res = self._run(img, p)
         ok, reason = self.marker_match(img, p)
         res.info["valid"] = ok
@@ -200,9 +222,11 @@ class DomeReconstructor:
         spacing = float(np.median(cKDTree(ref).query(ref, k=2)[0][:, 1]))
         frac = float((cKDTree(found).query(ref)[0] < 0.5 * spacing).mean()) if len(found) else 0.0
         if frac < self.MIN_MATCHED_FRACTION:
-            return False, (f"not a frame of this dome sensor: {frac:.0%} of the {len(ref)} reference markers found "
-                           f"near their rest position (need >= {self.MIN_MATCHED_FRACTION:.0%}; "
-                           f"{len(found)} markers detected)")
+            return False, (
+                f"not a frame of this dome sensor: {frac:.0%} of the {len(ref)} reference markers found "
+                f"near their rest position (need >= {self.MIN_MATCHED_FRACTION:.0%}; "
+                f"{len(found)} markers detected)"
+            )
         return True, ""
 
     def _run(self, img: np.ndarray, p: float) -> DomeResult:
@@ -236,7 +260,9 @@ class DomeReconstructor:
         # indentation from the reference (no-contact) state at this pressure, not from the deflated rest shape
         ind = np.linalg.norm(rest, axis=1) + float(infl[0]) - np.linalg.norm(dense, axis=1)
         faces = self.geo.dense_faces if len(dense) == self.cfg.n_dense else np.zeros((0, 3), np.int64)
-        info = {"max_indentation_mm": float(max(0.0, ind.max())), "pressure_kpa": p,
-                "low_marker_count": bool(self.method == "gnn" and n_markers < 0.5 * self.cfg.n_markers)}
-        return DomeResult(dense, faces, coarse, prob, force.astype(np.float64), n_markers, method,
-                          ms, info)
+        info = {
+            "max_indentation_mm": float(max(0.0, ind.max())),
+            "pressure_kpa": p,
+            "low_marker_count": bool(self.method == "gnn" and n_markers < 0.5 * self.cfg.n_markers),
+        }
+        return DomeResult(dense, faces, coarse, prob, force.astype(np.float64), n_markers, method, ms, info)

@@ -89,8 +89,12 @@ def sample_press(rng: np.random.Generator, cfg: DomeConfig, *, contact_prob: flo
     az = rng.uniform(0, 2 * np.pi)
     d = np.array([np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar)])
     shape = str(rng.choice(INDENTERS))
-    size = {"sphere": rng.uniform(2.0, 6.0), "cylinder": rng.uniform(1.5, 3.5), "edge": rng.uniform(1.5, 3.0),
-            "textured": rng.uniform(2.0, 3.5)}[shape]
+    size = {
+        "sphere": rng.uniform(2.0, 6.0),
+        "cylinder": rng.uniform(1.5, 3.5),
+        "edge": rng.uniform(1.5, 3.0),
+        "textured": rng.uniform(2.0, 3.5),
+    }[shape]
     depth = float(rng.uniform(0.3, 3.0))
     shear = rng.normal(0.0, 0.25, 2)
     return Press(shape, d, depth, float(size), float(rng.uniform(0, np.pi)), shear, pressure)
@@ -143,9 +147,15 @@ class DomeSimulator:
             area = float((delta[:nd] > 0).sum() * self.area_per_src)
             force = -n * k_n * vol + KT_N_PER_MM3 * area * shear
         nd, nc = c.n_dense, c.n_coarse
-        return {"disp_dense": disp[:nd], "disp_coarse": disp[nd:nd + nc], "disp_markers": disp[nd + nc:],
-                "contact_dense": delta[:nd] > 0, "contact_coarse": delta[nd:nd + nc] > 0,
-                "depth_coarse": delta[nd:nd + nc], "force": force}
+        return {
+            "disp_dense": disp[:nd],
+            "disp_coarse": disp[nd : nd + nc],
+            "disp_markers": disp[nd + nc :],
+            "contact_dense": delta[:nd] > 0,
+            "contact_coarse": delta[nd : nd + nc] > 0,
+            "depth_coarse": delta[nd : nd + nc],
+            "force": force,
+        }
 
     def render(self, marker_pos: np.ndarray, rng: np.random.Generator | None, *, noise: float = 1.0) -> np.ndarray:
         """Grey uint8 image (S, S) of markers at dome-frame positions (n, 3) mm (bright pins on dark)."""
@@ -160,8 +170,9 @@ class DomeSimulator:
         e1[bad] = np.cross(n[bad], np.array([0.0, 1.0, 0.0]))
         e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
         e2 = np.cross(n, e1)
-        rim = (marker_pos[:, None, :] + c.marker_radius_mm * (self._rim[None, :, 0:1] * e1[:, None, :]
-                                                             + self._rim[None, :, 1:2] * e2[:, None, :]))
+        rim = marker_pos[:, None, :] + c.marker_radius_mm * (
+            self._rim[None, :, 0:1] * e1[:, None, :] + self._rim[None, :, 1:2] * e2[:, None, :]
+        )
         uv = self.geo.project(rim.reshape(-1, 3)).reshape(len(marker_pos), 8, 2)
         ctr = uv.mean(1)
         dev = uv - ctr[:, None, :]
@@ -172,9 +183,18 @@ class DomeSimulator:
         img = np.zeros((S, S), np.float32)
         sh = 4  # sub-pixel precision of cv2.ellipse (2^4)
         for (x, y), (a0, a1), an in zip(ctr, axes, ang, strict=True):
-            cv2.ellipse(img, (int(round(x * 16)), int(round(y * 16))),
-                        (max(1, int(round(a1 * 16))), max(1, int(round(a0 * 16)))), float(an), 0, 360, 1.0,
-                        -1, cv2.LINE_AA, sh)
+            cv2.ellipse(
+                img,
+                (int(round(x * 16)), int(round(y * 16))),
+                (max(1, int(round(a1 * 16))), max(1, int(round(a0 * 16)))),
+                float(an),
+                0,
+                360,
+                1.0,
+                -1,
+                cv2.LINE_AA,
+                sh,
+            )
         gain = rng.uniform(0.75, 1.0) if noise > 0 else 0.9
         img = cv2.GaussianBlur(img, (0, 0), 0.7) * gain
         yy, xx = np.mgrid[0:S, 0:S]
@@ -193,13 +213,18 @@ class DomeSimulator:
         g = self.geo
         markers = g.marker_rest + d["disp_markers"]
         img = self.render(markers, rng, noise=noise)
-        return {"image": img, "markers_mm": markers.astype(np.float32),
-                "markers_px": g.project(markers).astype(np.float32),
-                "dense_mm": (g.dense_rest + d["disp_dense"]).astype(np.float32),
-                "coarse_mm": (g.coarse_rest + d["disp_coarse"]).astype(np.float32),
-                "contact_coarse": d["contact_coarse"], "contact_dense": d["contact_dense"],
-                "force_n": d["force"].astype(np.float32), "pressure_kpa": np.float32(press.pressure_kpa),
-                "shape": press.shape}
+        return {
+            "image": img,
+            "markers_mm": markers.astype(np.float32),
+            "markers_px": g.project(markers).astype(np.float32),
+            "dense_mm": (g.dense_rest + d["disp_dense"]).astype(np.float32),
+            "coarse_mm": (g.coarse_rest + d["disp_coarse"]).astype(np.float32),
+            "contact_coarse": d["contact_coarse"],
+            "contact_dense": d["contact_dense"],
+            "force_n": d["force"].astype(np.float32),
+            "pressure_kpa": np.float32(press.pressure_kpa),
+            "shape": press.shape,
+        }
 
     def reference_image(self, pressure_kpa: float = 0.0) -> np.ndarray:
         """No-contact, noise-free image at internal pressure ``pressure_kpa`` (the sensor's reference frame)."""
@@ -217,8 +242,9 @@ def dataset_path(n: int, seed: int, cfg: DomeConfig) -> Path:
     return cache_dir() / "dome" / f"sim_{n}_{seed}_{key.hexdigest()[:10]}.npz"
 
 
-def make_dataset(n: int, seed: int, cfg: DomeConfig | None = None, *, cache: bool = True,
-                 progress: bool = False) -> dict[str, np.ndarray]:
+def make_dataset(
+    n: int, seed: int, cfg: DomeConfig | None = None, *, cache: bool = True, progress: bool = False
+) -> dict[str, np.ndarray]:
     """``n`` simulated samples stacked into arrays (cached as .npz in ``vtrack.paths.cache_dir()``).
 
     ``reference_image`` is (S, S) (one reference at P = 0) or, when ``cfg.reference_at_pressure``, (n, S, S):

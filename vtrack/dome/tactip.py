@@ -93,18 +93,32 @@ def analyse_set(ts: TacTipSet, *, seed: int = 0, epochs: int = 150, log=print) -
         g = build_graph(ms)
         dref = np.zeros((len(ms), 2), np.float32)
         dref[m >= 0] = (ms.centers[m >= 0] - ref.centers[m[m >= 0]]) / half
-        graphs.append({"x": np.concatenate([g.x, dref], 1).astype(np.float32), "edge_index": g.edge_index,
-                       "edge_attr": g.edge_attr, "pos": np.zeros((len(ms), 3), np.float32)})
+        graphs.append(
+            {
+                "x": np.concatenate([g.x, dref], 1).astype(np.float32),
+                "edge_index": g.edge_index,
+                "edge_attr": g.edge_attr,
+                "pos": np.zeros((len(ms), 3), np.float32),
+            }
+        )
         field = np.zeros((len(ref), 2))
         field[m[m >= 0]] = dref[m >= 0]
         disp_fields.append(field.ravel())
     counts_a = np.array(counts)
-    res = {"set": ts.name, "frames": len(ts.images), "expected_pins": expected, "init_count": len(ref),
-           "count_mean": float(counts_a.mean()), "count_std": float(counts_a.std()),
-           "count_min": int(counts_a.min()), "count_max": int(counts_a.max()),
-           "frac_exact_count": float((counts_a == expected).mean()),
-           "track_continuity_mean": float(np.mean(cont)), "track_continuity_min": float(np.min(cont)),
-           "pin_spacing_px": spacing}
+    res = {
+        "set": ts.name,
+        "frames": len(ts.images),
+        "expected_pins": expected,
+        "init_count": len(ref),
+        "count_mean": float(counts_a.mean()),
+        "count_std": float(counts_a.std()),
+        "count_min": int(counts_a.min()),
+        "count_max": int(counts_a.max()),
+        "frac_exact_count": float((counts_a == expected).mean()),
+        "track_continuity_mean": float(np.mean(cont)),
+        "track_continuity_min": float(np.min(cont)),
+        "pin_spacing_px": spacing,
+    }
     # fixed split
     rng = np.random.default_rng(seed)
     perm = rng.permutation(len(graphs))
@@ -145,7 +159,7 @@ def _gnn_regressor(graphs, y, tr, te, seed, epochs, log) -> dict:
     for _ep in range(epochs):
         perm = rng.permutation(tr)
         for b in range(0, len(perm), 16):
-            idx = perm[b:b + 16]
+            idx = perm[b : b + 16]
             bt = collate_graphs([graphs[i] for i in idx])
             _, g = enc(bt["x"], bt["edge_index"], bt["edge_attr"], bt["batch"], len(idx))
             loss = nn.functional.mse_loss(head(g), yt[idx])
@@ -159,8 +173,12 @@ def _gnn_regressor(graphs, y, tr, te, seed, epochs, log) -> dict:
         pred = head(g).numpy() * sd + mu
     err = np.abs(pred - y[te]).mean(0)
     log(f"[tactip] gnn test MAE depth {err[0]:.3f} mm, roll {err[1]:.2f} deg")
-    return {"gnn_depth_mae_mm": float(err[0]), "gnn_roll_mae_deg": float(err[1]),
-            "label_std_depth_mm": float(y[te, 0].std()), "label_std_roll_deg": float(y[te, 1].std())}
+    return {
+        "gnn_depth_mae_mm": float(err[0]),
+        "gnn_roll_mae_deg": float(err[1]),
+        "label_std_depth_mm": float(y[te, 0].std()),
+        "label_std_roll_deg": float(y[te, 1].std()),
+    }
 
 
 def analyse_all(root: Path | None = None, **kw) -> list[dict]:

@@ -30,8 +30,10 @@ from vtrack.dome.model import DomeConfig, DomeGeometry, knn_np
 def load_sets(tc: TrainConfig, cfg: DomeConfig, progress: bool = False) -> tuple[dict, dict]:
     from vtrack.dome.simulate import make_dataset
 
-    return (make_dataset(tc.n_train, tc.seed, cfg, progress=progress),
-            make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress))
+    return (
+        make_dataset(tc.n_train, tc.seed, cfg, progress=progress),
+        make_dataset(tc.n_test, tc.test_seed, cfg, progress=progress),
+    )
 
 
 class Batcher:
@@ -53,10 +55,12 @@ class Batcher:
         if (refs.ndim == 3) != geo.cfg.reference_at_pressure:
             from vtrack.errors import InputError
 
-            raise InputError("dataset reference frames do not match the model's reference protocol",
-                             field="reference_image",
-                             expected="(n, S, S), one per pressure" if geo.cfg.reference_at_pressure else "(S, S)",
-                             got=str(refs.shape))
+            raise InputError(
+                "dataset reference frames do not match the model's reference protocol",
+                field="reference_image",
+                expected="(n, S, S), one per pressure" if geo.cfg.reference_at_pressure else "(S, S)",
+                got=str(refs.shape),
+            )
 
     def __len__(self) -> int:
         return len(self.coarse)
@@ -74,8 +78,14 @@ class Batcher:
 
     def targets(self, idx: np.ndarray) -> dict:
         i = np.asarray(idx)
-        return {"coarse": self.coarse[i], "dense": self.dense[i], "contact": self.contact[i],
-                "contact_dense": self.contact_d[i], "force": self.force[i], "pressure": self.pressure[i]}
+        return {
+            "coarse": self.coarse[i],
+            "dense": self.dense[i],
+            "contact": self.contact[i],
+            "contact_dense": self.contact_d[i],
+            "force": self.force[i],
+            "pressure": self.pressure[i],
+        }
 
 
 def _dense_graph(geo: DomeGeometry, k: int = 6):
@@ -131,8 +141,9 @@ def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
             rest = [p for nm, p in model.named_parameters() if not nm.startswith(("decoder.edge", "decoder.fine"))]
             opt = torch.optim.Adam([{"params": fine, "lr": tc.lr}, {"params": rest, "lr": tc.lr * 0.1}])
         steps = max(1, epochs * (n // tc.batch))
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=[g["lr"] for g in opt.param_groups],
-                                                    total_steps=steps, pct_start=0.15)
+        sched = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=[g["lr"] for g in opt.param_groups], total_steps=steps, pct_start=0.15
+        )
         model.train()
         t0 = time.time()
         step = 0
@@ -140,7 +151,7 @@ def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
             perm = rng.permutation(n)
             agg: dict[str, float] = {}
             for b in range(n // tc.batch):
-                idx = perm[b * tc.batch:(b + 1) * tc.batch]
+                idx = perm[b * tc.batch : (b + 1) * tc.batch]
                 out = model(train.inputs(idx), coarse_only=phase == 1)
                 loss, parts = recon_loss(out, train.targets(idx), nbr, phase, tc.still_l1)
                 opt.zero_grad()
@@ -152,8 +163,11 @@ def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
                 step += 1
                 for k, v in parts.items():
                     agg[k] = agg.get(k, 0.0) + v / (n // tc.batch)
-            log(f"[{kind}] phase {phase} epoch {ep + 1}/{epochs} " + " ".join(f"{k}={v:.4f}" for k, v in agg.items())
-                + f" ({time.time() - t0:.0f}s)")
+            log(
+                f"[{kind}] phase {phase} epoch {ep + 1}/{epochs} "
+                + " ".join(f"{k}={v:.4f}" for k, v in agg.items())
+                + f" ({time.time() - t0:.0f}s)"
+            )
     model.eval()
     return model
 
@@ -171,8 +185,16 @@ def force_features(model, train: Batcher) -> dict:
     return {k: torch.cat([f[k] for f in feats]) for k in feats[0]}
 
 
-def train_force(model, train: Batcher, tc: TrainConfig, use_pressure: bool, log=print, init=None,
-                epochs: int | None = None, feats: dict | None = None):
+def train_force(
+    model,
+    train: Batcher,
+    tc: TrainConfig,
+    use_pressure: bool,
+    log=print,
+    init=None,
+    epochs: int | None = None,
+    feats: dict | None = None,
+):
     """Train a force head on the frozen reconstruction net; ``init`` (a ForceHead) is the starting point."""
     import torch
 
@@ -196,7 +218,7 @@ def train_force(model, train: Batcher, tc: TrainConfig, use_pressure: bool, log=
         perm = rng.permutation(n)
         tot = 0.0
         for b in range(n // tc.batch):
-            idx = torch.as_tensor(perm[b * tc.batch:(b + 1) * tc.batch])
+            idx = torch.as_tensor(perm[b * tc.batch : (b + 1) * tc.batch])
             pred = head({k: v[idx] for k, v in cat.items()}, train.pressure[idx], rest)
             loss = torch.nn.functional.smooth_l1_loss(pred, train.force[idx], beta=0.1)
             opt.zero_grad()
@@ -225,8 +247,10 @@ def train_force_heads(model, train: Batcher, tc: TrainConfig, log=print, feats: 
     first = max(1, tc.epochs_force // 2)
     rest = max(1, tc.epochs_force - first)
     base = train_force(model, train, tc, False, log, epochs=first, feats=feats)
-    return {"p": train_force(model, train, tc, True, log, init=base, epochs=rest, feats=feats),
-            "nop": train_force(model, train, tc, False, log, init=base, epochs=rest, feats=feats)}
+    return {
+        "p": train_force(model, train, tc, True, log, init=base, epochs=rest, feats=feats),
+        "nop": train_force(model, train, tc, False, log, init=base, epochs=rest, feats=feats),
+    }
 
 
 def fit_contact_calibration(model, train: Batcher, feats: dict | None = None) -> tuple[float, float]:
@@ -314,8 +338,13 @@ def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str,
     return {k: np.concatenate(v) for k, v in outs.items()}
 
 
-def train_all(tc: TrainConfig | None = None, cfg: DomeConfig | None = None, out_dir: Path | None = None,
-              kinds: tuple[str, ...] = ("gnn", "cnn"), log=print) -> dict[str, dict]:
+def train_all(
+    tc: TrainConfig | None = None,
+    cfg: DomeConfig | None = None,
+    out_dir: Path | None = None,
+    kinds: tuple[str, ...] = ("gnn", "cnn"),
+    log=print,
+) -> dict[str, dict]:
     """The full reproducible training: simulate (cached), train GNN and CNN with the same budget, save, eval."""
     import torch
 
@@ -338,8 +367,13 @@ def train_all(tc: TrainConfig | None = None, cfg: DomeConfig | None = None, out_
         model.decoder.contact_calib = fit_contact_calibration(model, btr, feats)
         secs = time.time() - t0
         pred = predict(model, heads, bte)
-        gt = {"coarse": te["coarse_mm"], "dense": te["dense_mm"], "contact": te["contact_coarse"],
-              "force": te["force_n"], "dense_rest": geo.dense_rest}
+        gt = {
+            "coarse": te["coarse_mm"],
+            "dense": te["dense_mm"],
+            "contact": te["contact_coarse"],
+            "force": te["force_n"],
+            "dense_rest": geo.dense_rest,
+        }
         m = evaluate_predictions(pred, gt)
         m["train_seconds"] = secs
         log(f"[{kind}] test: " + " ".join(f"{k}={v:.4f}" for k, v in m.items()))

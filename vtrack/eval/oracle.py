@@ -20,8 +20,12 @@ def gt_tactile_streams(reader: Any, sensors: list[str]) -> dict[str, Any]:
     for s in sensors:
         key = f"gt/tactile/{s}"
         if key not in reader:
-            raise InputError("tactile_source 'gt' (oracle) needs the simulator's height maps", path=reader.path,
-                             field=key, expected="a synthetic session with ground truth")
+            raise InputError(
+                "tactile_source 'gt' (oracle) needs the simulator's height maps",
+                path=reader.path,
+                field=key,
+                expected="a synthetic session with ground truth",
+            )
         out[s] = reader[key]
     return out
 
@@ -40,8 +44,9 @@ def gt_mask_stream(reader: Any, camera: str) -> Any:
     cs = reader.streams.get(f"camera/{camera}")
     if cs is not None and "mask" in cs.fields:
         return cs
-    raise InputError("segmentation 'gt' (oracle) needs the simulator's masks", path=reader.path,
-                     field=f"gt/camera/{camera}/mask")
+    raise InputError(
+        "segmentation 'gt' (oracle) needs the simulator's masks", path=reader.path, field=f"gt/camera/{camera}/mask"
+    )
 
 
 def read_gt_mask(stream: Any, index: int) -> np.ndarray:

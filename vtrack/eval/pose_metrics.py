@@ -45,11 +45,13 @@ def symmetry_axis(points: np.ndarray, weights: np.ndarray | None = None) -> np.n
     P = np.asarray(points, dtype=np.float64)
     C = np.cov((P - np.average(P, axis=0, weights=weights)).T, aweights=weights)
     lam, U = np.linalg.eigh(C)
-    gaps = [abs(lam[0] - lam[1]) + abs(lam[0] - lam[2]), abs(lam[1] - lam[0]) + abs(lam[1] - lam[2]),
-            abs(lam[2] - lam[0]) + abs(lam[2] - lam[1])]
+    gaps = [
+        abs(lam[0] - lam[1]) + abs(lam[0] - lam[2]),
+        abs(lam[1] - lam[0]) + abs(lam[1] - lam[2]),
+        abs(lam[2] - lam[0]) + abs(lam[2] - lam[1]),
+    ]
     # the axis eigenvalue is the odd one out: the other two are (nearly) equal
-    k = int(np.argmax([gaps[0] - abs(lam[1] - lam[2]), gaps[1] - abs(lam[0] - lam[2]),
-                       gaps[2] - abs(lam[0] - lam[1])]))
+    k = int(np.argmax([gaps[0] - abs(lam[1] - lam[2]), gaps[1] - abs(lam[0] - lam[2]), gaps[2] - abs(lam[0] - lam[1])]))
     return U[:, k] / np.linalg.norm(U[:, k])
 
 
@@ -121,9 +123,14 @@ def _pair(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return A, B
 
 
-def trajectory_errors(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray,
-                      symmetric: bool = False, centre: np.ndarray | None = None,
-                      axis: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def trajectory_errors(
+    T_est: np.ndarray,
+    T_gt: np.ndarray,
+    model_points: np.ndarray,
+    symmetric: bool = False,
+    centre: np.ndarray | None = None,
+    axis: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
     """Per-frame errors: ``pos`` (centre, m), ``origin`` (m), ``rot`` (rad, symmetry-aware if
     ``symmetric``, about ``axis`` or the PCA axis of the model points), ``rot_full`` (rad),
     ``add_s`` and ``add`` (m)."""
@@ -139,8 +146,14 @@ def trajectory_errors(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndar
         a_e = T_est[:, :3, :3] @ ax
         a_g = T_gt[:, :3, :3] @ ax
         rot = np.arccos(np.clip(np.sum(a_e * a_g, axis=1), -1.0, 1.0))
-    return {"pos": np.linalg.norm(ce - cg, axis=1), "origin": origin, "rot": rot, "rot_full": rot_full,
-            "add_s": add_s(T_est, T_gt, P), "add": add(T_est, T_gt, P)}
+    return {
+        "pos": np.linalg.norm(ce - cg, axis=1),
+        "origin": origin,
+        "rot": rot,
+        "rot_full": rot_full,
+        "add_s": add_s(T_est, T_gt, P),
+        "add": add(T_est, T_gt, P),
+    }
 
 
 def summarize(errors: dict[str, np.ndarray]) -> dict[str, float]:

@@ -24,8 +24,9 @@ from vtrack.errors import InputError
 DEFAULT_THRESHOLDS_M: dict[str, float] = {"1mm": 0.001, "2mm": 0.002, "5mm": 0.005, "10mm": 0.010}
 
 
-def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int = 10_000,
-                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def sample_surface(
+    vertices: np.ndarray, faces: np.ndarray, n: int = 10_000, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """``n`` area-weighted surface samples and their face normals; empty arrays for an empty mesh."""
     V = np.asarray(vertices, np.float64).reshape(-1, 3)
     F = np.asarray(faces, np.int64).reshape(-1, 3)
@@ -52,9 +53,15 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int = 10_000,
 UNITS = {"m": 1.0, "mm": 1e-3}
 
 
-def point_metrics(rec_points: np.ndarray, gt_points: np.ndarray, rec_normals: np.ndarray | None = None,
-                  gt_normals: np.ndarray | None = None, thresholds_m: dict[str, float] | None = None, *,
-                  units: str = "m") -> dict[str, Any]:
+def point_metrics(
+    rec_points: np.ndarray,
+    gt_points: np.ndarray,
+    rec_normals: np.ndarray | None = None,
+    gt_normals: np.ndarray | None = None,
+    thresholds_m: dict[str, float] | None = None,
+    *,
+    units: str = "m",
+) -> dict[str, Any]:
     """F-score / precision / recall / Chamfer / HD95 / normal consistency between two point samples.
 
     ``units``: the unit of the points (``m`` or ``mm``); thresholds are always given in metres and the
@@ -77,9 +84,19 @@ def point_metrics(rec_points: np.ndarray, gt_points: np.ndarray, rec_normals: np
         raise InputError("ground-truth sample is empty", field="gt_points", expected="> 0 points")
     if len(R) == 0:
         zero = {k: 0.0 for k in th}
-        return {"fscore": dict(zero), "precision": dict(zero), "recall": dict(zero), "chamfer_mm": None,
-                "accuracy_mm": None, "completeness_mm": None, "hd95_mm": None, "normal_consistency": None,
-                "n_rec": 0, "n_gt": len(G), "empty": True}
+        return {
+            "fscore": dict(zero),
+            "precision": dict(zero),
+            "recall": dict(zero),
+            "chamfer_mm": None,
+            "accuracy_mm": None,
+            "completeness_mm": None,
+            "hd95_mm": None,
+            "normal_consistency": None,
+            "n_rec": 0,
+            "n_gt": len(G),
+            "empty": True,
+        }
     d_rg, i_rg = cKDTree(G).query(R)  # precision side: rec -> GT
     d_gr, i_gr = cKDTree(R).query(G)  # recall side: GT -> rec
     fs, pr, rc = {}, {}, {}
@@ -103,14 +120,30 @@ def point_metrics(rec_points: np.ndarray, gt_points: np.ndarray, rec_normals: np
     acc = float(d_rg.mean() * mm)
     comp = float(d_gr.mean() * mm)
     hd95 = float(np.percentile(np.concatenate([d_rg, d_gr]), 95) * mm)
-    return {"fscore": fs, "precision": pr, "recall": rc, "chamfer_mm": 0.5 * (acc + comp),
-            "accuracy_mm": acc, "completeness_mm": comp, "hd95_mm": hd95, "normal_consistency": nc,
-            "n_rec": int(len(R)), "n_gt": int(len(G)), "empty": False}
+    return {
+        "fscore": fs,
+        "precision": pr,
+        "recall": rc,
+        "chamfer_mm": 0.5 * (acc + comp),
+        "accuracy_mm": acc,
+        "completeness_mm": comp,
+        "hd95_mm": hd95,
+        "normal_consistency": nc,
+        "n_rec": int(len(R)),
+        "n_gt": int(len(G)),
+        "empty": False,
+    }
 
 
-def mesh_metrics(rec_vertices: np.ndarray, rec_faces: np.ndarray, gt_vertices: np.ndarray, gt_faces: np.ndarray,
-                 n_points: int = 10_000, seed: int = 0,
-                 thresholds_m: dict[str, float] | None = None) -> dict[str, Any]:
+def mesh_metrics(
+    rec_vertices: np.ndarray,
+    rec_faces: np.ndarray,
+    gt_vertices: np.ndarray,
+    gt_faces: np.ndarray,
+    n_points: int = 10_000,
+    seed: int = 0,
+    thresholds_m: dict[str, float] | None = None,
+) -> dict[str, Any]:
     """Metrics between a reconstructed and a ground-truth mesh (same frame, metres).
 
     Both surfaces are sampled with ``n_points`` points (seeded). See the module docstring.

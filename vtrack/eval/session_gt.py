@@ -51,8 +51,12 @@ class SessionGroundTruth:
 
         r = open_session(session)
         if "gt/object_pose" not in r or r["gt/object_pose"].n == 0:
-            raise InputError("session has no ground truth to score against (gt/object_pose)", path=r.path,
-                             field="gt/object_pose", expected="the original synthetic session (--gt)")
+            raise InputError(
+                "session has no ground truth to score against (gt/object_pose)",
+                path=r.path,
+                field="gt/object_pose",
+                expected="the original synthetic session (--gt)",
+            )
         s = r["gt/object_pose"]
         mesh = r.path / GT_MESH
         if not mesh.is_file():
@@ -63,8 +67,15 @@ class SessionGroundTruth:
         T_so = created.get("T_source_object")
         obj = (r.scene_dict or {}).get("object") or {}
         symmetric = bool(obj.get("symmetric", False)) if isinstance(obj, dict) else False
-        return cls(r.path, np.asarray(s.t, np.float64), np.asarray(s["T_world_object"][:], np.float64), mesh,
-                   symmetric, Path(src) if src else None, None if T_so is None else np.asarray(T_so, np.float64))
+        return cls(
+            r.path,
+            np.asarray(s.t, np.float64),
+            np.asarray(s["T_world_object"][:], np.float64),
+            mesh,
+            symmetric,
+            Path(src) if src else None,
+            None if T_so is None else np.asarray(T_so, np.float64),
+        )
 
     @classmethod
     def find(cls, gt: str | Path | None, session: str | Path) -> SessionGroundTruth | None:
@@ -87,8 +98,12 @@ class SessionGroundTruth:
         if mesh is not None and Path(mesh).is_file():
             if self.mesh_path is not None and _sha(Path(mesh)) == _sha(self.mesh_path):
                 return "mesh", np.eye(4)
-            if (self.object_source is not None and self.T_source_object is not None and self.object_source.is_file()
-                    and _sha(Path(mesh)) == _sha(self.object_source)):
+            if (
+                self.object_source is not None
+                and self.T_source_object is not None
+                and self.object_source.is_file()
+                and _sha(Path(mesh)) == _sha(self.object_source)
+            ):
                 return "source", self.T_source_object
         return "first_frame", None
 
@@ -100,8 +115,9 @@ class SessionGroundTruth:
         return load_mesh(self.mesh_path)
 
 
-def score_trajectory(gt: SessionGroundTruth, times: np.ndarray, T_est: np.ndarray,
-                     mesh: str | Path | None = None) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def score_trajectory(
+    gt: SessionGroundTruth, times: np.ndarray, T_est: np.ndarray, mesh: str | Path | None = None
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Pose metrics of an estimated trajectory (``T_world_object`` in the frame of ``mesh``, or SLAM's own).
 
     Returns (metrics, per-frame errors). Always reports the motion errors (first-frame alignment,
@@ -121,8 +137,12 @@ def score_trajectory(gt: SessionGroundTruth, times: np.ndarray, T_est: np.ndarra
     T_motion = T_est @ se3.invert(T_est[0]) @ T_gt[0]
     me = trajectory_errors(T_motion, T_gt, pts, symmetric=gt.symmetric, centre=centre, axis=axis)
     key = "add_s" if gt.symmetric else "add"
-    metrics.update(motion_err_mm=float(me[key].mean() * 1e3), motion_add_s_mm=float(me["add_s"].mean() * 1e3),
-                   motion_drift_mm=float(me["pos"].mean() * 1e3), motion_final_mm=float(me[key][-1] * 1e3))
+    metrics.update(
+        motion_err_mm=float(me[key].mean() * 1e3),
+        motion_add_s_mm=float(me["add_s"].mean() * 1e3),
+        motion_drift_mm=float(me["pos"].mean() * 1e3),
+        motion_final_mm=float(me[key][-1] * 1e3),
+    )
     errors = me
     if T_mg is not None:
         e = trajectory_errors(T_est @ T_mg, T_gt, pts, symmetric=gt.symmetric, centre=centre, axis=axis)
@@ -134,8 +154,13 @@ def score_trajectory(gt: SessionGroundTruth, times: np.ndarray, T_est: np.ndarra
     return metrics, errors
 
 
-def align_mesh_to_gt(gt: SessionGroundTruth, V: np.ndarray, mesh_frame: str | Path | None,
-                     poses_times: np.ndarray | None = None, poses: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+def align_mesh_to_gt(
+    gt: SessionGroundTruth,
+    V: np.ndarray,
+    mesh_frame: str | Path | None,
+    poses_times: np.ndarray | None = None,
+    poses: np.ndarray | None = None,
+) -> tuple[np.ndarray, str]:
     """Vertices of a reconstruction (object frame of the estimate) expressed in the GT object frame.
 
     With a known frame (the mesh the estimate's poses refer to), the fixed transform; otherwise the

@@ -161,12 +161,18 @@ class HandAwareSegmenter:
         options: tuning; defaults in :class:`SegmentationOptions`.
     """
 
-    def __init__(self, kin: Any | None, cam: PinholeCamera, T_world_camera: np.ndarray,
-                 options: SegmentationOptions | None = None) -> None:
+    def __init__(
+        self,
+        kin: Any | None,
+        cam: PinholeCamera,
+        T_world_camera: np.ndarray,
+        options: SegmentationOptions | None = None,
+    ) -> None:
         T = np.asarray(T_world_camera, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InputError("camera pose must be a finite 4x4 matrix", field="T_world_camera",
-                             expected="(4, 4) finite", got=T.shape)
+            raise InputError(
+                "camera pose must be a finite 4x4 matrix", field="T_world_camera", expected="(4, 4) finite", got=T.shape
+            )
         self.kin = kin
         self.cam = cam
         self.opt = options or SegmentationOptions()
@@ -206,8 +212,9 @@ class HandAwareSegmenter:
             self._samples = sample_link_surfaces(self.kin, max(spacing, 2e-4), self.opt.max_hand_samples)
         return self._samples
 
-    def render_hand_depth(self, poses: dict[str, np.ndarray],
-                          with_core: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    def render_hand_depth(
+        self, poses: dict[str, np.ndarray], with_core: bool = False
+    ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """(H, W) z-buffer (m, camera frame; inf = no hand) of the hand at link poses ``T_world_link``,
         min-filtered over ``hand_dilate_px``; ``with_core`` also returns the unfiltered one first."""
         H, W = self.cam.height, self.cam.width
@@ -234,8 +241,9 @@ class HandAwareSegmenter:
             np.minimum.at(lo_v, owner, v)
             np.maximum.at(hi_u, owner, u)
             np.maximum.at(hi_v, owner, v)
-            boxes = {k: (lo_u[i] - 1, hi_u[i] + 1, lo_v[i] - 1, hi_v[i] + 1) for i, k in enumerate(links)
-                     if hi_u[i] >= 0}
+            boxes = {
+                k: (lo_u[i] - 1, hi_u[i] + 1, lo_v[i] - 1, hi_v[i] + 1) for i, k in enumerate(links) if hi_u[i] >= 0
+            }
             core = self._refine_silhouette(core, Tcl, boxes)
         zb = core
         r = int(self.opt.hand_dilate_px)
@@ -245,8 +253,9 @@ class HandAwareSegmenter:
             zb = cv2.erode(core.astype(np.float32), np.ones((2 * r + 1, 2 * r + 1), np.uint8)).astype(np.float64)
         return (core, zb) if with_core else zb
 
-    def _refine_silhouette(self, core: np.ndarray, Tcl: dict[str, np.ndarray],
-                           boxes: dict[str, tuple[int, int, int, int]]) -> np.ndarray:
+    def _refine_silhouette(
+        self, core: np.ndarray, Tcl: dict[str, np.ndarray], boxes: dict[str, tuple[int, int, int, int]]
+    ) -> np.ndarray:
         """Ray-cast the hand meshes through the pixels along the splatted silhouette's edge.
 
         A splat marks the pixel *nearest* to each surface sample, so the silhouette grows by up to half
@@ -296,8 +305,13 @@ class HandAwareSegmenter:
         return self._casters
 
     # ---------------------------------------------------------------------------------
-    def segment(self, depth_m: np.ndarray, q: np.ndarray | None, contacts_world: np.ndarray | None = None,
-                sensor_positions_world: np.ndarray | None = None) -> SegmentResult:
+    def segment(
+        self,
+        depth_m: np.ndarray,
+        q: np.ndarray | None,
+        contacts_world: np.ndarray | None = None,
+        sensor_positions_world: np.ndarray | None = None,
+    ) -> SegmentResult:
         """Object mask and world points of one depth frame.
 
         Args:
@@ -314,8 +328,9 @@ class HandAwareSegmenter:
         H, W = cam.height, cam.width
         d = np.asarray(depth_m)
         if d.shape != (H, W):
-            raise InputError("depth image size does not match the camera", field="depth_m",
-                             expected=f"({H}, {W})", got=d.shape)
+            raise InputError(
+                "depth image size does not match the camera", field="depth_m", expected=f"({H}, {W})", got=d.shape
+            )
         if d.dtype.kind not in "fiu":
             raise InputError("depth must be numeric metres", field="depth_m", expected="float32", got=str(d.dtype))
         z = d.astype(np.float64)
@@ -342,8 +357,9 @@ class HandAwareSegmenter:
         if self.kin is not None and q is not None:
             qa = np.asarray(q, dtype=np.float64).ravel()
             if qa.shape != (self.kin.n_joints,):
-                raise InputError("wrong joint vector length", field="q", expected=f"({self.kin.n_joints},)",
-                                 got=qa.shape)
+                raise InputError(
+                    "wrong joint vector length", field="q", expected=f"({self.kin.n_joints},)", got=qa.shape
+                )
             if np.all(np.isfinite(qa)):
                 poses = self.kin.link_poses(qa)
                 info["hand_removal"] = "done" if opt.hand_removal else "disabled"
@@ -447,8 +463,13 @@ class HandAwareSegmenter:
             import cv2
 
             k3 = np.ones((3, 3), np.uint8)
-            add = (cv2.dilate(mask.astype(np.uint8), k3).astype(bool) & ~mask & no_depth & ~hand_core_px
-                   & cv2.dilate(hand_core_px.astype(np.uint8), k3).astype(bool))
+            add = (
+                cv2.dilate(mask.astype(np.uint8), k3).astype(bool)
+                & ~mask
+                & no_depth
+                & ~hand_core_px
+                & cv2.dilate(hand_core_px.astype(np.uint8), k3).astype(bool)
+            )
             mask |= add
             info["n_edge_filled"] = int(add.sum())
         c = P_sel.mean(axis=0)
@@ -462,8 +483,7 @@ class HandAwareSegmenter:
         return SegmentResult(mask, P_sel, info)
 
     # ---------------------------------------------------------------------------------
-    def _remove_planes(self, Pw: np.ndarray, keep: np.ndarray, centre: np.ndarray | None,
-                       info: dict) -> np.ndarray:
+    def _remove_planes(self, Pw: np.ndarray, keep: np.ndarray, centre: np.ndarray | None, info: dict) -> np.ndarray:
         import open3d as o3d
 
         opt = self.opt
@@ -475,8 +495,7 @@ class HandAwareSegmenter:
             sub = idx[:: max(1, len(idx) // opt.plane_max_points)]
             pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Pw[sub]))
             try:
-                model, inl = pc.segment_plane(opt.plane_distance_m, 3, opt.plane_iterations,
-                                              probability=0.9999, seed=0)
+                model, inl = pc.segment_plane(opt.plane_distance_m, 3, opt.plane_iterations, probability=0.9999, seed=0)
             except TypeError:  # older Open3D without seed/probability
                 model, inl = pc.segment_plane(opt.plane_distance_m, 3, opt.plane_iterations)
             model = np.asarray(model, dtype=np.float64)
@@ -506,8 +525,16 @@ class HandAwareSegmenter:
             info["planes"].append(rec)
         return keep
 
-    def _select_cluster(self, rows: np.ndarray, cols: np.ndarray, zz: np.ndarray, Pw: np.ndarray,
-                        centre: np.ndarray | None, contacts: np.ndarray | None, info: dict) -> np.ndarray | None:
+    def _select_cluster(
+        self,
+        rows: np.ndarray,
+        cols: np.ndarray,
+        zz: np.ndarray,
+        Pw: np.ndarray,
+        centre: np.ndarray | None,
+        contacts: np.ndarray | None,
+        info: dict,
+    ) -> np.ndarray | None:
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
         from scipy.spatial import cKDTree
@@ -521,8 +548,10 @@ class HandAwareSegmenter:
         zimg[rows, cols] = zz
         f = max(cam.fx, cam.fy)
         src, dst = [], []
-        for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
-                     ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+        for a, b in (
+            ((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+            ((slice(0, -1), slice(None)), (slice(1, None), slice(None))),
+        ):
             ia, ib = lab_img[a], lab_img[b]
             za, zb = zimg[a], zimg[b]
             thr = opt.jump_abs_m + opt.jump_px * np.minimum(za, zb) / f

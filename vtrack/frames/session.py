@@ -132,20 +132,31 @@ class SessionFrames:
         scene: override the session's embedded scene.
     """
 
-    def __init__(self, session: str | Path | Any, modalities: tuple[str, ...] | list[str] = ("vision", "touch"), *,
-                 tactile_source: str = "pipeline", segmentation: str = "pipeline", depth_stride: int = 4,
-                 touch_stride: int = 3, max_frames: int = 0, scene: Any = None,
-                 touch_downsample: int | str = "auto") -> None:
+    def __init__(
+        self,
+        session: str | Path | Any,
+        modalities: tuple[str, ...] | list[str] = ("vision", "touch"),
+        *,
+        tactile_source: str = "pipeline",
+        segmentation: str = "pipeline",
+        depth_stride: int = 4,
+        touch_stride: int = 3,
+        max_frames: int = 0,
+        scene: Any = None,
+        touch_downsample: int | str = "auto",
+    ) -> None:
         from vtrack.io.session import SessionReader, open_session
 
         self.modalities = tuple(m.strip() for m in modalities)
         bad = set(self.modalities) - {"vision", "touch"}
         if bad or not self.modalities:
-            raise InputError("unknown modality", field="modalities", expected="vision and/or touch",
-                             got=list(self.modalities))
+            raise InputError(
+                "unknown modality", field="modalities", expected="vision and/or touch", got=list(self.modalities)
+            )
         if segmentation not in SEGMENTATIONS:
-            raise InputError("unknown segmentation", field="segmentation", expected="pipeline | gt | none",
-                             got=segmentation)
+            raise InputError(
+                "unknown segmentation", field="segmentation", expected="pipeline | gt | none", got=segmentation
+            )
         self.reader = r = session if isinstance(session, SessionReader) else open_session(session)
         self.path = Path(r.path)
         if scene is None and r.scene_dict is None:
@@ -163,11 +174,15 @@ class SessionFrames:
             self.kin = HandKinematics.from_scene(self.scene)
         self.touch: TouchSource | None = None
         if "touch" in self.modalities:
-            self.touch = TouchSource(r, self.scene, tactile_source, point_stride=touch_stride,
-                                     downsample=touch_downsample)
+            self.touch = TouchSource(
+                r, self.scene, tactile_source, point_stride=touch_stride, downsample=touch_downsample
+            )
             if self.touch.sensors and self.kin is None:
-                raise InputError("touch needs the hand (scene.hand) and its joint states (a 'joints' stream)",
-                                 path=self.path, field="joints")
+                raise InputError(
+                    "touch needs the hand (scene.hand) and its joint states (a 'joints' stream)",
+                    path=self.path,
+                    field="joints",
+                )
         self.cams: list[CameraView] = []
         for name, s in sorted(r.streams.items()):
             if not name.startswith("camera/") or s.n == 0:
@@ -178,8 +193,12 @@ class SessionFrames:
                 cam = PinholeCamera(int(a["width"]), int(a["height"]), K[0, 0], K[1, 1], K[0, 2], K[1, 2])
                 T_wc = np.asarray(a["T_world_camera"], dtype=np.float64)
             except (KeyError, TypeError, ValueError, IndexError) as e:
-                raise InputError(f"camera stream attrs incomplete ({e})", path=self.path, field=f"{name}.attrs",
-                                 expected="K, width, height, T_world_camera") from None
+                raise InputError(
+                    f"camera stream attrs incomplete ({e})",
+                    path=self.path,
+                    field=f"{name}.attrs",
+                    expected="K, width, height, T_world_camera",
+                ) from None
             self.cams.append(CameraView(name.split("/", 1)[1], s, cam, T_wc, float(a.get("depth_scale", 0.001))))
         if "vision" in self.modalities:
             self._setup_segmentation()
@@ -188,8 +207,11 @@ class SessionFrames:
         elif self.touch is not None and self.touch.sensors:
             t = self.touch.times(self.touch.sensors[0])
         else:
-            raise InputError("session has no camera or tactile stream to build frames from", path=self.path,
-                             expected="camera/<name> or tactile/<name> streams with frames")
+            raise InputError(
+                "session has no camera or tactile stream to build frames from",
+                path=self.path,
+                expected="camera/<name> or tactile/<name> streams with frames",
+            )
         if max_frames:
             t = t[: int(max_frames)]
         if len(t) == 0:
@@ -308,8 +330,12 @@ class SessionFrames:
             z = np.where(np.isfinite(z) & (z > 0), z, 0.0).astype(np.float32)
             if c.segmenter is not None:
                 sensor_pos = np.array([P[:3, 3] for P in poses.values() if np.all(np.isfinite(P))])
-                res = c.segmenter.segment(z, q, contacts_world=touch_points if len(touch_points) else None,
-                                          sensor_positions_world=sensor_pos if len(sensor_pos) else None)
+                res = c.segmenter.segment(
+                    z,
+                    q,
+                    contacts_world=touch_points if len(touch_points) else None,
+                    sensor_positions_world=sensor_pos if len(sensor_pos) else None,
+                )
                 mask = res.mask
                 if res.info.get("empty_reason"):
                     info.setdefault("segmentation", {})[c.name] = res.info["empty_reason"]
@@ -321,10 +347,20 @@ class SessionFrames:
             pts, _ = cam.unproject(z, mask=mask, depth_scale=1.0)
             if len(pts):
                 vis.append(se3.transform_points(c.T_wc, pts))
-        return Frame(t=t, vision_points=_cat(vis), touch_points=touch_points, touch_normals=_cat(tn),
-                     touch_penetration_mm=_cat(pen, 0), touch_sensor=_cat(sid, 0).astype(np.int64),
-                     free_points=_cat(free), sensor_poses=poses, q=q, vision_mask=masks, contacts=contacts,
-                     info=info)
+        return Frame(
+            t=t,
+            vision_points=_cat(vis),
+            touch_points=touch_points,
+            touch_normals=_cat(tn),
+            touch_penetration_mm=_cat(pen, 0),
+            touch_sensor=_cat(sid, 0).astype(np.int64),
+            free_points=_cat(free),
+            sensor_poses=poses,
+            q=q,
+            vision_mask=masks,
+            contacts=contacts,
+            info=info,
+        )
 
     def frame(self, i: int) -> tuple[Frame, float]:
         """Frame ``i`` and the milliseconds spent building it from decoded arrays."""

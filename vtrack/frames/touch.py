@@ -67,11 +67,19 @@ class TouchSource:
         sensors: restrict to these sensors (default: all recorded tactile streams).
     """
 
-    def __init__(self, reader: Any, scene: Any, source: str = "pipeline", point_stride: int = 3,
-                 sensors: list[str] | None = None, downsample: int | str = "auto") -> None:
+    def __init__(
+        self,
+        reader: Any,
+        scene: Any,
+        source: str = "pipeline",
+        point_stride: int = 3,
+        sensors: list[str] | None = None,
+        downsample: int | str = "auto",
+    ) -> None:
         if source not in TOUCH_SOURCES:
-            raise InputError("unknown tactile source", field="tactile_source", expected="pipeline | gt (oracle)",
-                             got=source)
+            raise InputError(
+                "unknown tactile source", field="tactile_source", expected="pipeline | gt (oracle)", got=source
+            )
         self.source = source
         self.reader = reader
         self.point_stride = max(1, int(point_stride))
@@ -93,10 +101,13 @@ class TouchSource:
         for s in self.sensors:
             i, spec = specs[s]
             if spec.calibration is None:
-                raise InputError(f"tactile sensor '{s}' has no calibration", path=getattr(scene, "source", None),
-                                 field=f"tactile[{i}].calibration",
-                                 expected="a file from `vtrack calibrate PRESSSET --out calib.npz` (ball presses "
-                                          "of this sensor; see docs/tactile.md)")
+                raise InputError(
+                    f"tactile sensor '{s}' has no calibration",
+                    path=getattr(scene, "source", None),
+                    field=f"tactile[{i}].calibration",
+                    expected="a file from `vtrack calibrate PRESSSET --out calib.npz` (ball presses "
+                    "of this sensor; see docs/tactile.md)",
+                )
             self.pipelines[s] = TactilePipeline._from_spec(spec, point_stride=self.point_stride, downsample=downsample)
             self.streams[s] = reader[f"tactile/{s}"]
 

@@ -66,19 +66,24 @@ class UnifiedCloud:
             return cls.empty()
         frames = {c.frame for c in clouds}
         if len(frames) > 1:
-            raise InputError("cannot concatenate clouds in different frames", field="frame",
-                             expected="one frame", got=sorted(frames))
+            raise InputError(
+                "cannot concatenate clouds in different frames", field="frame", expected="one frame", got=sorted(frames)
+            )
         names = max((c.sensor_names for c in clouds), key=len)
-        return cls(*(np.concatenate([getattr(c, f) for c in clouds]) for f in _FIELDS),
-                   frame=clouds[0].frame, sensor_names=list(names))
+        return cls(
+            *(np.concatenate([getattr(c, f) for c in clouds]) for f in _FIELDS),
+            frame=clouds[0].frame,
+            sensor_names=list(names),
+        )
 
     def __len__(self) -> int:
         return len(self.xyz)
 
     def select(self, mask: np.ndarray) -> UnifiedCloud:
         """Subset by boolean mask or index array."""
-        return UnifiedCloud(*(getattr(self, f)[mask] for f in _FIELDS), frame=self.frame,
-                            sensor_names=list(self.sensor_names))
+        return UnifiedCloud(
+            *(getattr(self, f)[mask] for f in _FIELDS), frame=self.frame, sensor_names=list(self.sensor_names)
+        )
 
     def of_modality(self, modality: int | str) -> UnifiedCloud:
         m = MODALITY_NAMES[modality] if isinstance(modality, str) else int(modality)
@@ -124,12 +129,21 @@ class UnifiedCloud:
                 continue
             group = sub.sensor_id.astype(np.int64)
             xyz, nrm, mod, sid, t, conf, tv_ = voxel_downsample(
-                sub.xyz, vs, sub.normal, sub.modality, sub.sensor_id, sub.t, sub.confidence,
-                sub.tactile_value, group=group)
+                sub.xyz,
+                vs,
+                sub.normal,
+                sub.modality,
+                sub.sensor_id,
+                sub.t,
+                sub.confidence,
+                sub.tactile_value,
+                group=group,
+            )
             ln = np.linalg.norm(nrm, axis=1, keepdims=True)
             nrm = np.where(ln > 1e-9, nrm / np.maximum(ln, 1e-12), 0.0)
-            parts.append(UnifiedCloud(xyz, nrm, mod, sid, t, conf, tv_, frame=self.frame,
-                                      sensor_names=list(self.sensor_names)))
+            parts.append(
+                UnifiedCloud(xyz, nrm, mod, sid, t, conf, tv_, frame=self.frame, sensor_names=list(self.sensor_names))
+            )
         return UnifiedCloud.concat(parts) if parts else UnifiedCloud.empty(self.frame)
 
     def balance_weights(self) -> np.ndarray:
@@ -147,10 +161,19 @@ class UnifiedCloud:
         from vtrack.io.export import write_ply_points
 
         colors = np.where(self.modality[:, None] == TOUCH, [[230, 60, 40]], [[60, 120, 220]]).astype(np.uint8)
-        return write_ply_points(path, self.xyz, normals=self.normal, colors=colors, scalars={
-            "modality": self.modality.astype(np.int32), "sensor_id": self.sensor_id.astype(np.int32),
-            "t": self.t.astype(np.float64), "confidence": self.confidence.astype(np.float32),
-            "tactile_value": self.tactile_value.astype(np.float32)})
+        return write_ply_points(
+            path,
+            self.xyz,
+            normals=self.normal,
+            colors=colors,
+            scalars={
+                "modality": self.modality.astype(np.int32),
+                "sensor_id": self.sensor_id.astype(np.int32),
+                "t": self.t.astype(np.float64),
+                "confidence": self.confidence.astype(np.float32),
+                "tactile_value": self.tactile_value.astype(np.float32),
+            },
+        )
 
 
 # -- builders -----------------------------------------------------------------------------------
@@ -180,10 +203,20 @@ def depth_normals(points_img: np.ndarray, valid: np.ndarray, max_jump: float = 0
     return n
 
 
-def from_rgbd(depth: np.ndarray, camera: PinholeCamera, T_world_camera: np.ndarray, *,
-              mask: np.ndarray | None = None, t: float = 0.0, sensor_id: int = 0, depth_scale: float = 0.001,
-              stride: int = 1, min_depth: float = 0.05, max_depth: float = 3.0,
-              sensor_names: list[str] | None = None) -> UnifiedCloud:
+def from_rgbd(
+    depth: np.ndarray,
+    camera: PinholeCamera,
+    T_world_camera: np.ndarray,
+    *,
+    mask: np.ndarray | None = None,
+    t: float = 0.0,
+    sensor_id: int = 0,
+    depth_scale: float = 0.001,
+    stride: int = 1,
+    min_depth: float = 0.05,
+    max_depth: float = 3.0,
+    sensor_names: list[str] | None = None,
+) -> UnifiedCloud:
     """Masked unprojection of one RGB-D frame to a world-frame cloud.
 
     Args:
@@ -200,8 +233,9 @@ def from_rgbd(depth: np.ndarray, camera: PinholeCamera, T_world_camera: np.ndarr
     if mask is not None:
         m = np.asarray(mask)
         if m.shape != z.shape:
-            raise InputError("mask size does not match the depth image", field="mask", expected=str(z.shape),
-                             got=m.shape)
+            raise InputError(
+                "mask size does not match the depth image", field="mask", expected=str(z.shape), got=m.shape
+            )
         valid &= m.astype(bool)
     if not valid.any():
         out = UnifiedCloud.empty()
@@ -221,7 +255,7 @@ def from_rgbd(depth: np.ndarray, camera: PinholeCamera, T_world_camera: np.ndarr
     keep = vz.copy()
     if stride > 1:
         sub = np.zeros_like(keep)
-        sub[(-r0) % stride::stride, (-c0) % stride::stride] = True  # same pixel lattice as the full image
+        sub[(-r0) % stride :: stride, (-c0) % stride :: stride] = True  # same pixel lattice as the full image
         keep &= sub
     rows, cols = np.nonzero(keep)
     pts, nrm = P[rows, cols], N[rows, cols]
@@ -230,15 +264,31 @@ def from_rgbd(depth: np.ndarray, camera: PinholeCamera, T_world_camera: np.ndarr
     cosang = np.abs(np.einsum("ij,ij->i", ray, nrm))
     conf = np.where(np.linalg.norm(nrm, axis=1) > 0, cosang, 0.25)
     n = len(pts)
-    cloud = UnifiedCloud(pts, nrm, np.full(n, VISION), np.full(n, sensor_id), np.full(n, t), conf, np.zeros(n),
-                         frame="camera", sensor_names=list(sensor_names or []))
+    cloud = UnifiedCloud(
+        pts,
+        nrm,
+        np.full(n, VISION),
+        np.full(n, sensor_id),
+        np.full(n, t),
+        conf,
+        np.zeros(n),
+        frame="camera",
+        sensor_names=list(sensor_names or []),
+    )
     return cloud.transform(T_world_camera, frame="world")
 
 
-def from_contact_points(points_sensor: np.ndarray, normals_sensor: np.ndarray, T_world_sensor: np.ndarray, *,
-                        t: float = 0.0, sensor_id: int = 0, confidence: np.ndarray | float = 1.0,
-                        tactile_value: np.ndarray | float = 0.0,
-                        sensor_names: list[str] | None = None) -> UnifiedCloud:
+def from_contact_points(
+    points_sensor: np.ndarray,
+    normals_sensor: np.ndarray,
+    T_world_sensor: np.ndarray,
+    *,
+    t: float = 0.0,
+    sensor_id: int = 0,
+    confidence: np.ndarray | float = 1.0,
+    tactile_value: np.ndarray | float = 0.0,
+    sensor_names: list[str] | None = None,
+) -> UnifiedCloud:
     """Touch points given in a tactile sensor frame (e.g. from the tactile pipeline) -> world cloud.
 
     Normals in the sensor frame point out of the gel, i.e. *into* the touched object; the cloud stores
@@ -249,19 +299,43 @@ def from_contact_points(points_sensor: np.ndarray, normals_sensor: np.ndarray, T
     ok = np.isfinite(P).all(1) & np.isfinite(Nn).all(1)
     P, Nn = P[ok], Nn[ok]
     n = len(P)
-    conf = np.broadcast_to(np.asarray(confidence, np.float32), ok.shape)[ok] if np.ndim(confidence) else \
-        np.full(n, confidence)
-    tv = np.broadcast_to(np.asarray(tactile_value, np.float32), ok.shape)[ok] if np.ndim(tactile_value) else \
-        np.full(n, tactile_value)
-    cloud = UnifiedCloud(P, Nn, np.full(n, TOUCH), np.full(n, sensor_id), np.full(n, t), conf, tv,
-                         frame="sensor", sensor_names=list(sensor_names or []))
+    conf = (
+        np.broadcast_to(np.asarray(confidence, np.float32), ok.shape)[ok]
+        if np.ndim(confidence)
+        else np.full(n, confidence)
+    )
+    tv = (
+        np.broadcast_to(np.asarray(tactile_value, np.float32), ok.shape)[ok]
+        if np.ndim(tactile_value)
+        else np.full(n, tactile_value)
+    )
+    cloud = UnifiedCloud(
+        P,
+        Nn,
+        np.full(n, TOUCH),
+        np.full(n, sensor_id),
+        np.full(n, t),
+        conf,
+        tv,
+        frame="sensor",
+        sensor_names=list(sensor_names or []),
+    )
     return cloud.transform(T_world_sensor, frame="world")
 
 
-def from_tactile(height_mm: np.ndarray, contact: np.ndarray | None, mm_per_px: float, T_world_sensor: np.ndarray,
-                 *, t: float = 0.0, sensor_id: int = 0, stride: int = 2, contact_threshold_mm: float = 0.05,
-                 contact_probability: np.ndarray | None = None,
-                 sensor_names: list[str] | None = None) -> UnifiedCloud:
+def from_tactile(
+    height_mm: np.ndarray,
+    contact: np.ndarray | None,
+    mm_per_px: float,
+    T_world_sensor: np.ndarray,
+    *,
+    t: float = 0.0,
+    sensor_id: int = 0,
+    stride: int = 2,
+    contact_threshold_mm: float = 0.05,
+    contact_probability: np.ndarray | None = None,
+    sensor_names: list[str] | None = None,
+) -> UnifiedCloud:
     """Contact points of one tactile height map (mm, into the gel) -> world-frame touch cloud.
 
     Contact pixels are ``contact`` (if given) and height above ``contact_threshold_mm``. The
@@ -287,5 +361,13 @@ def from_tactile(height_mm: np.ndarray, contact: np.ndarray | None, mm_per_px: f
     pts, nrm = height_to_points(h, mm_per_px, mask=m)
     rows, cols = np.nonzero(m)
     conf = 1.0 if contact_probability is None else np.asarray(contact_probability, np.float32)[rows, cols]
-    return from_contact_points(pts, nrm, T_world_sensor, t=t, sensor_id=sensor_id, confidence=conf,
-                               tactile_value=h[rows, cols].astype(np.float32), sensor_names=sensor_names)
+    return from_contact_points(
+        pts,
+        nrm,
+        T_world_sensor,
+        t=t,
+        sensor_id=sensor_id,
+        confidence=conf,
+        tactile_value=h[rows, cols].astype(np.float32),
+        sensor_names=sensor_names,
+    )

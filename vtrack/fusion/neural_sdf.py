@@ -43,6 +43,7 @@ def _torch():
 
     return torch
 
+
 #: Offline training iterations, the one default of ``vtrack reconstruct`` and the API: on the speed/accuracy front
 #: of ``vtrack bench fusion`` (docs/benchmarks/fusion.md, soup can, vision+touch: F@5 mm 0.904 at 400, 0.904 at
 #: 300, 0.902 at 600 iterations).
@@ -57,13 +58,19 @@ class _SDFNet:
         nn = torch.nn
         g = torch.Generator().manual_seed(seed)
         self.res = list(resolutions)
-        self.tables = nn.ParameterList([
-            nn.Parameter((torch.rand(((r + 1) ** 3, features), generator=g) * 2 - 1) * 1e-4) for r in self.res])
+        self.tables = nn.ParameterList(
+            [nn.Parameter((torch.rand(((r + 1) ** 3, features), generator=g) * 2 - 1) * 1e-4) for r in self.res]
+        )
         d_in = features * len(self.res) + 3
         with torch.random.fork_rng(devices=[]):  # seeded MLP init, global RNG left untouched
             torch.manual_seed(seed)
-            self.mlp = nn.Sequential(nn.Linear(d_in, hidden), nn.Softplus(beta=100), nn.Linear(hidden, hidden),
-                                     nn.Softplus(beta=100), nn.Linear(hidden, 1))
+            self.mlp = nn.Sequential(
+                nn.Linear(d_in, hidden),
+                nn.Softplus(beta=100),
+                nn.Linear(hidden, hidden),
+                nn.Softplus(beta=100),
+                nn.Linear(hidden, 1),
+            )
         with torch.no_grad():
             self.mlp[-1].weight.mul_(0.01)
             self.mlp[-1].bias.zero_()
@@ -116,27 +123,67 @@ class NeuralSDFReconstructor:
         threads: torch threads (None = leave as is).
     """
 
-    def __init__(self, bounds: Any = None, *, extent: float = 0.12, cell_mm: float = 2.5, levels: int = 4,
-                 max_res: int = 64, features: int = 2, hidden: int = 64, lr: float = 4e-3, batch: int = 512,
-                 touch_weight: float = 3.0, touch_fraction: float = 0.35, trunc: float = 0.01,
-                 normal_offset: float = 0.004, sdf_scale: float = 0.005, eikonal_weight: float = 0.05,
-                 normal_weight: float = 0.1, free_weight: float = 0.5, mesh_cell_mm: float = 1.5,
-                 max_points: int = 300_000, keep_largest: bool = True, seed: int = 0,
-                 threads: int | None = None) -> None:
-        self.opts = dict(extent=extent, cell_mm=cell_mm, levels=levels, max_res=max_res, features=features,
-                         hidden=hidden, lr=lr, batch=batch, touch_weight=touch_weight,
-                         touch_fraction=touch_fraction, trunc=trunc, normal_offset=normal_offset,
-                         sdf_scale=sdf_scale, eikonal_weight=eikonal_weight, normal_weight=normal_weight,
-                         free_weight=free_weight, mesh_cell_mm=mesh_cell_mm, max_points=max_points,
-                         keep_largest=keep_largest, seed=seed)
+    def __init__(
+        self,
+        bounds: Any = None,
+        *,
+        extent: float = 0.12,
+        cell_mm: float = 2.5,
+        levels: int = 4,
+        max_res: int = 64,
+        features: int = 2,
+        hidden: int = 64,
+        lr: float = 4e-3,
+        batch: int = 512,
+        touch_weight: float = 3.0,
+        touch_fraction: float = 0.35,
+        trunc: float = 0.01,
+        normal_offset: float = 0.004,
+        sdf_scale: float = 0.005,
+        eikonal_weight: float = 0.05,
+        normal_weight: float = 0.1,
+        free_weight: float = 0.5,
+        mesh_cell_mm: float = 1.5,
+        max_points: int = 300_000,
+        keep_largest: bool = True,
+        seed: int = 0,
+        threads: int | None = None,
+    ) -> None:
+        self.opts = dict(
+            extent=extent,
+            cell_mm=cell_mm,
+            levels=levels,
+            max_res=max_res,
+            features=features,
+            hidden=hidden,
+            lr=lr,
+            batch=batch,
+            touch_weight=touch_weight,
+            touch_fraction=touch_fraction,
+            trunc=trunc,
+            normal_offset=normal_offset,
+            sdf_scale=sdf_scale,
+            eikonal_weight=eikonal_weight,
+            normal_weight=normal_weight,
+            free_weight=free_weight,
+            mesh_cell_mm=mesh_cell_mm,
+            max_points=max_points,
+            keep_largest=keep_largest,
+            seed=seed,
+        )
         if threads:
             _torch().set_num_threads(int(threads))
         self.net: _SDFNet | None = None
         self.lo: np.ndarray | None = None
         self.size: float = 0.0
         self._buf: dict[str, np.ndarray] = {
-            "p": np.zeros((0, 3), np.float32), "n": np.zeros((0, 3), np.float32), "o": np.zeros((0, 3), np.float32),
-            "w": np.zeros(0, np.float32), "m": np.zeros(0, np.int8), "frame": np.zeros(0, np.int64)}
+            "p": np.zeros((0, 3), np.float32),
+            "n": np.zeros((0, 3), np.float32),
+            "o": np.zeros((0, 3), np.float32),
+            "w": np.zeros(0, np.float32),
+            "m": np.zeros(0, np.int8),
+            "frame": np.zeros(0, np.int64),
+        }
         self._frame = 0
         self._recent_from = 0  # buffer index where points not yet trained on start
         self._rng = np.random.default_rng(seed)
@@ -180,8 +227,9 @@ class NeuralSDFReconstructor:
         P = np.asarray(points, np.float64).reshape(-1, 3)
         P = P[np.isfinite(P).all(1)]
         if len(P) == 0:
-            raise InputError("no finite points to size the reconstruction volume", field="points",
-                             expected="> 0 points")
+            raise InputError(
+                "no finite points to size the reconstruction volume", field="points", expected="> 0 points"
+            )
         # Far outliers first (beyond 8x the median distance to the median point), then percentiles.
         d = np.linalg.norm(P - np.median(P, axis=0), axis=1)
         P = P[d <= max(8.0 * float(np.median(d)), 1e-3)]
@@ -191,8 +239,15 @@ class NeuralSDFReconstructor:
         return np.stack([c - half, c + half])
 
     # -- data --------------------------------------------------------------------------------
-    def integrate(self, points: np.ndarray, normals: np.ndarray | None = None, modality: int = VISION, *,
-                  origin: np.ndarray | None = None, confidence: np.ndarray | float | None = None) -> int:
+    def integrate(
+        self,
+        points: np.ndarray,
+        normals: np.ndarray | None = None,
+        modality: int = VISION,
+        *,
+        origin: np.ndarray | None = None,
+        confidence: np.ndarray | float | None = None,
+    ) -> int:
         """Add one frame of object-frame surface points (m) to the replay buffer.
 
         Args:
@@ -293,7 +348,7 @@ class NeuralSDFReconstructor:
             if k <= 0 or len(pool) == 0:
                 continue
             # Buffer indices grow with time, so the newest (not yet trained) points are a suffix.
-            rp = pool[np.searchsorted(pool, self._recent_from):]
+            rp = pool[np.searchsorted(pool, self._recent_from) :]
             if 0 < len(rp) < len(pool):
                 half = k // 2
                 picks.append(self._rng.choice(rp, half))
@@ -319,8 +374,9 @@ class NeuralSDFReconstructor:
             ti = time.perf_counter()
             self._iteration(torch)
             done += 1
-            per_iter = time.perf_counter() - ti if per_iter is None else 0.7 * per_iter + 0.3 * (
-                time.perf_counter() - ti)
+            per_iter = (
+                time.perf_counter() - ti if per_iter is None else 0.7 * per_iter + 0.3 * (time.perf_counter() - ti)
+            )
             if time_budget_ms is not None:
                 elapsed = (time.perf_counter() - t0) * 1e3
                 if elapsed + per_iter * 1e3 > time_budget_ms:
@@ -389,8 +445,7 @@ class NeuralSDFReconstructor:
             l_free = torch.where(nm, near_l, far_l).mean() / sc
         gn = torch.linalg.norm(g, dim=1)
         l_eik = ((gn - 1) ** 2).mean()
-        loss = (l_surf + o["normal_weight"] * l_norm + l_off + o["free_weight"] * l_free
-                + o["eikonal_weight"] * l_eik)
+        loss = l_surf + o["normal_weight"] * l_norm + l_off + o["free_weight"] * l_free + o["eikonal_weight"] * l_eik
         if not torch.isfinite(loss):
             # Never let a bad batch poison the model: skip it.
             self._opt.zero_grad(set_to_none=True)
@@ -400,12 +455,26 @@ class NeuralSDFReconstructor:
         torch.nn.utils.clip_grad_norm_(self.net.parameters(), 10.0)
         self._opt.step()
         self.iterations += 1
-        self.last_loss = {k: float(v.detach()) for k, v in (("total", loss), ("surface", l_surf),
-                          ("normal", l_norm), ("offset", l_off), ("free", l_free), ("eikonal", l_eik))}
+        self.last_loss = {
+            k: float(v.detach())
+            for k, v in (
+                ("total", loss),
+                ("surface", l_surf),
+                ("normal", l_norm),
+                ("offset", l_off),
+                ("free", l_free),
+                ("eikonal", l_eik),
+            )
+        }
 
     # -- offline -----------------------------------------------------------------------------
-    def fit(self, observations: list, n_iters: int = OFFLINE_ITERS, time_budget_s: float | None = None,
-            lr_decay: bool = True) -> dict[str, Any]:
+    def fit(
+        self,
+        observations: list,
+        n_iters: int = OFFLINE_ITERS,
+        time_budget_s: float | None = None,
+        lr_decay: bool = True,
+    ) -> dict[str, Any]:
         """Offline: integrate every observation, size the box from all points, train ``n_iters``
         (default :data:`OFFLINE_ITERS`)."""
         obs = [o for o in observations if len(o)]
@@ -419,8 +488,11 @@ class NeuralSDFReconstructor:
         self._recent_from = self.n_points  # offline: uniform replay
         t0 = time.perf_counter()
         torch = _torch()
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(self._opt, T_max=max(1, n_iters),
-                                                           eta_min=self.opts["lr"] * 0.1) if lr_decay else None
+        sched = (
+            torch.optim.lr_scheduler.CosineAnnealingLR(self._opt, T_max=max(1, n_iters), eta_min=self.opts["lr"] * 0.1)
+            if lr_decay
+            else None
+        )
         it = 0
         while it < n_iters:
             self.step(1)
@@ -432,8 +504,9 @@ class NeuralSDFReconstructor:
         return {"iterations": it, "points": self.n_points, "seconds": time.perf_counter() - t0}
 
     # -- queries -----------------------------------------------------------------------------
-    def query(self, points_obj: np.ndarray, batch: int = 65536,
-              with_grad: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def query(
+        self, points_obj: np.ndarray, batch: int = 65536, with_grad: bool = True
+    ) -> tuple[np.ndarray, np.ndarray]:
         """SDF (N,) in m and its gradient (N, 3) at object-frame points (N, 3), in batches.
 
         Non-finite query points get sdf = +trunc and a zero gradient (never NaN).
@@ -448,7 +521,7 @@ class NeuralSDFReconstructor:
         ok = np.isfinite(P).all(1)
         idx = np.nonzero(ok)[0]
         for a in range(0, len(idx), batch):
-            sel = idx[a:a + batch]
+            sel = idx[a : a + batch]
             x = torch.from_numpy(P[sel].astype(np.float32))
             if with_grad:
                 x.requires_grad_(True)
@@ -485,12 +558,17 @@ class NeuralSDFReconstructor:
         return marching_cubes(vol, origin, h, keep_largest=self.opts["keep_largest"])
 
     def state_dict(self) -> dict[str, Any]:
-        return {"opts": self.opts, "lo": self.lo, "size": self.size,
-                "net": None if self.net is None else self.net.state_dict()}
+        return {
+            "opts": self.opts,
+            "lo": self.lo,
+            "size": self.size,
+            "net": None if self.net is None else self.net.state_dict(),
+        }
 
 
-def marching_cubes(volume: np.ndarray, origin: np.ndarray, spacing: float, level: float = 0.0,
-                   keep_largest: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def marching_cubes(
+    volume: np.ndarray, origin: np.ndarray, spacing: float, level: float = 0.0, keep_largest: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh of ``volume == level`` (volume indexed [i, j, k] = x, y, z) with pyvista/VTK."""
     import pyvista as pv
 

@@ -71,9 +71,19 @@ class SessionObservations:
         parts = []
         for o in self.observations:
             n = len(o)
-            parts.append(UnifiedCloud(o.points, o.normals, np.full(n, o.modality), np.full(n, o.sensor_id),
-                                      np.full(n, o.t), o.confidence, o.tactile_value, frame="object",
-                                      sensor_names=self.sensor_names))
+            parts.append(
+                UnifiedCloud(
+                    o.points,
+                    o.normals,
+                    np.full(n, o.modality),
+                    np.full(n, o.sensor_id),
+                    np.full(n, o.t),
+                    o.confidence,
+                    o.tactile_value,
+                    frame="object",
+                    sensor_names=self.sensor_names,
+                )
+            )
         if not parts:
             c = UnifiedCloud.empty("object")
             c.sensor_names = list(self.sensor_names)
@@ -85,8 +95,15 @@ def _cloud_to_object(c: UnifiedCloud, T_world_object: np.ndarray) -> UnifiedClou
     return c.transform(se3.invert(T_world_object), frame="object")
 
 
-def observations_from_frames(frames: Any, built: list[tuple[int, Any]], poses: Any, *, vision_stride: int = 4,
-                             max_vision_points: int = 4000, keep_depth: bool = True) -> SessionObservations:
+def observations_from_frames(
+    frames: Any,
+    built: list[tuple[int, Any]],
+    poses: Any,
+    *,
+    vision_stride: int = 4,
+    max_vision_points: int = 4000,
+    keep_depth: bool = True,
+) -> SessionObservations:
     """Object-frame observations of already built frames.
 
     Args:
@@ -117,8 +134,9 @@ def observations_from_frames(frames: Any, built: list[tuple[int, Any]], poses: A
             j = int(c.stream.index_at(t)[0])
             depth = np.asarray(c.stream["depth"][j])
             full = upsample_mask(mask, depth.shape)
-            cl = from_rgbd(depth, c.cam, c.T_wc, mask=full, t=t, sensor_id=sid, depth_scale=c.depth_scale,
-                           stride=vision_stride)
+            cl = from_rgbd(
+                depth, c.cam, c.T_wc, mask=full, t=t, sensor_id=sid, depth_scale=c.depth_scale, stride=vision_stride
+            )
             if len(cl) > max_vision_points:
                 cl = cl.select(np.sort(rng.choice(len(cl), max_vision_points, replace=False)))
             dm = None
@@ -129,35 +147,67 @@ def observations_from_frames(frames: Any, built: list[tuple[int, Any]], poses: A
             if len(cl) == 0 and (dm is None or not dm.any()):
                 continue
             co = _cloud_to_object(cl, T_wo)
-            obs.append(Observation(t, VISION, sid, c.name, co.xyz, co.normal, co.confidence, co.tactile_value,
-                                   se3.invert(c.T_wc) @ T_wo, dm, c.cam.K))
+            obs.append(
+                Observation(
+                    t,
+                    VISION,
+                    sid,
+                    c.name,
+                    co.xyz,
+                    co.normal,
+                    co.confidence,
+                    co.tactile_value,
+                    se3.invert(c.T_wc) @ T_wo,
+                    dm,
+                    c.cam.K,
+                )
+            )
             counts[f"camera/{c.name}"] = counts.get(f"camera/{c.name}", 0) + 1
         for s, con in fr.contacts.items():
             if not con.in_contact:
                 continue
             T_ws = fr.sensor_poses[s]
             sid = len(cam_names) + touch_names.index(s)
-            cl = from_contact_points(con.points, con.normals, T_ws, t=t, sensor_id=sid,
-                                     tactile_value=con.penetration_mm.astype(np.float32))
+            cl = from_contact_points(
+                con.points, con.normals, T_ws, t=t, sensor_id=sid, tactile_value=con.penetration_mm.astype(np.float32)
+            )
             if len(cl) == 0:
                 continue
             co = _cloud_to_object(cl, T_wo)
-            obs.append(Observation(t, TOUCH, sid, s, co.xyz, co.normal, co.confidence, co.tactile_value,
-                                   se3.invert(T_ws) @ T_wo))
+            obs.append(
+                Observation(
+                    t, TOUCH, sid, s, co.xyz, co.normal, co.confidence, co.tactile_value, se3.invert(T_ws) @ T_wo
+                )
+            )
             counts[f"tactile/{s}"] = counts.get(f"tactile/{s}", 0) + 1
     obs.sort(key=lambda o: (o.t, o.modality, o.sensor_id))
-    info = {"session": str(frames.path), "modalities": list(frames.modalities), "frames": counts,
-            "tactile_source": frames.tactile_source if frames.touch is not None else "none",
-            "segmentation": frames.segmentation if cam_names else "none", "cameras": cam_names,
-            "tactile_sensors": touch_names}
+    info = {
+        "session": str(frames.path),
+        "modalities": list(frames.modalities),
+        "frames": counts,
+        "tactile_source": frames.tactile_source if frames.touch is not None else "none",
+        "segmentation": frames.segmentation if cam_names else "none",
+        "cameras": cam_names,
+        "tactile_sensors": touch_names,
+    }
     return SessionObservations(obs, names, info)
 
 
-def load_observations(session: str | Path | Any, modalities: tuple[str, ...] | list[str] = ("vision", "touch"), *,
-                      poses: Any, tactile_source: str = "pipeline", segmentation: str = "pipeline",
-                      vision_stride: int = 4, frame_step: int = 2, touch_stride: int = 3,
-                      max_vision_points: int = 4000, keep_depth: bool = True, scene: Any = None,
-                      depth_stride: int = 4) -> SessionObservations:
+def load_observations(
+    session: str | Path | Any,
+    modalities: tuple[str, ...] | list[str] = ("vision", "touch"),
+    *,
+    poses: Any,
+    tactile_source: str = "pipeline",
+    segmentation: str = "pipeline",
+    vision_stride: int = 4,
+    frame_step: int = 2,
+    touch_stride: int = 3,
+    max_vision_points: int = 4000,
+    keep_depth: bool = True,
+    scene: Any = None,
+    depth_stride: int = 4,
+) -> SessionObservations:
     """Read a session through the frames layer and return its observations in the object frame.
 
     Args:
@@ -177,8 +227,16 @@ def load_observations(session: str | Path | Any, modalities: tuple[str, ...] | l
     mods = tuple(m.strip() for m in modalities)
     if not mods or set(mods) - {"vision", "touch"}:
         raise InputError("unknown modality", field="modalities", expected="vision and/or touch", got=list(mods))
-    frames = SessionFrames(session, mods, tactile_source=tactile_source, segmentation=segmentation,
-                           depth_stride=depth_stride, touch_stride=touch_stride, scene=scene)
+    frames = SessionFrames(
+        session,
+        mods,
+        tactile_source=tactile_source,
+        segmentation=segmentation,
+        depth_stride=depth_stride,
+        touch_stride=touch_stride,
+        scene=scene,
+    )
     built = [(i, frames.frame(i)[0]) for i in range(0, len(frames), max(1, int(frame_step)))]
-    return observations_from_frames(frames, built, poses, vision_stride=vision_stride,
-                                    max_vision_points=max_vision_points, keep_depth=keep_depth)
+    return observations_from_frames(
+        frames, built, poses, vision_stride=vision_stride, max_vision_points=max_vision_points, keep_depth=keep_depth
+    )

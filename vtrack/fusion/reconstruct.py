@@ -35,8 +35,9 @@ def _parse_modalities(modalities: Any) -> tuple[str, ...]:
     return mods
 
 
-def reconstruct_observations(obs: list, method: str = "neural_sdf", *, online: bool = False,
-                             frame_budget_ms: float = 25.0, **opts: Any) -> dict[str, Any]:
+def reconstruct_observations(
+    obs: list, method: str = "neural_sdf", *, online: bool = False, frame_budget_ms: float = 25.0, **opts: Any
+) -> dict[str, Any]:
     """Run a reconstructor on object-frame observations. Returns mesh, timing and the model.
 
     Neural SDF options: ``n_iters`` (offline iterations), ``time_budget_s``, plus any
@@ -59,8 +60,11 @@ def reconstruct_observations(obs: list, method: str = "neural_sdf", *, online: b
             frame_ms.append((time.perf_counter() - ti) * 1e3)
         t_int = time.perf_counter()
         V, F = rec.extract_mesh()
-        out.update(frames=dict(rec.frames), ms_per_frame=float(np.mean(frame_ms)) if frame_ms else 0.0,
-                   mesh_seconds=time.perf_counter() - t_int)
+        out.update(
+            frames=dict(rec.frames),
+            ms_per_frame=float(np.mean(frame_ms)) if frame_ms else 0.0,
+            mesh_seconds=time.perf_counter() - t_int,
+        )
     else:
         from vtrack.fusion.neural_sdf import NeuralSDFReconstructor
 
@@ -86,9 +90,11 @@ def reconstruct_observations(obs: list, method: str = "neural_sdf", *, online: b
                 frame_ms.append((time.perf_counter() - ti) * 1e3)
                 cpu_ms.append((time.process_time() - ci) * 1e3)
             # wall time per frame, and CPU time (what the frame costs without other processes competing)
-            out.update(ms_per_frame=float(np.mean(frame_ms)) if frame_ms else 0.0,
-                       ms_per_frame_p95=float(np.percentile(frame_ms, 95)) if frame_ms else 0.0,
-                       cpu_ms_per_frame=float(np.mean(cpu_ms)) if cpu_ms else 0.0)
+            out.update(
+                ms_per_frame=float(np.mean(frame_ms)) if frame_ms else 0.0,
+                ms_per_frame_p95=float(np.percentile(frame_ms, 95)) if frame_ms else 0.0,
+                cpu_ms_per_frame=float(np.mean(cpu_ms)) if cpu_ms else 0.0,
+            )
         else:
             info = rec.fit(obs, n_iters=n_iters, time_budget_s=budget)
             out.update(train=info, ms_per_frame=1e3 * info["seconds"] / max(1, len(obs)))
@@ -100,12 +106,26 @@ def reconstruct_observations(obs: list, method: str = "neural_sdf", *, online: b
     return out
 
 
-def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: str = "neural_sdf",
-                        modalities: Any = ("vision", "touch"), *, poses: str | Path = "track",
-                        mesh: str | Path | None = None, gt: str | Path | None = None,
-                        tactile_source: str = "pipeline", segmentation: str = "pipeline", online: bool = False,
-                        screenshot: bool = True, frame_step: int = 2, vision_stride: int = 4, touch_stride: int = 3,
-                        threads: int | None = 1, track_opts: dict | None = None, **opts: Any) -> dict[str, Any]:
+def reconstruct_session(
+    session_dir: str | Path,
+    out_dir: str | Path,
+    method: str = "neural_sdf",
+    modalities: Any = ("vision", "touch"),
+    *,
+    poses: str | Path = "track",
+    mesh: str | Path | None = None,
+    gt: str | Path | None = None,
+    tactile_source: str = "pipeline",
+    segmentation: str = "pipeline",
+    online: bool = False,
+    screenshot: bool = True,
+    frame_step: int = 2,
+    vision_stride: int = 4,
+    touch_stride: int = 3,
+    threads: int | None = 1,
+    track_opts: dict | None = None,
+    **opts: Any,
+) -> dict[str, Any]:
     """Reconstruct a session's object and write the result folder.
 
     Args:
@@ -147,22 +167,37 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
         kept: dict[str, Any] = {}
         shape = "known_shape" if mesh is not None else "slam"
         track_metrics, (times, est) = track_session(
-            session_dir, out / "tracking", shape=shape, modalities=mods, mesh=mesh, gt=gt,
-            tactile_source=tactile_source, segmentation=segmentation, write=True, return_poses=True,
-            keep_frames=kept, keep_step=frame_step,
-            **{"touch_stride": touch_stride, "touch_downsample": "auto", **(track_opts or {})})
+            session_dir,
+            out / "tracking",
+            shape=shape,
+            modalities=mods,
+            mesh=mesh,
+            gt=gt,
+            tactile_source=tactile_source,
+            segmentation=segmentation,
+            write=True,
+            return_poses=True,
+            keep_frames=kept,
+            keep_step=frame_step,
+            **{"touch_stride": touch_stride, "touch_downsample": "auto", **(track_opts or {})},
+        )
         frames, built = kept["frames"], kept["built"]
         track = PoseTrack(times, est)
         mesh_frame = Path(mesh) if mesh is not None else None
         pose_source = f"tracking ({shape})"
     else:
-        frames = SessionFrames(session_dir, mods, tactile_source=tactile_source, segmentation=segmentation,
-                               touch_stride=touch_stride)
+        frames = SessionFrames(
+            session_dir, mods, tactile_source=tactile_source, segmentation=segmentation, touch_stride=touch_stride
+        )
         built = [(i, frames.frame(i)[0]) for i in range(0, len(frames), max(1, int(frame_step)))]
         if str(poses) == "gt":
             if gt_data is None:
-                raise InputError("poses 'gt' (oracle) need ground truth", path=session_dir, field="--poses",
-                                 expected="track | FILE, or --gt SESSION")
+                raise InputError(
+                    "poses 'gt' (oracle) need ground truth",
+                    path=session_dir,
+                    field="--poses",
+                    expected="track | FILE, or --gt SESSION",
+                )
             track = PoseTrack(gt_data.pose_times, gt_data.poses)
             mesh_frame = gt_data.mesh_path
             pose_source = "ground truth [oracle]"
@@ -174,28 +209,55 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
     t_loaded = time.perf_counter()
     so = observations_from_frames(frames, built, track, vision_stride=vision_stride, keep_depth=(method == "tsdf"))
     if not so.observations:
-        raise InputError("no object observations in the session (no segmented depth, no contact)",
-                         path=frames.path, expected="frames where the object is seen or touched")
+        raise InputError(
+            "no object observations in the session (no segmented depth, no contact)",
+            path=frames.path,
+            expected="frames where the object is seen or touched",
+        )
     cloud = so.cloud()
     n_pts = cloud.counts()
     res = reconstruct_observations(so.observations, method, online=online, **opts)
     V, F = res["vertices"], res["faces"]
     seconds = time.perf_counter() - t_start
     used_t = np.array([frames.times[i] for i, _ in built])
-    metrics: dict[str, Any] = {"method": method, "modalities": list(mods), "online": online,
-                               "poses": pose_source, "oracle": oracle, "blind": not oracle,
-                               "seconds": seconds, "cpu_seconds": time.process_time() - cpu_start,
-                               "load_seconds": t_loaded - t_start,
-                               "reconstruct_seconds": res["seconds"], "ms_per_frame": res.get("ms_per_frame"),
-                               "frames": len(so.observations), "points": n_pts,
-                               "tactile_source": so.info.get("tactile_source", "none"),
-                               "segmentation": so.info.get("segmentation", "none"),
-                               "n_vertices": int(len(V)), "n_faces": int(len(F)),
-                               "session": str(frames.path)}
+    metrics: dict[str, Any] = {
+        "method": method,
+        "modalities": list(mods),
+        "online": online,
+        "poses": pose_source,
+        "oracle": oracle,
+        "blind": not oracle,
+        "seconds": seconds,
+        "cpu_seconds": time.process_time() - cpu_start,
+        "load_seconds": t_loaded - t_start,
+        "reconstruct_seconds": res["seconds"],
+        "ms_per_frame": res.get("ms_per_frame"),
+        "frames": len(so.observations),
+        "points": n_pts,
+        "tactile_source": so.info.get("tactile_source", "none"),
+        "segmentation": so.info.get("segmentation", "none"),
+        "n_vertices": int(len(V)),
+        "n_faces": int(len(F)),
+        "session": str(frames.path),
+    }
     if track_metrics is not None:
-        metrics["tracking"] = {k: v for k, v in track_metrics.items()
-                               if k in ("mode", "init", "motion_err_mm", "motion_drift_mm", "add_s_mm", "drift_mm",
-                                        "poses_per_s", "ms_per_frame_mean", "status_counts", "alignment")}
+        metrics["tracking"] = {
+            k: v
+            for k, v in track_metrics.items()
+            if k
+            in (
+                "mode",
+                "init",
+                "motion_err_mm",
+                "motion_drift_mm",
+                "add_s_mm",
+                "drift_mm",
+                "poses_per_s",
+                "ms_per_frame_mean",
+                "status_counts",
+                "alignment",
+            )
+        }
     for k in ("iterations", "ms_per_frame_p95", "cpu_ms_per_frame"):
         if k in res:
             metrics[k] = res[k]
@@ -207,14 +269,28 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
         Vg, Fg = load_mesh(gt_data.mesh_path)
         Va, how = align_mesh_to_gt(gt_data, V, mesh_frame, used_t, track.at(used_t))
         m = mesh_metrics(Va, F, Vg, Fg)
-        metrics.update(fscore=m["fscore"], precision=m["precision"]["5mm"], recall=m["recall"]["5mm"],
-                       precision_at=m["precision"], recall_at=m["recall"], chamfer_mm=m["chamfer_mm"],
-                       accuracy_mm=m["accuracy_mm"], completeness_mm=m["completeness_mm"],
-                       normal_consistency=m["normal_consistency"], empty=m["empty"], alignment=how,
-                       scored_against=str(gt_data.path))
+        metrics.update(
+            fscore=m["fscore"],
+            precision=m["precision"]["5mm"],
+            recall=m["recall"]["5mm"],
+            precision_at=m["precision"],
+            recall_at=m["recall"],
+            chamfer_mm=m["chamfer_mm"],
+            accuracy_mm=m["accuracy_mm"],
+            completeness_mm=m["completeness_mm"],
+            normal_consistency=m["normal_consistency"],
+            empty=m["empty"],
+            alignment=how,
+            scored_against=str(gt_data.path),
+        )
     else:
-        metrics.update(fscore=None, precision=None, recall=None, chamfer_mm=None,
-                       note="no ground truth to score against (pass --gt SESSION to score)")
+        metrics.update(
+            fscore=None,
+            precision=None,
+            recall=None,
+            chamfer_mm=None,
+            note="no ground truth to score against (pass --gt SESSION to score)",
+        )
     # outputs
     out.mkdir(parents=True, exist_ok=True)
     if len(F):
@@ -232,20 +308,39 @@ def reconstruct_session(session_dir: str | Path, out_dir: str | Path, method: st
         except Exception as e:  # no display / VTK problem must not lose the reconstruction
             metrics["screenshot_error"] = f"{type(e).__name__}: {e}"
     write_json(out / "metrics.json", metrics)
-    write_json(out / "result.json", {"kind": "reconstruction", "session": str(frames.path), "method": method,
-                                      "modalities": list(mods), "mesh": "mesh.ply", "poses": "poses.csv",
-                                      "cloud": "cloud.ply", "metrics": "metrics.json"})
+    write_json(
+        out / "result.json",
+        {
+            "kind": "reconstruction",
+            "session": str(frames.path),
+            "method": method,
+            "modalities": list(mods),
+            "mesh": "mesh.ply",
+            "poses": "poses.csv",
+            "cloud": "cloud.ply",
+            "metrics": "metrics.json",
+        },
+    )
     return metrics
-
 
 
 def warm_up(method: str = "neural_sdf", screenshot: bool = True, **_: Any) -> None:
     """Import what :func:`reconstruct_session` will use (batch workers call this before timing starts)."""
     import importlib
 
-    mods = ["vtrack.fusion.observations", "vtrack.io.session", "vtrack.io.export", "vtrack.eval.reconstruction",
-            "vtrack.kinematics.hand", "vtrack.scene.load", "vtrack.tactile.pipeline", "scipy.spatial", "trimesh",
-            "yourdfpy", "zarr"]
+    mods = [
+        "vtrack.fusion.observations",
+        "vtrack.io.session",
+        "vtrack.io.export",
+        "vtrack.eval.reconstruction",
+        "vtrack.kinematics.hand",
+        "vtrack.scene.load",
+        "vtrack.tactile.pipeline",
+        "scipy.spatial",
+        "trimesh",
+        "yourdfpy",
+        "zarr",
+    ]
     mods += ["vtrack.fusion.tsdf", "open3d"] if method == "tsdf" else ["vtrack.fusion.neural_sdf", "torch"]
     if screenshot:
         mods.append("pyvista")
@@ -254,6 +349,8 @@ def warm_up(method: str = "neural_sdf", screenshot: bool = True, **_: Any) -> No
 
 
 def _write_empty_mesh(path: Path) -> None:
-    path.write_text("ply\nformat ascii 1.0\ncomment vtrack: empty reconstruction\nelement vertex 0\n"
-                    "property float x\nproperty float y\nproperty float z\nelement face 0\n"
-                    "property list uchar int vertex_indices\nend_header\n")
+    path.write_text(
+        "ply\nformat ascii 1.0\ncomment vtrack: empty reconstruction\nelement vertex 0\n"
+        "property float x\nproperty float y\nproperty float z\nelement face 0\n"
+        "property list uchar int vertex_indices\nend_header\n"
+    )

@@ -27,13 +27,29 @@ class RGBDFrontend:
     def from_scene(cls, scene: Any, **opts: Any) -> RGBDFrontend:
         return cls(list(scene.cameras), **opts)
 
-    def cloud(self, camera: str, depth: np.ndarray, mask: np.ndarray | None = None, t: float = 0.0,
-              T_world_camera: np.ndarray | None = None) -> UnifiedCloud:
+    def cloud(
+        self,
+        camera: str,
+        depth: np.ndarray,
+        mask: np.ndarray | None = None,
+        t: float = 0.0,
+        T_world_camera: np.ndarray | None = None,
+    ) -> UnifiedCloud:
         """World-frame vision cloud of one frame of ``camera`` (depth in the camera's depth units)."""
         if camera not in self.cameras:
             raise InputError("unknown camera", field="camera", expected=str(self.names), got=camera)
         c = self.cameras[camera]
         T = c.extrinsics() if T_world_camera is None else np.asarray(T_world_camera, np.float64)
-        return from_rgbd(depth, c.intrinsics(), T, mask=mask if self.use_mask else None, t=t,
-                         sensor_id=self.names.index(camera), depth_scale=c.depth_scale, stride=self.stride,
-                         min_depth=c.depth_min, max_depth=c.depth_max, sensor_names=self.names)
+        return from_rgbd(
+            depth,
+            c.intrinsics(),
+            T,
+            mask=mask if self.use_mask else None,
+            t=t,
+            sensor_id=self.names.index(camera),
+            depth_scale=c.depth_scale,
+            stride=self.stride,
+            min_depth=c.depth_min,
+            max_depth=c.depth_max,
+            sensor_names=self.names,
+        )

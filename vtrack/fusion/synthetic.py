@@ -17,14 +17,19 @@ from vtrack.geometry import se3
 from vtrack.geometry.camera import PinholeCamera
 
 
-def raycast_depth(vertices: np.ndarray, faces: np.ndarray, cam: PinholeCamera, T_object_camera: np.ndarray,
-                  ) -> np.ndarray:
+def raycast_depth(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    cam: PinholeCamera,
+    T_object_camera: np.ndarray,
+) -> np.ndarray:
     """(H, W) float32 depth (m, 0 = miss) of a mesh given in the object frame."""
     import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
-                        o3d.core.Tensor(np.asarray(faces, np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(faces, np.uint32))
+    )
     rays_c = cam.pixel_rays().reshape(-1, 3)
     d = rays_c / np.linalg.norm(rays_c, axis=1, keepdims=True)
     R, t = T_object_camera[:3, :3], T_object_camera[:3, 3]
@@ -35,8 +40,9 @@ def raycast_depth(vertices: np.ndarray, faces: np.ndarray, cam: PinholeCamera, T
     return z.reshape(cam.height, cam.width).astype(np.float32)
 
 
-def ring_cameras(center: np.ndarray, radius: float, n: int, height: float = 0.1,
-                 arc_deg: float = 360.0) -> list[np.ndarray]:
+def ring_cameras(
+    center: np.ndarray, radius: float, n: int, height: float = 0.1, arc_deg: float = 360.0
+) -> list[np.ndarray]:
     """``T_object_camera`` for ``n`` cameras on a horizontal arc around ``center`` looking at it."""
     out = []
     for k in range(n):
@@ -46,10 +52,19 @@ def ring_cameras(center: np.ndarray, radius: float, n: int, height: float = 0.1,
     return out
 
 
-def make_observations(mesh_path: str | Path, *, n_views: int = 6, arc_deg: float = 360.0, n_touch: int = 20,
-                      patch_radius: float = 0.006, cam: PinholeCamera | None = None, stride: int = 4,
-                      touch_region: str = "all", seed: int = 0, depth_noise_m: float = 0.0,
-                      ) -> tuple[list[Observation], np.ndarray, np.ndarray]:
+def make_observations(
+    mesh_path: str | Path,
+    *,
+    n_views: int = 6,
+    arc_deg: float = 360.0,
+    n_touch: int = 20,
+    patch_radius: float = 0.006,
+    cam: PinholeCamera | None = None,
+    stride: int = 4,
+    touch_region: str = "all",
+    seed: int = 0,
+    depth_noise_m: float = 0.0,
+) -> tuple[list[Observation], np.ndarray, np.ndarray]:
     """Vision + touch observations of a mesh, all in the object (= mesh) frame.
 
     ``touch_region``: ``"all"`` samples contact centres anywhere, ``"unseen"`` prefers points not
@@ -72,8 +87,9 @@ def make_observations(mesh_path: str | Path, *, n_views: int = 6, arc_deg: float
             depth = np.where(depth > 0, depth + rng.normal(0, depth_noise_m, depth.shape), 0).astype(np.float32)
         c = from_rgbd(depth, cam, T_oc, t=0.1 * k, sensor_id=0, stride=stride, min_depth=0.01)
         T_co = se3.invert(T_oc)
-        obs.append(Observation(0.1 * k, VISION, 0, "cam", c.xyz, c.normal, c.confidence, c.tactile_value, T_co,
-                               depth, cam.K))
+        obs.append(
+            Observation(0.1 * k, VISION, 0, "cam", c.xyz, c.normal, c.confidence, c.tactile_value, T_co, depth, cam.K)
+        )
         # visibility of surface samples: depth test
         pc = S @ T_co[:3, :3].T + T_co[:3, 3]
         uv, front = cam.project(pc)
@@ -93,6 +109,9 @@ def make_observations(mesh_path: str | Path, *, n_views: int = 6, arc_deg: float
         x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
         x /= np.linalg.norm(x)
         T_os = se3.make_transform(np.stack([x, np.cross(-z, x), -z], axis=1), S[i] + 0.0 * z)
-        obs.append(Observation(1.0 + 0.05 * j, TOUCH, 1, "touch", pts, nrm, np.ones(len(pts)),
-                               np.ones(len(pts)), se3.invert(T_os)))
+        obs.append(
+            Observation(
+                1.0 + 0.05 * j, TOUCH, 1, "touch", pts, nrm, np.ones(len(pts)), np.ones(len(pts)), se3.invert(T_os)
+            )
+        )
     return obs, V, F

@@ -32,10 +32,19 @@ class TSDFReconstructor:
         max_patch_m: touch points farther than this from their frame's median point are outliers.
     """
 
-    def __init__(self, voxel_size: float = 0.002, *, block_resolution: int = 8, block_count: int = 20000,
-                 trunc_voxels: float = 4.0, touch_trunc_voxels: float = 2.0, touch_weight: float = 3.0,
-                 depth_max: float = 3.0, max_patch_m: float = 0.05,
-                 weight_threshold: float = 1.0) -> None:
+    def __init__(
+        self,
+        voxel_size: float = 0.002,
+        *,
+        block_resolution: int = 8,
+        block_count: int = 20000,
+        trunc_voxels: float = 4.0,
+        touch_trunc_voxels: float = 2.0,
+        touch_weight: float = 3.0,
+        depth_max: float = 3.0,
+        max_patch_m: float = 0.05,
+        weight_threshold: float = 1.0,
+    ) -> None:
         import open3d as o3d
 
         self.o3d = o3d
@@ -49,9 +58,14 @@ class TSDFReconstructor:
         self.weight_threshold = float(weight_threshold)
         self.device = o3d.core.Device("CPU:0")
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
-            attr_names=("tsdf", "weight"), attr_dtypes=(o3d.core.float32, o3d.core.float32),
-            attr_channels=((1,), (1,)), voxel_size=self.voxel_size, block_resolution=int(block_resolution),
-            block_count=int(block_count), device=self.device)
+            attr_names=("tsdf", "weight"),
+            attr_dtypes=(o3d.core.float32, o3d.core.float32),
+            attr_channels=((1,), (1,)),
+            voxel_size=self.voxel_size,
+            block_resolution=int(block_resolution),
+            block_count=int(block_count),
+            device=self.device,
+        )
         self.frames = {"vision": 0, "touch": 0, "skipped": 0}
         self.seconds = 0.0
 
@@ -61,8 +75,9 @@ class TSDFReconstructor:
         return cls(**opts)
 
     # -- integration -------------------------------------------------------------------------
-    def integrate_depth(self, depth_m: np.ndarray, K: np.ndarray, T_camera_object: np.ndarray,
-                        trunc_voxels: float | None = None) -> bool:
+    def integrate_depth(
+        self, depth_m: np.ndarray, K: np.ndarray, T_camera_object: np.ndarray, trunc_voxels: float | None = None
+    ) -> bool:
         """Integrate one float depth image (m, 0/NaN = invalid) seen from ``T_camera_object``.
 
         Returns False (and does nothing) for an image without valid depth or a non-finite pose.
@@ -89,8 +104,9 @@ class TSDFReconstructor:
         self.seconds += time.perf_counter() - t0
         return True
 
-    def integrate_points(self, points_obj: np.ndarray, normals_obj: np.ndarray | None = None,
-                         T_view_object: np.ndarray | None = None) -> bool:
+    def integrate_points(
+        self, points_obj: np.ndarray, normals_obj: np.ndarray | None = None, T_view_object: np.ndarray | None = None
+    ) -> bool:
         """Touch: write near-surface TSDF evidence around object-frame contact points.
 
         Voxels within ``touch_trunc_voxels`` of a contact point (and within 1.5 voxels of it

@@ -27,11 +27,13 @@ class PinholeCamera:
 
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
-            raise InputError("image size must be positive", field="width/height",
-                             expected="> 0", got=(self.width, self.height))
+            raise InputError(
+                "image size must be positive", field="width/height", expected="> 0", got=(self.width, self.height)
+            )
         if not (np.isfinite(self.fx) and np.isfinite(self.fy) and self.fx > 0 and self.fy > 0):
-            raise InputError("focal lengths must be positive and finite", field="fx/fy",
-                             expected="> 0", got=(self.fx, self.fy))
+            raise InputError(
+                "focal lengths must be positive and finite", field="fx/fy", expected="> 0", got=(self.fx, self.fy)
+            )
 
     @property
     def K(self) -> np.ndarray:
@@ -53,8 +55,12 @@ class PinholeCamera:
         """Convert a depth image to float64 metres (uint16 uses ``depth_scale``; floats are metres)."""
         d = np.asarray(depth)
         if d.shape != (self.height, self.width):
-            raise InputError("depth image size does not match the camera", field="depth",
-                             expected=f"({self.height}, {self.width})", got=d.shape)
+            raise InputError(
+                "depth image size does not match the camera",
+                field="depth",
+                expected=f"({self.height}, {self.width})",
+                got=d.shape,
+            )
         if d.dtype.kind in "ui":
             return d.astype(np.float64) * depth_scale
         if d.dtype.kind == "f":
@@ -86,8 +92,9 @@ class PinholeCamera:
         if mask is not None:
             m = np.asarray(mask)
             if m.shape != z.shape:
-                raise InputError("mask size does not match the depth image", field="mask",
-                                 expected=str(z.shape), got=m.shape)
+                raise InputError(
+                    "mask size does not match the depth image", field="mask", expected=str(z.shape), got=m.shape
+                )
             valid &= m.astype(bool)
         if stride > 1:
             sub = np.zeros_like(valid)
@@ -117,6 +124,8 @@ class PinholeCamera:
         with np.errstate(invalid="ignore"):
             return (
                 np.isfinite(uv).all(-1)
-                & (uv[:, 0] >= -0.5) & (uv[:, 0] < self.width - 0.5)
-                & (uv[:, 1] >= -0.5) & (uv[:, 1] < self.height - 0.5)
+                & (uv[:, 0] >= -0.5)
+                & (uv[:, 0] < self.width - 0.5)
+                & (uv[:, 1] >= -0.5)
+                & (uv[:, 1] < self.height - 0.5)
             )

@@ -61,8 +61,12 @@ def voxel_downsample(
     P = as_points(points)
     for i, a in enumerate(attrs):
         if len(a) != len(P):
-            raise InputError("attribute length differs from the number of points",
-                             field=f"attrs[{i}]", expected=str(len(P)), got=len(a))
+            raise InputError(
+                "attribute length differs from the number of points",
+                field=f"attrs[{i}]",
+                expected=str(len(P)),
+                got=len(a),
+            )
     keep = finite_mask(P)
     P = P[keep]
     attrs = tuple(np.asarray(a)[keep] for a in attrs)
@@ -71,8 +75,7 @@ def voxel_downsample(
     keys = voxel_keys(P, voxel_size)
     if group is not None:
         keys = np.concatenate([keys, np.asarray(group)[keep].astype(np.int64)[:, None]], axis=1)
-    _, first, inverse, counts = np.unique(keys, axis=0, return_index=True, return_inverse=True,
-                                          return_counts=True)
+    _, first, inverse, counts = np.unique(keys, axis=0, return_index=True, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     n = len(counts)
 
@@ -88,9 +91,7 @@ def voxel_downsample(
     return tuple(out)
 
 
-def estimate_normals(
-    points: np.ndarray, k: int = 16, viewpoint: np.ndarray | None = None
-) -> np.ndarray:
+def estimate_normals(points: np.ndarray, k: int = 16, viewpoint: np.ndarray | None = None) -> np.ndarray:
     """Unit normals (N, 3) by PCA of the ``k`` nearest neighbours (scipy cKDTree).
 
     Normals are oriented towards ``viewpoint`` when given (e.g. the camera centre). Points with

@@ -24,8 +24,7 @@ _EPS = 1e-8
 def _as_f64(x, name: str, last_shape: tuple[int, ...]) -> np.ndarray:
     arr = np.asarray(x, dtype=np.float64)
     if arr.shape[arr.ndim - len(last_shape) :] != last_shape:
-        raise InputError("wrong shape", field=name, expected=f"(..., {', '.join(map(str, last_shape))})",
-                         got=arr.shape)
+        raise InputError("wrong shape", field=name, expected=f"(..., {', '.join(map(str, last_shape))})", got=arr.shape)
     return arr
 
 
@@ -214,14 +213,36 @@ def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     cands = np.stack(
         [
-            np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1],
-                      1 + tr], -1),
-            np.stack([1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2], m[..., 0, 1] + m[..., 1, 0],
-                      m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] - m[..., 1, 2]], -1),
-            np.stack([m[..., 0, 1] + m[..., 1, 0], 1 + m[..., 1, 1] - m[..., 0, 0] - m[..., 2, 2],
-                      m[..., 1, 2] + m[..., 2, 1], m[..., 0, 2] - m[..., 2, 0]], -1),
-            np.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1],
-                      1 + m[..., 2, 2] - m[..., 0, 0] - m[..., 1, 1], m[..., 1, 0] - m[..., 0, 1]], -1),
+            np.stack(
+                [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1], 1 + tr], -1
+            ),
+            np.stack(
+                [
+                    1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 2, 1] - m[..., 1, 2],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 + m[..., 1, 1] - m[..., 0, 0] - m[..., 2, 2],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    m[..., 0, 2] - m[..., 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 + m[..., 2, 2] - m[..., 0, 0] - m[..., 1, 1],
+                    m[..., 1, 0] - m[..., 0, 1],
+                ],
+                -1,
+            ),
         ],
         -2,
     )  # (..., 4 candidates, 4)

@@ -19,16 +19,23 @@ import numpy as np
 from vtrack.errors import InputError
 
 
-def pixel_grid_to_sensor_xy(rows: np.ndarray, cols: np.ndarray, width: int, height: int,
-                            mm_per_px: float) -> np.ndarray:
+def pixel_grid_to_sensor_xy(
+    rows: np.ndarray, cols: np.ndarray, width: int, height: int, mm_per_px: float
+) -> np.ndarray:
     """(N, 2) sensor-frame x, y in metres of pixel (row, col) centres."""
     s = mm_per_px / 1000.0
-    return np.stack([(np.asarray(cols, np.float64) - (width - 1) / 2.0) * s,
-                     (np.asarray(rows, np.float64) - (height - 1) / 2.0) * s], axis=-1)
+    return np.stack(
+        [
+            (np.asarray(cols, np.float64) - (width - 1) / 2.0) * s,
+            (np.asarray(rows, np.float64) - (height - 1) / 2.0) * s,
+        ],
+        axis=-1,
+    )
 
 
-def height_to_points(height_mm: np.ndarray, mm_per_px: float, mask: np.ndarray | None = None,
-                     stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def height_to_points(
+    height_mm: np.ndarray, mm_per_px: float, mask: np.ndarray | None = None, stride: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
     """Lift a height map to sensor-frame contact points (m) and their outward normals.
 
     Args:
@@ -51,8 +58,7 @@ def height_to_points(height_mm: np.ndarray, mm_per_px: float, mask: np.ndarray |
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
         if m.shape != h.shape:
-            raise InputError("mask size differs from the height map", field="mask", expected=str(h.shape),
-                             got=m.shape)
+            raise InputError("mask size differs from the height map", field="mask", expected=str(h.shape), got=m.shape)
         keep &= m
     if stride > 1:
         sub = np.zeros_like(keep)

@@ -10,8 +10,14 @@ from vtrack.errors import InputError
 from vtrack.geometry.pointcloud import as_points
 
 
-def write_ply_points(path: str | Path, points: np.ndarray, *, colors: np.ndarray | None = None,
-                     normals: np.ndarray | None = None, scalars: dict[str, np.ndarray] | None = None) -> Path:
+def write_ply_points(
+    path: str | Path,
+    points: np.ndarray,
+    *,
+    colors: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+    scalars: dict[str, np.ndarray] | None = None,
+) -> Path:
     """Write a binary little-endian PLY point cloud.
 
     Args:
@@ -37,8 +43,9 @@ def write_ply_points(path: str | Path, points: np.ndarray, *, colors: np.ndarray
     for name, v in (scalars or {}).items():
         v = np.asarray(v).reshape(-1)
         if len(v) != n:
-            raise InputError("scalar field length differs from the number of points", field=name,
-                             expected=str(n), got=len(v))
+            raise InputError(
+                "scalar field length differs from the number of points", field=name, expected=str(n), got=len(v)
+            )
         # float64 stays double: e.g. epoch timestamps need it (float32 steps are 128 s apart there).
         kind = "i4" if v.dtype.kind in "uib" else ("f8" if v.dtype == np.float64 else "f4")
         cols.append((name, kind, v))
@@ -79,12 +86,13 @@ def read_ply_points(path: str | Path) -> dict[str, np.ndarray]:
             n = int(parts[2])
         elif parts and parts[0] == "property":
             props.append((parts[2], rev[parts[1]]))
-    data = np.frombuffer(raw[end + len(b"end_header\n"):], dtype=np.dtype(props), count=n)
+    data = np.frombuffer(raw[end + len(b"end_header\n") :], dtype=np.dtype(props), count=n)
     return {name: np.array(data[name]) for name, _ in props}
 
 
-def export_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray,
-                vertex_colors: np.ndarray | None = None) -> Path:
+def export_mesh(
+    path: str | Path, vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray | None = None
+) -> Path:
     """Write a triangle mesh; format from the suffix (.ply, .glb, .obj, .stl)."""
     import trimesh
 

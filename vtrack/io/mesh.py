@@ -38,8 +38,9 @@ def load_trimesh(path: str | Path, *, process: bool = False, field: str | None =
     return m
 
 
-def load_mesh(path: str | Path, scale: float = 1.0, *, allow_empty: bool = False,
-              field: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+def load_mesh(
+    path: str | Path, scale: float = 1.0, *, allow_empty: bool = False, field: str | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float64 (file units x ``scale``) and faces (F, 3) int64 of a mesh file, as stored.
 
     Raises InputError for what :func:`load_trimesh` refuses, for non-finite vertices, for face indices out of
@@ -57,4 +58,3 @@ def load_mesh(path: str | Path, scale: float = 1.0, *, allow_empty: bool = False
     if F.min() < 0 or F.max() >= len(V):
         raise InputError("mesh face indices out of range", path=path, field=field)
     return V, F
-

@@ -35,8 +35,12 @@ class PoseTrack:
         self.t = np.asarray(self.t, np.float64).reshape(-1)
         self.T = np.asarray(self.T, np.float64).reshape(-1, 4, 4)
         if len(self.t) != len(self.T) or len(self.t) == 0:
-            raise InputError("a pose track needs as many poses as times (at least one)", field="poses",
-                             expected=f"{len(self.t)} poses", got=len(self.T))
+            raise InputError(
+                "a pose track needs as many poses as times (at least one)",
+                field="poses",
+                expected=f"{len(self.t)} poses",
+                got=len(self.T),
+            )
         if not (np.all(np.isfinite(self.t)) and np.all(np.isfinite(self.T))):
             raise InputError("poses contain NaN/Inf", field="poses")
         if np.any(np.diff(self.t) <= 0):
@@ -60,8 +64,9 @@ class PoseTrack:
         return PoseTrack(self.t.copy(), self.T @ np.asarray(T_object_newobject, np.float64))
 
 
-def write_poses_csv(path: str | Path, times: np.ndarray, T_world_object: np.ndarray,
-                    extra: dict[str, list] | None = None) -> Path:
+def write_poses_csv(
+    path: str | Path, times: np.ndarray, T_world_object: np.ndarray, extra: dict[str, list] | None = None
+) -> Path:
     """Write ``poses.csv`` (see module docstring); ``extra`` adds columns (e.g. ``status``, ``ms``)."""
     path = Path(path)
     T = np.asarray(T_world_object, np.float64).reshape(-1, 4, 4)
@@ -88,8 +93,13 @@ def read_poses_csv(path: str | Path) -> PoseTrack:
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise InputError(f"unreadable poses file ({type(e).__name__})", path=path) from None
     if not rows or any(c not in rows[0] for c in POSE_COLUMNS):
-        raise InputError("poses file header lacks the pose columns", path=path, field="header",
-                         expected=",".join(POSE_COLUMNS), got=",".join(rows[0]) if rows else "empty file")
+        raise InputError(
+            "poses file header lacks the pose columns",
+            path=path,
+            field="header",
+            expected=",".join(POSE_COLUMNS),
+            got=",".join(rows[0]) if rows else "empty file",
+        )
     idx = [rows[0].index(c) for c in POSE_COLUMNS]
     vals = []
     for n, r in enumerate(rows[1:], start=2):
@@ -123,8 +133,9 @@ def parse_pose(spec: str) -> np.ndarray:
     except ValueError:
         v = []
     if len(v) != 7 or not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-9:
-        raise InputError("bad pose", field="--init-pose", expected="x,y,z,qx,qy,qz,qw (m) or a poses.csv file",
-                         got=spec)
+        raise InputError(
+            "bad pose", field="--init-pose", expected="x,y,z,qx,qy,qz,qw (m) or a poses.csv file", got=spec
+        )
     T = np.eye(4)
     T[:3, :3] = se3.quat_to_matrix(np.asarray(v[3:]) / np.linalg.norm(v[3:]))
     T[:3, 3] = v[:3]

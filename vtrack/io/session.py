@@ -120,8 +120,11 @@ def check_replaceable(path: str | Path) -> None:
     """
     p = Path(path)
     if p.is_symlink() or not p.is_dir():
-        raise InputError("output path exists and is not a directory; refusing to replace it", path=p,
-                         expected="a vtrack session folder, an empty folder or a new path")
+        raise InputError(
+            "output path exists and is not a directory; refusing to replace it",
+            path=p,
+            expected="a vtrack session folder, an empty folder or a new path",
+        )
     entries = [e.name for e in p.iterdir()]
     if not entries:
         return
@@ -133,15 +136,22 @@ def check_replaceable(path: str | Path) -> None:
         except Exception:  # unreadable/corrupt manifest: treat as not a session (refuse below)
             fmt = None
     if fmt != FORMAT_NAME:
-        raise InputError("output folder exists and is not a vtrack session; --force only replaces a session "
-                         "or an empty folder (nothing was deleted)", path=p,
-                         expected="a folder with a vtrack manifest.json", got=f"{len(entries)} entries, e.g. "
-                         f"{sorted(entries)[:3]}")
-    extra = sorted(e for e in entries if e not in _SESSION_ENTRIES
-                   and not (e.startswith(f".{MANIFEST}.") and e.endswith(".tmp")))
+        raise InputError(
+            "output folder exists and is not a vtrack session; --force only replaces a session "
+            "or an empty folder (nothing was deleted)",
+            path=p,
+            expected="a folder with a vtrack manifest.json",
+            got=f"{len(entries)} entries, e.g. {sorted(entries)[:3]}",
+        )
+    extra = sorted(
+        e for e in entries if e not in _SESSION_ENTRIES and not (e.startswith(f".{MANIFEST}.") and e.endswith(".tmp"))
+    )
     if extra:
-        raise InputError(f"session folder holds files that are not part of the session ({', '.join(extra[:5])}); "
-                         "refusing to delete them (move them away first)", path=p)
+        raise InputError(
+            f"session folder holds files that are not part of the session ({', '.join(extra[:5])}); "
+            "refusing to delete them (move them away first)",
+            path=p,
+        )
 
 
 class SessionWriter:
@@ -158,15 +168,23 @@ class SessionWriter:
         info: extra creation info stored in the manifest (e.g. generator parameters).
     """
 
-    def __init__(self, path: str | Path, scene: Any = None, *, overwrite: bool = False, flush_every: int = 1,
-                 info: dict | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        scene: Any = None,
+        *,
+        overwrite: bool = False,
+        flush_every: int = 1,
+        info: dict | None = None,
+    ) -> None:
         import zarr
 
         self.path = Path(path)
         if self.path.exists() or self.path.is_symlink():
             if not overwrite:
-                raise InputError("session directory exists (pass overwrite=True / --force to replace it)",
-                                 path=self.path)
+                raise InputError(
+                    "session directory exists (pass overwrite=True / --force to replace it)", path=self.path
+                )
             check_replaceable(self.path)
             shutil.rmtree(self.path)
         self.path.mkdir(parents=True)
@@ -210,15 +228,25 @@ class SessionWriter:
             # CRC32C over each compressed chunk lets readers tell corruption from data, and writing
             # all-fill chunks too means a missing chunk file is always damage (see verify_session).
             arrays[fname] = g.create_array(
-                fname, shape=(0, *fs.shape), chunks=(chunk, *fs.shape), dtype=fs.dtype,
-                fill_value=0, compressors=[zarr.codecs.ZstdCodec(level=3), zarr.codecs.Crc32cCodec()],
+                fname,
+                shape=(0, *fs.shape),
+                chunks=(chunk, *fs.shape),
+                dtype=fs.dtype,
+                fill_value=0,
+                compressors=[zarr.codecs.ZstdCodec(level=3), zarr.codecs.Crc32cCodec()],
                 config={"write_empty_chunks": True},
             )
             block[fname] = chunk
         g.attrs.update({"n_committed": 0, "kind": spec.kind, "all_chunks_written": True})
         self._streams[name] = {
-            "spec": spec, "group": g, "arrays": arrays, "block": block,
-            "buffer": [], "n": 0, "capacity": 0, "last_t": -np.inf,
+            "spec": spec,
+            "group": g,
+            "arrays": arrays,
+            "block": block,
+            "buffer": [],
+            "n": 0,
+            "capacity": 0,
+            "last_t": -np.inf,
         }
         self.manifest["streams"][name] = spec.to_json()
         self._write_manifest()
@@ -248,21 +276,28 @@ class SessionWriter:
         """
         st = self._streams.get(stream)
         if st is None:
-            raise InputError("unknown stream (declare it with add_stream first)", field=stream,
-                             expected=f"one of {sorted(self._streams)}")
+            raise InputError(
+                "unknown stream (declare it with add_stream first)",
+                field=stream,
+                expected=f"one of {sorted(self._streams)}",
+            )
         spec: StreamSpec = st["spec"]
         t = float(t)
         if not np.isfinite(t):
             raise InputError("timestamp is not finite", field=f"{stream}/t", got=t)
         if t <= st["last_t"]:
-            raise InputError("timestamps must be strictly increasing", field=f"{stream}/t",
-                             expected=f"> {st['last_t']}", got=t)
+            raise InputError(
+                "timestamps must be strictly increasing", field=f"{stream}/t", expected=f"> {st['last_t']}", got=t
+            )
         missing = set(spec.fields) - set(values)
         extra = set(values) - set(spec.fields)
         if missing or extra:
-            raise InputError("fields do not match the stream declaration", field=stream,
-                             expected=f"fields {sorted(spec.fields)}",
-                             got=f"missing {sorted(missing)}, unknown {sorted(extra)}")
+            raise InputError(
+                "fields do not match the stream declaration",
+                field=stream,
+                expected=f"fields {sorted(spec.fields)}",
+                got=f"missing {sorted(missing)}, unknown {sorted(extra)}",
+            )
         row = {"t": t}
         for k, v in values.items():
             fs = spec.fields[k]
@@ -270,8 +305,12 @@ class SessionWriter:
             if a.shape != tuple(fs.shape):
                 raise InputError("wrong shape", field=f"{stream}/{k}", expected=str(tuple(fs.shape)), got=a.shape)
             if np.dtype(fs.dtype).kind in "ui" and a.dtype.kind == "f":
-                raise InputError("float data for an integer field (convert explicitly)",
-                                 field=f"{stream}/{k}", expected=fs.dtype, got=str(a.dtype))
+                raise InputError(
+                    "float data for an integer field (convert explicitly)",
+                    field=f"{stream}/{k}",
+                    expected=fs.dtype,
+                    got=str(a.dtype),
+                )
             row[k] = a.astype(fs.dtype, copy=False)
         st["buffer"].append(row)
         st["last_t"] = t
@@ -364,8 +403,9 @@ class FieldReader:
         CorruptDataError: a chunk of the requested frames cannot be decoded; names the array and frame.
     """
 
-    def __init__(self, array: Any, n: int, name: str, path: Path | None = None,
-                 index: np.ndarray | None = None) -> None:
+    def __init__(
+        self, array: Any, n: int, name: str, path: Path | None = None, index: np.ndarray | None = None
+    ) -> None:
         self._a = array
         self.n = n
         self.name = name
@@ -387,10 +427,13 @@ class FieldReader:
         try:
             return np.asarray(sel())
         except Exception as e:  # zstd / checksum / shape errors from a damaged chunk file
-            raise CorruptDataError(f"cannot read frame {frames}: corrupt or truncated chunk "
-                                   f"({type(e).__name__}: {str(e).splitlines()[0][:120] if str(e) else ''}); "
-                                   "run 'vtrack session verify' for the full list",
-                                   path=self.path, field=self.name) from None
+            raise CorruptDataError(
+                f"cannot read frame {frames}: corrupt or truncated chunk "
+                f"({type(e).__name__}: {str(e).splitlines()[0][:120] if str(e) else ''}); "
+                "run 'vtrack session verify' for the full list",
+                path=self.path,
+                field=self.name,
+            ) from None
 
     def __getitem__(self, idx: Any) -> np.ndarray:
         if isinstance(idx, (int, np.integer)):
@@ -402,8 +445,9 @@ class FieldReader:
         if isinstance(idx, slice):
             r = range(*idx.indices(self.n))
             if self._index is None:
-                return self._read(lambda: self._a[slice(r.start, r.stop, r.step)],
-                                  f"{r.start}..{r.stop - 1}" if len(r) else "(none)")
+                return self._read(
+                    lambda: self._a[slice(r.start, r.stop, r.step)], f"{r.start}..{r.stop - 1}" if len(r) else "(none)"
+                )
             idx = np.arange(r.start, r.stop, r.step, dtype=np.int64)
         ids = np.asarray(idx)
         if ids.dtype == bool:
@@ -415,8 +459,7 @@ class FieldReader:
             ids = self._index[ids]
         if ids.size == 0:
             return np.zeros((0, *self._a.shape[1:]), dtype=self._a.dtype)
-        return self._read(lambda: self._a.get_orthogonal_selection((ids,)),
-                          f"{int(ids.min())}..{int(ids.max())}")
+        return self._read(lambda: self._a.get_orthogonal_selection((ids,)), f"{int(ids.min())}..{int(ids.max())}")
 
     def all(self) -> np.ndarray:
         return self[:]
@@ -425,8 +468,9 @@ class FieldReader:
 class StreamReader:
     """Committed frames of one stream with time-synchronised access."""
 
-    def __init__(self, name: str, group: Any, meta: dict, n: int, path: Path | None = None,
-                 index: np.ndarray | None = None) -> None:
+    def __init__(
+        self, name: str, group: Any, meta: dict, n: int, path: Path | None = None, index: np.ndarray | None = None
+    ) -> None:
         self.name = name
         self.meta = meta
         self.kind: str = meta.get("kind", "")
@@ -441,8 +485,10 @@ class StreamReader:
         self.t = t if index is None else t[index]
         if index is not None:
             self.n = len(index)
-        self.fields = {k: FieldReader(group[k], self.n, f"{name}/{k}", None if path is None else path / k, index)
-                       for k in meta["fields"]}
+        self.fields = {
+            k: FieldReader(group[k], self.n, f"{name}/{k}", None if path is None else path / k, index)
+            for k in meta["fields"]
+        }
 
     def __len__(self) -> int:
         return self.n
@@ -451,8 +497,9 @@ class StreamReader:
         try:
             return self.fields[field]
         except KeyError:
-            raise InputError("no such field", field=f"{self.name}/{field}",
-                             expected=f"one of {sorted(self.fields)}") from None
+            raise InputError(
+                "no such field", field=f"{self.name}/{field}", expected=f"one of {sorted(self.fields)}"
+            ) from None
 
     def frame_at(self, i: int) -> dict[str, np.ndarray]:
         """All fields of frame ``i`` as a dict (plus ``t``)."""
@@ -472,8 +519,9 @@ class StreamReader:
         right = self.t[j]
         return np.where(np.abs(q - left) <= np.abs(right - q), j - 1, j).astype(np.int64)
 
-    def sample(self, field: str, times: float | Sequence[float] | np.ndarray,
-               mode: Literal["nearest", "linear"] = "nearest") -> np.ndarray:
+    def sample(
+        self, field: str, times: float | Sequence[float] | np.ndarray, mode: Literal["nearest", "linear"] = "nearest"
+    ) -> np.ndarray:
         """Values of ``field`` at query times.
 
         ``nearest`` picks the closest frame; ``linear`` interpolates numeric fields between the
@@ -515,8 +563,12 @@ class SessionReader:
         self.path = Path(path)
         policy = on_corrupt or os.environ.get(ON_CORRUPT_ENV) or "raise"
         if policy not in ("raise", "skip", "stop"):
-            raise InputError("unknown corrupt-frame policy", field=f"on_corrupt / ${ON_CORRUPT_ENV}",
-                             expected="raise, skip or stop", got=policy)
+            raise InputError(
+                "unknown corrupt-frame policy",
+                field=f"on_corrupt / ${ON_CORRUPT_ENV}",
+                expected="raise, skip or stop",
+                got=policy,
+            )
         self.on_corrupt: str = policy
         mpath = self.path / MANIFEST
         if not self.path.is_dir():
@@ -530,15 +582,24 @@ class SessionReader:
         except UnicodeDecodeError:
             raise InputError("corrupt manifest (not UTF-8 text)", path=mpath) from None
         if not isinstance(self.manifest, dict):
-            raise InputError("corrupt manifest", path=mpath, expected="a JSON object",
-                             got=type(self.manifest).__name__)
+            raise InputError("corrupt manifest", path=mpath, expected="a JSON object", got=type(self.manifest).__name__)
         if self.manifest.get("format") != FORMAT_NAME:
-            raise InputError("not a vtrack session manifest", path=mpath, field="format",
-                             expected=FORMAT_NAME, got=self.manifest.get("format"))
+            raise InputError(
+                "not a vtrack session manifest",
+                path=mpath,
+                field="format",
+                expected=FORMAT_NAME,
+                got=self.manifest.get("format"),
+            )
         version = self.manifest.get("version")
         if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise InputError("unsupported session format version", path=mpath, field="version",
-                             expected=f"<= {FORMAT_VERSION}", got=version)
+            raise InputError(
+                "unsupported session format version",
+                path=mpath,
+                field="version",
+                expected=f"<= {FORMAT_VERSION}",
+                got=version,
+            )
         streams = self.manifest.get("streams")
         if not isinstance(streams, dict):
             raise InputError("manifest has no stream table", path=mpath, field="streams", expected="a mapping")
@@ -546,8 +607,7 @@ class SessionReader:
         try:
             self._root = zarr.open_group(str(self.path / DATA), mode="r", zarr_format=3)
         except Exception as e:  # zarr raises several types for missing/corrupt stores
-            raise InputError(f"cannot open the array store ({type(e).__name__}: {e})",
-                             path=self.path / DATA) from None
+            raise InputError(f"cannot open the array store ({type(e).__name__}: {e})", path=self.path / DATA) from None
         self.streams: dict[str, StreamReader] = {}
         for name, meta in streams.items():
             self.streams[name] = self._open_stream(name, meta)
@@ -579,23 +639,31 @@ class SessionReader:
         mpath = self.path / MANIFEST
         # The manifest is user-editable JSON: check the stream entry's structure before using it.
         if not isinstance(meta, dict):
-            raise InputError("stream entry must be an object", path=mpath, field=f"streams.{name}",
-                             got=type(meta).__name__)
+            raise InputError(
+                "stream entry must be an object", path=mpath, field=f"streams.{name}", got=type(meta).__name__
+            )
         fields = meta.get("fields")
         if not isinstance(fields, dict) or not all(
-                isinstance(f, dict) and isinstance(f.get("shape"), list) for f in fields.values()):
-            raise InputError("stream fields must map names to {shape: [...], dtype: ...}", path=mpath,
-                             field=f"streams.{name}.fields", got=type(fields).__name__)
+            isinstance(f, dict) and isinstance(f.get("shape"), list) for f in fields.values()
+        ):
+            raise InputError(
+                "stream fields must map names to {shape: [...], dtype: ...}",
+                path=mpath,
+                field=f"streams.{name}.fields",
+                got=type(fields).__name__,
+            )
         for key, typ in (("kind", str), ("frame", str), ("attrs", dict)):
             if key in meta and not isinstance(meta[key], typ):
-                raise InputError(f"must be a {typ.__name__}", path=mpath, field=f"streams.{name}.{key}",
-                                 got=type(meta[key]).__name__)
+                raise InputError(
+                    f"must be a {typ.__name__}", path=mpath, field=f"streams.{name}.{key}", got=type(meta[key]).__name__
+                )
         try:
             g = self._root[name]
             n_raw = g.attrs.get("n_committed", -1)
             if isinstance(n_raw, bool) or not isinstance(n_raw, int):
-                raise InputError(f"committed frame count is not an integer (got {n_raw!r})", path=where,
-                                 field="n_committed")
+                raise InputError(
+                    f"committed frame count is not an integer (got {n_raw!r})", path=where, field="n_committed"
+                )
             n = int(n_raw)
         except InputError:
             raise
@@ -609,24 +677,33 @@ class SessionReader:
             except Exception:
                 raise InputError("array listed in the manifest is missing", path=where / fname) from None
             if arr.shape[0] < n:
-                raise InputError("array is shorter than the committed frame count", path=where / fname,
-                                 expected=f">= {n} frames", got=arr.shape[0])
+                raise InputError(
+                    "array is shorter than the committed frame count",
+                    path=where / fname,
+                    expected=f">= {n} frames",
+                    got=arr.shape[0],
+                )
             decl = meta["fields"].get(fname) if fname != "t" else None
             if decl is not None and list(arr.shape[1:]) != list(decl["shape"]):
-                raise InputError("array shape differs from the manifest", path=where / fname,
-                                 expected=str(decl["shape"]), got=list(arr.shape[1:]))
+                raise InputError(
+                    "array shape differs from the manifest",
+                    path=where / fname,
+                    expected=str(decl["shape"]),
+                    got=list(arr.shape[1:]),
+                )
         try:
             sr = StreamReader(name, g, meta, n, where)
         except CorruptDataError:
             if self.on_corrupt == "raise":
                 raise
-            raise InputError("timestamps of the stream are unreadable (corrupt chunk); no frame can be "
-                             "skipped safely", path=where / "t") from None
+            raise InputError(
+                "timestamps of the stream are unreadable (corrupt chunk); no frame can be skipped safely",
+                path=where / "t",
+            ) from None
         if n > 1:
             bad = np.nonzero(np.diff(sr.t) <= 0)[0]
             if bad.size:
-                raise InputError(f"timestamps not strictly increasing at frame {int(bad[0]) + 1}",
-                                 path=where / "t")
+                raise InputError(f"timestamps not strictly increasing at frame {int(bad[0]) + 1}", path=where / "t")
         if n and not np.all(np.isfinite(sr.t)):
             raise InputError("non-finite timestamps", path=where / "t")
         return sr
@@ -639,8 +716,9 @@ class SessionReader:
         try:
             return self.streams[name]
         except KeyError:
-            raise InputError("no such stream in the session", path=self.path, field=name,
-                             expected=f"one of {sorted(self.streams)}") from None
+            raise InputError(
+                "no such stream in the session", path=self.path, field=name, expected=f"one of {sorted(self.streams)}"
+            ) from None
 
     def streams_of_kind(self, kind: str) -> dict[str, StreamReader]:
         return {k: s for k, s in self.streams.items() if s.kind == kind}
@@ -655,8 +733,9 @@ class SessionReader:
 
         if self.scene_dict is None:
             raise InputError("session has no embedded scene", path=self.path / MANIFEST, field="scene")
-        return scene_from_dict(self.scene_dict, base_dir=self.path, source=self.path / MANIFEST,
-                               check_files=check_files)
+        return scene_from_dict(
+            self.scene_dict, base_dir=self.path, source=self.path / MANIFEST, check_files=check_files
+        )
 
     def asset(self, name: str) -> Path:
         p = self.path / ASSETS / name
@@ -677,8 +756,11 @@ class SessionReader:
         for k, s in self.streams.items():
             span = float(s.t[-1] - s.t[0]) if s.n > 1 else 0.0
             out[k] = {
-                "kind": s.kind, "frames": s.n, "t0": float(s.t[0]) if s.n else None,
-                "duration_s": span, "rate_hz_measured": (s.n - 1) / span if span > 0 else None,
+                "kind": s.kind,
+                "frames": s.n,
+                "t0": float(s.t[0]) if s.n else None,
+                "duration_s": span,
+                "rate_hz_measured": (s.n - 1) / span if span > 0 else None,
                 "fields": {f: list(fr.shape[1:]) for f, fr in s.fields.items()},
             }
         return out
@@ -757,8 +839,9 @@ def verify_session(session: str | Path | SessionReader) -> list[ChunkProblem]:
                     arr[a:b]
                 except Exception as e:
                     msg = str(e).splitlines()[0][:120] if str(e) else ""
-                    problems.append(ChunkProblem(where, name, fname, (a, b),
-                                                 f"corrupt chunk ({type(e).__name__}: {msg})"))
+                    problems.append(
+                        ChunkProblem(where, name, fname, (a, b), f"corrupt chunk ({type(e).__name__}: {msg})")
+                    )
     return problems
 
 
@@ -768,9 +851,14 @@ def copy_streams(reader: SessionReader, writer: SessionWriter, names: Iterable[s
         s = reader[name]
         meta = s.meta
         spec = StreamSpec(
-            kind=meta["kind"], frame=meta.get("frame", ""), rate_hz=meta.get("rate_hz"), attrs=meta.get("attrs", {}),
-            fields={k: FieldSpec(tuple(v["shape"]), v["dtype"], v.get("units", ""), v.get("chunk_frames"))
-                    for k, v in meta["fields"].items()},
+            kind=meta["kind"],
+            frame=meta.get("frame", ""),
+            rate_hz=meta.get("rate_hz"),
+            attrs=meta.get("attrs", {}),
+            fields={
+                k: FieldSpec(tuple(v["shape"]), v["dtype"], v.get("units", ""), v.get("chunk_frames"))
+                for k, v in meta["fields"].items()
+            },
         )
         writer.add_stream(name, spec)
         for i in range(s.n):

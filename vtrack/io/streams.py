@@ -30,9 +30,17 @@ def camera_stream(cam, with_mask: bool = True, T_world_camera: np.ndarray | None
     if with_mask:
         fields["mask"] = FieldSpec((cam.height, cam.width), "uint8", "label")
     return StreamSpec(
-        kind="rgbd", frame=f"camera/{cam.name}", rate_hz=cam.rate_hz, fields=fields,
-        attrs={"K": K.tolist(), "width": cam.width, "height": cam.height, "depth_scale": cam.depth_scale,
-               "T_world_camera": np.asarray(T).tolist()},
+        kind="rgbd",
+        frame=f"camera/{cam.name}",
+        rate_hz=cam.rate_hz,
+        fields=fields,
+        attrs={
+            "K": K.tolist(),
+            "width": cam.width,
+            "height": cam.height,
+            "depth_scale": cam.depth_scale,
+            "T_world_camera": np.asarray(T).tolist(),
+        },
     )
 
 
@@ -40,16 +48,22 @@ def camera_gt_stream(cam) -> StreamSpec:
     """Ground truth of a simulated camera (``gt/camera/<cam>``): the renderer's exact object mask and the
     visible fraction of the object. Scoring only: the pipeline segments the depth itself."""
     return StreamSpec(
-        kind="visibility", frame=f"camera/{cam.name}", rate_hz=cam.rate_hz,
-        fields={"visible_fraction": FieldSpec((), "float32", "fraction"),
-                "mask": FieldSpec((cam.height, cam.width), "uint8", "label")},
+        kind="visibility",
+        frame=f"camera/{cam.name}",
+        rate_hz=cam.rate_hz,
+        fields={
+            "visible_fraction": FieldSpec((), "float32", "fraction"),
+            "mask": FieldSpec((cam.height, cam.width), "uint8", "label"),
+        },
     )
 
 
 def tactile_stream(spec) -> StreamSpec:
     """Stream declaration for a :class:`~vtrack.scene.schema.TactileSpec`."""
     return StreamSpec(
-        kind="tactile", frame=f"sensor/{spec.name}", rate_hz=spec.rate_hz,
+        kind="tactile",
+        frame=f"sensor/{spec.name}",
+        rate_hz=spec.rate_hz,
         fields={"image": FieldSpec((spec.height, spec.width, 3), "uint8", "BGR")},
         attrs={"type": spec.type, "mm_per_px": spec.mm_per_px, "width": spec.width, "height": spec.height},
     )
@@ -58,7 +72,9 @@ def tactile_stream(spec) -> StreamSpec:
 def tactile_gt_stream(spec) -> StreamSpec:
     """Ground-truth height map (mm, into the gel) and contact mask for a tactile sensor."""
     return StreamSpec(
-        kind="tactile_gt", frame=f"sensor/{spec.name}", rate_hz=spec.rate_hz,
+        kind="tactile_gt",
+        frame=f"sensor/{spec.name}",
+        rate_hz=spec.rate_hz,
         fields={
             "height_mm": FieldSpec((spec.height, spec.width), "float32", "mm"),
             "contact": FieldSpec((spec.height, spec.width), "uint8", "bool"),
@@ -70,7 +86,9 @@ def tactile_gt_stream(spec) -> StreamSpec:
 def joints_stream(joint_names: list[str], rate_hz: float | None = None) -> StreamSpec:
     """Joint positions (rad) in the given column order."""
     return StreamSpec(
-        kind="joints", frame="hand", rate_hz=rate_hz,
+        kind="joints",
+        frame="hand",
+        rate_hz=rate_hz,
         fields={"q": FieldSpec((len(joint_names),), "float64", "rad")},
         attrs={"joint_names": list(joint_names)},
     )
@@ -78,8 +96,7 @@ def joints_stream(joint_names: list[str], rate_hz: float | None = None) -> Strea
 
 def pose_stream(field: str = "T_world_object", rate_hz: float | None = None, frame: str = "object") -> StreamSpec:
     """A 4x4 pose per frame."""
-    return StreamSpec(kind="pose", frame=frame, rate_hz=rate_hz,
-                      fields={field: FieldSpec((4, 4), "float64", "m")})
+    return StreamSpec(kind="pose", frame=frame, rate_hz=rate_hz, fields={field: FieldSpec((4, 4), "float64", "m")})
 
 
 def scalar_stream(field: str, units: str = "", kind: str = "scalar", rate_hz: float | None = None) -> StreamSpec:
@@ -99,8 +116,12 @@ def encode_depth(depth: np.ndarray, depth_scale: float = 0.001) -> np.ndarray:
     if d.dtype.kind in "ui":
         d = d.astype(np.float64) * depth_scale
     if d.dtype.kind != "f":
-        raise InputError("depth must be float metres or uint16 sensor units", field="depth",
-                         expected="float32/float64 or uint16", got=str(d.dtype))
+        raise InputError(
+            "depth must be float metres or uint16 sensor units",
+            field="depth",
+            expected="float32/float64 or uint16",
+            got=str(d.dtype),
+        )
     with np.errstate(invalid="ignore", over="ignore"):
         units = np.rint(d.astype(np.float64) / depth_scale)
         valid = np.isfinite(units) & (units > 0) & (units <= 65535)

@@ -57,8 +57,12 @@ def strip_gt(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> di
     src = Path(reader.path).resolve()
     dst = Path(dst).resolve()
     if dst == src or src in dst.parents:
-        raise InputError("the stripped copy cannot be written inside the source session", path=dst,
-                         field="--out", expected="a folder outside the session")
+        raise InputError(
+            "the stripped copy cannot be written inside the source session",
+            path=dst,
+            field="--out",
+            expected="a folder outside the session",
+        )
     if dst.exists() or dst.is_symlink():
         if not overwrite:
             raise InputError("output folder exists (pass --force to replace a session folder)", path=dst)
@@ -117,8 +121,12 @@ def strip_gt(src: str | Path, dst: str | Path, *, overwrite: bool = False) -> di
     created = manifest.get("created", {})
     manifest["created"] = {k: v for k, v in created.items() if k in _KEEP_CREATED}
     manifest["created"]["stripped_from"] = str(src)
-    report = {"removed_streams": removed_streams, "removed_fields": removed_fields,
-              "removed_files": removed_files, "scene_changes": scene_changes}
+    report = {
+        "removed_streams": removed_streams,
+        "removed_fields": removed_fields,
+        "removed_files": removed_files,
+        "scene_changes": scene_changes,
+    }
     manifest["stripped"] = report
     write_json(dst / MANIFEST, manifest, indent=1, fsync=True)
     open_session(dst)  # the copy must be a valid session

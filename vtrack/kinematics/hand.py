@@ -63,9 +63,13 @@ class HandKinematics:
         InputError: unreadable URDF, unknown link or joint name.
     """
 
-    def __init__(self, urdf: str | Path, T_world_base: np.ndarray | None = None,
-                 sensors: dict[str, tuple[str, np.ndarray]] | None = None,
-                 joint_names: list[str] | None = None) -> None:
+    def __init__(
+        self,
+        urdf: str | Path,
+        T_world_base: np.ndarray | None = None,
+        sensors: dict[str, tuple[str, np.ndarray]] | None = None,
+        joint_names: list[str] | None = None,
+    ) -> None:
         import yourdfpy
 
         self.urdf_path = Path(urdf)
@@ -101,9 +105,13 @@ class HandKinematics:
         else:
             joint_names = list(joint_names)
             if sorted(joint_names) != sorted(actuated):
-                raise InputError("joint_names must list every actuated joint of the URDF once",
-                                 path=self.urdf_path, field="hand.joint_names",
-                                 expected=sorted(actuated, key=_natural_key), got=joint_names)
+                raise InputError(
+                    "joint_names must list every actuated joint of the URDF once",
+                    path=self.urdf_path,
+                    field="hand.joint_names",
+                    expected=sorted(actuated, key=_natural_key),
+                    got=joint_names,
+                )
         self.joint_names: list[str] = joint_names
         col = {n: i for i, n in enumerate(joint_names)}
 
@@ -111,8 +119,13 @@ class HandKinematics:
         for j in robot.joints:
             for role, ln in (("parent", j.parent), ("child", j.child)):
                 if ln not in link_set:
-                    raise InputError(f"joint '{j.name}' has a {role} link that is not defined", path=self.urdf_path,
-                                     field=f"joint {j.name}/{role}", expected="a <link> name of the URDF", got=ln)
+                    raise InputError(
+                        f"joint '{j.name}' has a {role} link that is not defined",
+                        path=self.urdf_path,
+                        field=f"joint {j.name}/{role}",
+                        expected="a <link> name of the URDF",
+                        got=ln,
+                    )
         children = {j.child for j in robot.joints}
         roots = [lk.name for lk in robot.links if lk.name not in children]
         if len(roots) != 1:
@@ -134,16 +147,21 @@ class HandKinematics:
                 free = lim is None or j.type == "continuous"
                 lo = -np.inf if free or lim.lower is None else float(lim.lower)
                 hi = np.inf if free or lim.upper is None else float(lim.upper)
-                self._joints.append(_Joint(j.name, j.type, j.parent, j.child, origin, axis,
-                                           col.get(j.name, -1), lo, hi))
+                self._joints.append(
+                    _Joint(j.name, j.type, j.parent, j.child, origin, axis, col.get(j.name, -1), lo, hi)
+                )
                 stack.append(j.child)
         self.link_names: list[str] = [self.root_link] + [j.child for j in self._joints]
         reached = {j.name for j in self._joints}
         unreached = [j.name for j in robot.joints if j.name not in reached]
         if unreached:  # a cycle or a second tree: FK would silently ignore these joints
-            raise InputError("joints not connected to the root link (cycle or disconnected tree)",
-                             path=self.urdf_path, field="joint", expected=f"a tree rooted at '{self.root_link}'",
-                             got=unreached[:5])
+            raise InputError(
+                "joints not connected to the root link (cycle or disconnected tree)",
+                path=self.urdf_path,
+                field="joint",
+                expected=f"a tree rooted at '{self.root_link}'",
+                got=unreached[:5],
+            )
         self.lower = np.array([next(j.lower for j in self._joints if j.name == n) for n in joint_names])
         self.upper = np.array([next(j.upper for j in self._joints if j.name == n) for n in joint_names])
 
@@ -151,12 +169,16 @@ class HandKinematics:
         sensors = sensors or {}
         for s, (link, _) in sensors.items():
             if link not in self.link_names:
-                raise InputError(f"sensor '{s}' is mounted on an unknown link", path=self.urdf_path,
-                                 field="hand.sensors.link", expected=f"one of {self.link_names}", got=link)
+                raise InputError(
+                    f"sensor '{s}' is mounted on an unknown link",
+                    path=self.urdf_path,
+                    field="hand.sensors.link",
+                    expected=f"one of {self.link_names}",
+                    got=link,
+                )
         self.sensor_names: list[str] = list(sensors)
         self.sensor_links: dict[str, str] = {s: v[0] for s, v in sensors.items()}
-        self.T_link_sensor: dict[str, np.ndarray] = {s: np.asarray(v[1], dtype=np.float64)
-                                                     for s, v in sensors.items()}
+        self.T_link_sensor: dict[str, np.ndarray] = {s: np.asarray(v[1], dtype=np.float64) for s, v in sensors.items()}
         self._mesh_cache: dict[str, list[tuple[np.ndarray, np.ndarray]]] | None = None
 
     # ------------------------------------------------------------------------------------
@@ -178,8 +200,7 @@ class HandKinematics:
         single = q.ndim == 1
         q2 = q[None] if single else q
         if q2.ndim != 2 or q2.shape[1] != self.n_joints:
-            raise InputError("wrong joint vector shape", field="q", expected=f"(N, {self.n_joints})",
-                             got=q.shape)
+            raise InputError("wrong joint vector shape", field="q", expected=f"(N, {self.n_joints})", got=q.shape)
         if not np.all(np.isfinite(q2)):
             raise InputError("joint vector has NaN/Inf", field="q")
         return q2, single
@@ -199,8 +220,9 @@ class HandKinematics:
         if want is not None:
             unknown = want - set(self.link_names)
             if unknown:
-                raise InputError("unknown link", field="links", expected=f"names in {self.link_names}",
-                                 got=sorted(unknown))
+                raise InputError(
+                    "unknown link", field="links", expected=f"names in {self.link_names}", got=sorted(unknown)
+                )
         T = {self.root_link: np.broadcast_to(self.T_world_base, (n, 4, 4)).copy()}
         for j in self._joints:
             Tp = T[j.parent] @ j.origin
@@ -233,8 +255,9 @@ class HandKinematics:
             link = j.parent
         return cols[::-1]
 
-    def jacobian(self, q, link: str, T_link_point: np.ndarray | None = None,
-                 poses: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def jacobian(
+        self, q, link: str, T_link_point: np.ndarray | None = None, poses: dict[str, np.ndarray] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Geometric Jacobian of a frame rigidly attached to ``link``.
 
         Args:
@@ -285,8 +308,12 @@ class HandKinematics:
             return np.asarray(q, dtype=np.float64)
         missing = set(self.joint_names) - set(names)
         if missing:
-            raise InputError("joint stream lacks joints of the hand", field="joints.joint_names",
-                             expected=self.joint_names, got=list(names))
+            raise InputError(
+                "joint stream lacks joints of the hand",
+                field="joints.joint_names",
+                expected=self.joint_names,
+                got=list(names),
+            )
         idx = [list(names).index(n) for n in self.joint_names]
         return np.asarray(q, dtype=np.float64)[..., idx]
 
@@ -322,8 +349,9 @@ class HandKinematics:
                     continue
                 if vis.origin is not None:
                     m.apply_transform(np.asarray(vis.origin, dtype=np.float64))
-                out.setdefault(link.name, []).append((np.asarray(m.vertices, np.float64),
-                                                       np.asarray(m.faces, np.int32)))
+                out.setdefault(link.name, []).append(
+                    (np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int32))
+                )
         self._mesh_cache = out
         return out
 
@@ -331,8 +359,9 @@ class HandKinematics:
         """World-frame ``(vertices (V, 3) m, faces (F, 3) int32)`` of every visual mesh for ONE q."""
         q2, _ = self._as_q(q)
         if q2.shape[0] != 1:
-            raise InputError("hand_meshes takes one joint vector", field="q", expected=f"({self.n_joints},)",
-                             got=np.shape(q))
+            raise InputError(
+                "hand_meshes takes one joint vector", field="q", expected=f"({self.n_joints},)", got=np.shape(q)
+            )
         T = self.link_poses(q2)
         out = []
         for link, meshes in self.link_meshes().items():

@@ -23,11 +23,20 @@ class IKResult:
     normal_error: dict[str, np.ndarray]  # per sensor (N,) rad
 
 
-def solve_sensor_ik(hk, q0: np.ndarray, target_pos: dict[str, np.ndarray],
-                    target_normal: dict[str, np.ndarray] | None = None, *, normal_weight: float = 0.05,
-                    tangent_weight: float = 1.0,
-                    iterations: int = 40, damping: float = 1e-4, active: dict[str, np.ndarray] | None = None,
-                    rest_weight: float = 1e-3, q_init: np.ndarray | None = None) -> IKResult:
+def solve_sensor_ik(
+    hk,
+    q0: np.ndarray,
+    target_pos: dict[str, np.ndarray],
+    target_normal: dict[str, np.ndarray] | None = None,
+    *,
+    normal_weight: float = 0.05,
+    tangent_weight: float = 1.0,
+    iterations: int = 40,
+    damping: float = 1e-4,
+    active: dict[str, np.ndarray] | None = None,
+    rest_weight: float = 1e-3,
+    q_init: np.ndarray | None = None,
+) -> IKResult:
     """Solve joint vectors placing sensors at targets, batched over N frames.
 
     Args:
@@ -50,8 +59,9 @@ def solve_sensor_ik(hk, q0: np.ndarray, target_pos: dict[str, np.ndarray],
             raise InputError("unknown sensor", field="target_pos", expected=hk.sensor_names, got=s)
     n = next(iter(target_pos.values())).shape[0] if sensors else 1
     q_rest = np.broadcast_to(np.asarray(q0, dtype=np.float64), (n, hk.n_joints)).copy()
-    q = hk.clip_to_limits(q_rest.copy() if q_init is None
-                          else np.broadcast_to(np.asarray(q_init, np.float64), (n, hk.n_joints)).copy())
+    q = hk.clip_to_limits(
+        q_rest.copy() if q_init is None else np.broadcast_to(np.asarray(q_init, np.float64), (n, hk.n_joints)).copy()
+    )
     tp = {s: np.asarray(target_pos[s], dtype=np.float64) for s in sensors}
     tn = {}
     if target_normal is not None:
@@ -61,8 +71,7 @@ def solve_sensor_ik(hk, q0: np.ndarray, target_pos: dict[str, np.ndarray],
     for s in sensors:
         if not (np.all(np.isfinite(tp[s])) and (s not in tn or np.all(np.isfinite(tn[s])))):
             raise InputError("IK targets must be finite", field=f"target_pos/{s}")
-    act = {s: np.ones(n, bool) if active is None or s not in active else np.asarray(active[s], bool)
-           for s in sensors}
+    act = {s: np.ones(n, bool) if active is None or s not in active else np.asarray(active[s], bool) for s in sensors}
     eye = np.eye(hk.n_joints)[None]
     for _ in range(iterations):
         poses = hk.link_poses(q)
@@ -92,6 +101,8 @@ def solve_sensor_ik(hk, q0: np.ndarray, target_pos: dict[str, np.ndarray],
         q = hk.clip_to_limits(q + dq)
     sp = hk.sensor_poses(q)
     pos_err = {s: np.linalg.norm(sp[s][:, :3, 3] - tp[s], axis=-1) for s in sensors}
-    nrm_err = {s: (np.arccos(np.clip(np.einsum("ni,ni->n", sp[s][:, :3, 2], tn[s]), -1, 1)) if s in tn
-                   else np.zeros(n)) for s in sensors}
+    nrm_err = {
+        s: (np.arccos(np.clip(np.einsum("ni,ni->n", sp[s][:, :3, 2], tn[s]), -1, 1)) if s in tn else np.zeros(n))
+        for s in sensors
+    }
     return IKResult(q, pos_err, nrm_err)

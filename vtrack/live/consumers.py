@@ -29,7 +29,7 @@ class NullConsumer(Consumer):
 
     def process(self, event: FrameEvent) -> None:
         for v in event.data.values():
-            self.checksum += int(np.asarray(v).ravel()[:: 997].sum())
+            self.checksum += int(np.asarray(v).ravel()[::997].sum())
 
     def finish(self) -> dict[str, Any]:
         return {"checksum": self.checksum}
@@ -46,15 +46,26 @@ class TrackConsumer(Consumer):
 
     name = "track"
 
-    def __init__(self, session: str | Path, depth_stride: int = 4, mesh: str | Path | None = None,
-                 init_pose: np.ndarray | None = None, **tracker_opts: Any) -> None:
+    def __init__(
+        self,
+        session: str | Path,
+        depth_stride: int = 4,
+        mesh: str | Path | None = None,
+        init_pose: np.ndarray | None = None,
+        **tracker_opts: Any,
+    ) -> None:
         from vtrack.frames.session import SessionFrames
         from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
 
         self.session = Path(session)
         try:
-            self.sf = SessionFrames(self.session, modalities=("vision", "touch"), depth_stride=depth_stride,
-                                    touch_stride=TRACK_TOUCH_STRIDE, touch_downsample=TRACK_TOUCH_DOWNSAMPLE)
+            self.sf = SessionFrames(
+                self.session,
+                modalities=("vision", "touch"),
+                depth_stride=depth_stride,
+                touch_stride=TRACK_TOUCH_STRIDE,
+                touch_downsample=TRACK_TOUCH_DOWNSAMPLE,
+            )
         except InputError:  # e.g. a sensor without calibration: vision only, said in the result
             self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride)
         self.mesh = None if mesh is None else Path(mesh)
@@ -102,8 +113,12 @@ class TrackConsumer(Consumer):
             return
         c = self.cams[ev.stream]
         k = self.sf.depth_stride
-        raw = {"t": ev.t, "q": self.q, "cams": [(c, np.asarray(ev.data["depth"])[::k, ::k], None)],
-               "touch": list(self.images.items()) if self.q is not None else []}
+        raw = {
+            "t": ev.t,
+            "q": self.q,
+            "cams": [(c, np.asarray(ev.data["depth"])[::k, ::k], None)],
+            "touch": list(self.images.items()) if self.q is not None else [],
+        }
         frame = self.sf.build(raw).tracking_frame()
         if self.tracker is None:
             self._start(frame)
@@ -113,8 +128,11 @@ class TrackConsumer(Consumer):
         self.poses.append((ev.t, np.asarray(T)))
 
     def finish(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"steps": len(self.poses), "modalities": list(self.sf.modalities),
-                               "mode": "known_shape" if self.mesh is not None else "slam"}
+        out: dict[str, Any] = {
+            "steps": len(self.poses),
+            "modalities": list(self.sf.modalities),
+            "mode": "known_shape" if self.mesh is not None else "slam",
+        }
         if len(self.poses) > 1:
             from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
 
@@ -139,8 +157,9 @@ class ReconstructConsumer(Consumer):
 
     name = "reconstruct"
 
-    def __init__(self, session: str | Path, voxel_size: float = 0.004, poses: str | Path | None = None,
-                 depth_stride: int = 4) -> None:
+    def __init__(
+        self, session: str | Path, voxel_size: float = 0.004, poses: str | Path | None = None, depth_stride: int = 4
+    ) -> None:
         from vtrack.frames.session import SessionFrames
         from vtrack.fusion.tsdf import TSDFReconstructor
 

@@ -48,10 +48,15 @@ class ConsumerStats:
         lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(1)
         streams = sorted(set(self.received) | set(self.processed))
         return {
-            "streams": {s: {"received": self.received.get(s, 0), "processed": self.processed.get(s, 0),
-                            "dropped": self.dropped.get(s, 0),
-                            "rate_hz": round(self.processed.get(s, 0) / max(wall_s, 1e-9), 2)}
-                        for s in streams},
+            "streams": {
+                s: {
+                    "received": self.received.get(s, 0),
+                    "processed": self.processed.get(s, 0),
+                    "dropped": self.dropped.get(s, 0),
+                    "rate_hz": round(self.processed.get(s, 0) / max(wall_s, 1e-9), 2),
+                }
+                for s in streams
+            },
             "dropped_total": int(sum(self.dropped.values())),
             "processed_total": int(sum(self.processed.values())),
             "latency_ms_mean": round(float(lat.mean()), 2),
@@ -149,9 +154,15 @@ class LivePipeline:
         wall = time.perf_counter() - t0
         active = src_stats.active_s or t_src
         out: dict[str, Any] = {
-            "wall_s": round(wall, 3), "source_s": round(t_src, 3), "active_s": round(active, 3),
-            "source": {"emitted": dict(src_stats.emitted), "skipped_late": dict(src_stats.skipped_late),
-                       "max_lag_ms": round(src_stats.max_lag_s * 1e3, 2), "emitted_rate_hz": src_stats.rates_hz()},
+            "wall_s": round(wall, 3),
+            "source_s": round(t_src, 3),
+            "active_s": round(active, 3),
+            "source": {
+                "emitted": dict(src_stats.emitted),
+                "skipped_late": dict(src_stats.skipped_late),
+                "max_lag_ms": round(src_stats.max_lag_s * 1e3, 2),
+                "emitted_rate_hz": src_stats.rates_hz(),
+            },
             "consumers": {},
         }
         for w in self.workers:

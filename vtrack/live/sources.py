@@ -65,8 +65,15 @@ def _block_frames(stream: Any) -> int:
     return int(max(1, min(64, BLOCK_BYTES // max(per, 1))))
 
 
-def _decode_loop(reader: Any, streams: list[str], items: list, put: Callable, wall0: Callable[[], float],
-                 cfg: tuple[float, float, float], stop: Any) -> None:
+def _decode_loop(
+    reader: Any,
+    streams: list[str],
+    items: list,
+    put: Callable,
+    wall0: Callable[[], float],
+    cfg: tuple[float, float, float],
+    stop: Any,
+) -> None:
     """Decode frames in schedule order and ``put`` them; skip (put ``data=None``) frames already too
     late when reached. Ends with ``put(None)``."""
     period, speed, max_lag_s = cfg
@@ -86,15 +93,16 @@ def _decode_loop(reader: Any, streams: list[str], items: list, put: Callable, wa
             if not (0 <= i - i0 < len(next(iter(block.values()), ()))):
                 B = _block_frames(s)
                 i0 = i
-                block = {f: s.fields[f][i:i + B] for f in s.fields}
+                block = {f: s.fields[f][i : i + B] for f in s.fields}
                 cache[name] = (i0, block)
             put((item, {f: np.ascontiguousarray(v[i - i0]) for f, v in block.items()}))
     finally:
         put(None)
 
 
-def _reader_process(path: str, streams: list[str], items: list, q: Any, stop: Any, wall0_v: Any,
-                    cfg: tuple[float, float, float]) -> None:
+def _reader_process(
+    path: str, streams: list[str], items: list, q: Any, stop: Any, wall0_v: Any, cfg: tuple[float, float, float]
+) -> None:
     """Child-process reader: decoding runs outside the consumers' process (no GIL contention)."""
     try:
         from vtrack.io.session import open_session
@@ -124,18 +132,33 @@ class SessionReplaySource:
             contention with heavy consumers; costs a process start and a copy per frame).
     """
 
-    def __init__(self, session: Any, streams: Sequence[str] | None = None, speed: float = 1.0,
-                 max_lag_s: float = 0.05, seconds: float | None = None, loop: int = 1, prefetch: int = 64,
-                 reader: str = "thread") -> None:
+    def __init__(
+        self,
+        session: Any,
+        streams: Sequence[str] | None = None,
+        speed: float = 1.0,
+        max_lag_s: float = 0.05,
+        seconds: float | None = None,
+        loop: int = 1,
+        prefetch: int = 64,
+        reader: str = "thread",
+    ) -> None:
         from vtrack.io.session import SessionReader, open_session
 
         self.reader = session if isinstance(session, SessionReader) else open_session(Path(session))
-        names = list(streams) if streams else [k for k in self.reader.streams
-                                              if k.startswith(("camera/", "tactile/")) or k == "joints"]
+        names = (
+            list(streams)
+            if streams
+            else [k for k in self.reader.streams if k.startswith(("camera/", "tactile/")) or k == "joints"]
+        )
         for n in names:
             if n not in self.reader:
-                raise InputError("no such stream in the session", path=self.reader.path, field=n,
-                                 expected=str(sorted(self.reader.streams)))
+                raise InputError(
+                    "no such stream in the session",
+                    path=self.reader.path,
+                    field=n,
+                    expected=str(sorted(self.reader.streams)),
+                )
         names = [n for n in names if self.reader[n].n > 0]
         if not names:
             raise InputError("nothing to replay (no non-empty camera/tactile/joints stream)", path=self.reader.path)
@@ -192,8 +215,12 @@ class SessionReplaySource:
             q: Any = ctx.Queue(maxsize=self.prefetch)
             stop_evt: Any = ctx.Event()
             wall0_v = ctx.Value("d", 0.0)
-            proc = ctx.Process(target=_reader_process, args=(str(self.reader.path), self.streams, items, q, stop_evt,
-                                                              wall0_v, cfg), daemon=True, name="replay-read")
+            proc = ctx.Process(
+                target=_reader_process,
+                args=(str(self.reader.path), self.streams, items, q, stop_evt, wall0_v, cfg),
+                daemon=True,
+                name="replay-read",
+            )
             proc.start()
             first = q.get(timeout=120)
             if first != "ready":
@@ -204,8 +231,12 @@ class SessionReplaySource:
             q = queue.Queue(maxsize=self.prefetch)
             stop_evt = self._stop
             wall0 = time.monotonic() + self.preroll_s  # pre-roll: let the reader get ahead
-            th = threading.Thread(target=_decode_loop, daemon=True, name="replay-read",
-                                  args=(self.reader, self.streams, items, q.put, lambda: wall0, cfg, stop_evt))
+            th = threading.Thread(
+                target=_decode_loop,
+                daemon=True,
+                name="replay-read",
+                args=(self.reader, self.streams, items, q.put, lambda: wall0, cfg, stop_evt),
+            )
             th.start()
         try:
             while True:

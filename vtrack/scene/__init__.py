@@ -13,6 +13,14 @@ from vtrack.scene.schema import (
 )
 
 __all__ = [
-    "CameraSpec", "HandSpec", "ObjectSpec", "PipelineSpec", "Pose", "Scene", "SimSpec", "TactileSpec",
-    "load_scene", "scene_from_dict",
+    "CameraSpec",
+    "HandSpec",
+    "ObjectSpec",
+    "PipelineSpec",
+    "Pose",
+    "Scene",
+    "SimSpec",
+    "TactileSpec",
+    "load_scene",
+    "scene_from_dict",
 ]

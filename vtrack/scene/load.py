@@ -25,8 +25,11 @@ _PATH_FIELDS = (
 
 
 def _expand(value: str, base: Path) -> str:
-    s = (value.replace("${shared}", str(shared_dir())).replace("${repo}", str(REPO_ROOT))
-         .replace("${assets}", str(assets_dir())))
+    s = (
+        value.replace("${shared}", str(shared_dir()))
+        .replace("${repo}", str(REPO_ROOT))
+        .replace("${assets}", str(assets_dir()))
+    )
     p = Path(s).expanduser()
     return str(p if p.is_absolute() else (base / p).resolve())
 
@@ -63,12 +66,14 @@ def format_validation_error(err: ValidationError, source: str | Path) -> InputEr
     return InputError("invalid scene: " + "; ".join(lines), path=source, field=first_field)
 
 
-def scene_from_dict(data: dict, base_dir: Path | None = None, source: Path | None = None,
-                    check_files: bool = True) -> Scene:
+def scene_from_dict(
+    data: dict, base_dir: Path | None = None, source: Path | None = None, check_files: bool = True
+) -> Scene:
     """Validate a scene given as a dict (e.g. parsed YAML or a session manifest)."""
     if not isinstance(data, dict):
-        raise InputError("a scene must be a mapping of fields", path=source, expected="YAML mapping",
-                         got=type(data).__name__)
+        raise InputError(
+            "a scene must be a mapping of fields", path=source, expected="YAML mapping", got=type(data).__name__
+        )
     data = dict(data)
     base = base_dir or (source.parent if source else Path.cwd())
     import copy

@@ -141,11 +141,15 @@ class CameraSpec(_Model):
             raise ValueError(f"depth_max ({self.depth_max}) must exceed depth_min ({self.depth_min})")
         # uint16 depth: depth_min..depth_max must map to distinct units, or every depth rounds to 0/saturates.
         if self.depth_max / self.depth_scale > 65535 or self.depth_min / self.depth_scale > 65535:
-            raise ValueError(f"depth_max {self.depth_max} m is {self.depth_max / self.depth_scale:.4g} units at "
-                             f"depth_scale {self.depth_scale} m/unit: more than uint16 holds (65535)")
+            raise ValueError(
+                f"depth_max {self.depth_max} m is {self.depth_max / self.depth_scale:.4g} units at "
+                f"depth_scale {self.depth_scale} m/unit: more than uint16 holds (65535)"
+            )
         if (self.depth_max - self.depth_min) / self.depth_scale < 100:
-            raise ValueError(f"depth_scale {self.depth_scale} m/unit leaves fewer than 100 depth steps between "
-                             f"depth_min and depth_max (expected about 0.0001..0.001 m/unit)")
+            raise ValueError(
+                f"depth_scale {self.depth_scale} m/unit leaves fewer than 100 depth steps between "
+                f"depth_min and depth_max (expected about 0.0001..0.001 m/unit)"
+            )
         for k, c, n in (("cx", self.cx, self.width), ("cy", self.cy, self.height)):
             if c is not None and not 0.0 <= c <= n:
                 raise ValueError(f"{k} ({c} px) must lie inside the image (0..{n} px)")
@@ -203,6 +207,7 @@ class TactileSpec(_Model):
         out.setdefault("gel_thickness_mm", p.gel_thickness_mm)
         out.setdefault("rate_hz", p.fps)
         return out
+
     calibration: Path | None = Field(None, description="calibration file from `vtrack calibrate`")
     background: Path | None = Field(None, description="no-contact image")
     contact_threshold_mm: float = Field(0.05, gt=0, le=5.0)

@@ -18,8 +18,13 @@ SIM_CACHE_VERSION = 3
 DEFAULT_OBJECT = "005_tomato_soup_can"
 
 
-def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str | Path | None = None,
-                      seed: int = 0, depth_noise: float | None = None) -> Path:
+def tiny_session_path(
+    occlusion: str = "none",
+    seconds: float = 1.0,
+    object: str | Path | None = None,
+    seed: int = 0,
+    depth_noise: float | None = None,
+) -> Path:
     """A small synthetic session of the default scene (generated once into ``cache_dir()``).
 
     Keyed by the parameters, the default scene's content and :data:`SIM_CACHE_VERSION`, so a changed
@@ -27,8 +32,14 @@ def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str
     ``depth_noise`` overrides the scene's ``sim.depth_noise`` scale.
     """
     scene_file = default_scene_path()
-    spec = {"occ": occlusion, "s": seconds, "obj": str(object) if object else None, "seed": seed,
-            "scene": hashlib.sha1(scene_file.read_bytes()).hexdigest(), "v": SIM_CACHE_VERSION}
+    spec = {
+        "occ": occlusion,
+        "s": seconds,
+        "obj": str(object) if object else None,
+        "seed": seed,
+        "scene": hashlib.sha1(scene_file.read_bytes()).hexdigest(),
+        "v": SIM_CACHE_VERSION,
+    }
     if depth_noise is not None:
         spec["noise"] = float(depth_noise)
     key = json.dumps(spec, sort_keys=True)
@@ -46,8 +57,7 @@ def tiny_session_path(occlusion: str = "none", seconds: float = 1.0, object: str
 
         scene = load_scene(scene_file)
         scene.sim.depth_noise = float(depth_noise)
-    generate_session(scene, tmp, seconds=seconds, seed=seed, occlusion=occlusion, object_mesh=object,
-                     overwrite=True)
+    generate_session(scene, tmp, seconds=seconds, seed=seed, occlusion=occlusion, object_mesh=object, overwrite=True)
     if not is_complete(path):
         try:
             tmp.rename(path)
@@ -69,8 +79,9 @@ def ycb_objects() -> list[str]:
 
     names = sorted(p.stem for p in (shared_data_dir() / "objects" / "ycb").glob("*.ply"))
     if not names:
-        raise InputError("no YCB meshes in the shared data", path=shared_data_dir() / "objects" / "ycb",
-                         expected="*.ply")
+        raise InputError(
+            "no YCB meshes in the shared data", path=shared_data_dir() / "objects" / "ycb", expected="*.ply"
+        )
     return names
 
 
@@ -83,5 +94,6 @@ def ycb_session(name: str, occlusion: str = "none", seconds: float = 2.0, depth_
     mesh = shared_data_dir() / "objects" / "ycb" / f"{name}.ply"
     if not mesh.exists():
         raise InputError("no such YCB object in the shared data", path=mesh, expected="<name>.ply")
-    return tiny_session_path(occlusion=occlusion, seconds=seconds, object=None if name == DEFAULT_OBJECT else mesh,
-                             depth_noise=depth_noise)
+    return tiny_session_path(
+        occlusion=occlusion, seconds=seconds, object=None if name == DEFAULT_OBJECT else mesh, depth_noise=depth_noise
+    )

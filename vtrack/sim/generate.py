@@ -92,8 +92,7 @@ def _load_background(spec) -> np.ndarray:
 def _render_tactile(height_mm, spec, background, model, rng, noise_scale: float):
     # the independent optical model (vtrack.sim.tactile_optics), not the pipeline's inverse model: no
     # inverse crime; the model's elastomer blur smooths the indenter shape
-    return model.render(height_mm, spec.mm_per_px, background, rng=rng if noise_scale > 0 else None,
-                        noise=noise_scale)
+    return model.render(height_mm, spec.mm_per_px, background, rng=rng if noise_scale > 0 else None, noise=noise_scale)
 
 
 def place_camera(cam, occlusion: str, centre: np.ndarray) -> np.ndarray:
@@ -111,9 +110,17 @@ def place_camera(cam, occlusion: str, centre: np.ndarray) -> np.ndarray:
     return look_at(centre + dist * d, centre, up)
 
 
-def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None = None, seed: int | None = None,
-                     occlusion: str | None = None, object_mesh: str | Path | None = None,
-                     overwrite: bool = False, progress: bool = False) -> Path:
+def generate_session(
+    scene: Any,
+    out_dir: str | Path,
+    *,
+    seconds: float | None = None,
+    seed: int | None = None,
+    occlusion: str | None = None,
+    object_mesh: str | Path | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Path:
     """Generate a synthetic session from a scene (a :class:`~vtrack.scene.schema.Scene` or a YAML path).
 
     Args:
@@ -163,8 +170,7 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
         sim.seed = int(seed)
     if occlusion is not None:
         if occlusion not in OCCLUSION_VIEWS:
-            raise InputError("unknown occlusion level", field="occlusion", expected="none|medium|heavy",
-                             got=occlusion)
+            raise InputError("unknown occlusion level", field="occlusion", expected="none|medium|heavy", got=occlusion)
         sim.occlusion = occlusion
     mesh_path = Path(object_mesh) if object_mesh is not None else scene.object.mesh
     if mesh_path is None:
@@ -194,8 +200,10 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
     if cams:
         T_cams[cams[0].name] = place_camera(cams[0], sim.occlusion, centre)
     sd = scene.to_dict()
-    sd["tactile"] = [{**t, "calibration": f"assets/calibration/{t['name']}.npz"} if t["name"] in specs else t
-                     for t in sd.get("tactile", [])]  # written in step 4 (simulated ball-press calibration)
+    sd["tactile"] = [
+        {**t, "calibration": f"assets/calibration/{t['name']}.npz"} if t["name"] in specs else t
+        for t in sd.get("tactile", [])
+    ]  # written in step 4 (simulated ball-press calibration)
     # The embedded scene says what a user would know: the object's name and symmetry, but neither its
     # shape nor its pose (both are ground truth, under gt/). Known-shape runs take the mesh from --mesh.
     sd["object"].update({"name": obj_name, "mesh": None, "scale": 1.0, "T_world_object": None})
@@ -211,16 +219,20 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
         c["look_at"] = None
         c["T_world_camera"] = {"matrix": T_cams[c["name"]].tolist()}
     sd["sim"] = sim.model_dump(mode="json")
-    info = {"generator": "vtrack.sim.generate", "seed": sim.seed, "seconds": sim.seconds,
-            "occlusion": sim.occlusion, "object_source": str(mesh_path),
-            "T_source_object": obj.T_source_object.tolist()}
+    info = {
+        "generator": "vtrack.sim.generate",
+        "seed": sim.seed,
+        "seconds": sim.seconds,
+        "occlusion": sim.occlusion,
+        "object_source": str(mesh_path),
+        "T_source_object": obj.T_source_object.tolist(),
+    }
 
     writer = SessionWriter(out_dir, sd, overwrite=overwrite, flush_every=16, info=info)
     try:
         (writer.path / GT_MESH).parent.mkdir(parents=True, exist_ok=True)
         obj.write_ply(writer.path / GT_MESH)
-        writer.manifest["gt_files"] = {GT_MESH: {"role": "object_mesh", "frame": "object",
-                                                 "source": str(mesh_path)}}
+        writer.manifest["gt_files"] = {GT_MESH: {"role": "object_mesh", "frame": "object", "source": str(mesh_path)}}
 
         # 3. Joints and object pose.
         writer.add_stream("joints", joints_stream(hk.joint_names, sim.joint_rate_hz))
@@ -248,8 +260,9 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
             controlled[s] = plan.in_contact_phase[s][near].astype(int).tolist()
             T_wo = plan.object_pose_at(t_tac)
             T_ws = hk.sensor_poses(plan.q_at(t_tac))[s]
-            heights = gel_heights(obj_rc, se3.invert(T_wo) @ T_ws, spec.width, spec.height, spec.mm_per_px,
-                                  spec.gel_thickness_mm)
+            heights = gel_heights(
+                obj_rc, se3.invert(T_wo) @ T_ws, spec.width, spec.height, spec.mm_per_px, spec.gel_thickness_mm
+            )
             bg = _load_background(spec)
             # each sensor is its own unit (seeded optical jitter), calibrated from simulated ball presses like
             # a real one; the session carries that calibration (the embedded scene points at it)
@@ -265,8 +278,9 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
                 h = heights[i]
                 img = _render_tactile(h, spec, bg, model, rng_tac, sim.tactile_noise)
                 writer.append(f"tactile/{s}", float(t), image=img)
-                writer.append(f"gt/tactile/{s}", float(t), height_mm=h,
-                              contact=(h > spec.contact_threshold_mm).astype(np.uint8))
+                writer.append(
+                    f"gt/tactile/{s}", float(t), height_mm=h, contact=(h > spec.contact_threshold_mm).astype(np.uint8)
+                )
         _log(progress, f"tactile {time.perf_counter() - t0:.2f} s")
 
         # 5. Cameras.
@@ -298,14 +312,22 @@ def generate_session(scene: Any, out_dir: str | Path, *, seconds: float | None =
                 n_all = int(fr.object_unoccluded.sum())
                 vis = float(fr.object_mask.sum()) / n_all if n_all else 0.0
                 writer.append(f"camera/{cam.name}", float(t), rgb=rgb, depth=depth_u16)
-                writer.append(f"gt/camera/{cam.name}", float(t), visible_fraction=np.float32(vis),
-                              mask=fr.object_mask.astype(np.uint8))
+                writer.append(
+                    f"gt/camera/{cam.name}",
+                    float(t),
+                    visible_fraction=np.float32(vis),
+                    mask=fr.object_mask.astype(np.uint8),
+                )
         _log(progress, f"cameras {time.perf_counter() - t0:.2f} s")
 
         contact_frac = {s: float(plan.in_contact_phase[s].mean()) for s in hk.sensor_names}
-        writer.set_info(contact_fraction=contact_frac, touching_fraction=touching, contact_controlled=controlled,
-                        penetration_mm=list(sim.penetration_mm),
-                        generate_seconds=time.perf_counter() - t_start)
+        writer.set_info(
+            contact_fraction=contact_frac,
+            touching_fraction=touching,
+            contact_controlled=controlled,
+            penetration_mm=list(sim.penetration_mm),
+            generate_seconds=time.perf_counter() - t_start,
+        )
     except BaseException:
         writer.flush()
         raise

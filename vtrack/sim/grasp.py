@@ -56,8 +56,7 @@ class GraspPlan:
 
     def object_pose_at(self, times: np.ndarray) -> np.ndarray:
         """Exact ``T_world_object`` (N, 4, 4) at any times (s) (the trajectory is analytic)."""
-        return object_trajectory(self.T0, np.asarray(times, np.float64), self.axis_world, self.speed,
-                                 self.amplitude)
+        return object_trajectory(self.T0, np.asarray(times, np.float64), self.axis_world, self.speed, self.amplitude)
 
     def q_at(self, times: np.ndarray) -> np.ndarray:
         """Joint vectors (N, J) at any times, linearly interpolated (as readers interpolate)."""
@@ -92,8 +91,9 @@ def _finger_columns(hk: HandKinematics) -> dict[str, list[int]]:
     return {s: hk.chain_joints(hk.sensor_links[s]) for s in hk.sensor_names}
 
 
-def _posture(q_open: np.ndarray, q_closed: np.ndarray, cols: dict[str, list[int]],
-             s_by_sensor: dict[str, np.ndarray]) -> np.ndarray:
+def _posture(
+    q_open: np.ndarray, q_closed: np.ndarray, cols: dict[str, list[int]], s_by_sensor: dict[str, np.ndarray]
+) -> np.ndarray:
     """(N, J) joint vectors with each finger's joints at its synergy value (other joints open)."""
     n = len(next(iter(s_by_sensor.values())))
     q = np.repeat(q_open[None], n, 0)
@@ -103,13 +103,15 @@ def _posture(q_open: np.ndarray, q_closed: np.ndarray, cols: dict[str, list[int]
     return q
 
 
-def _max_indentation(hk, obj_rc, T_ow, q, sensor, spec,
-                     stride_mm: float = FINE_STRIDE_MM) -> tuple[np.ndarray, np.ndarray]:
+def _max_indentation(
+    hk, obj_rc, T_ow, q, sensor, spec, stride_mm: float = FINE_STRIDE_MM
+) -> tuple[np.ndarray, np.ndarray]:
     """Max gel indentation (mm) and contact-pixel fraction of ``sensor`` for postures ``q`` (N, J)."""
     T = hk.sensor_poses(q)[sensor]
     stride = max(1, int(round(stride_mm / spec.mm_per_px)))
-    h = gel_heights(obj_rc, T_ow @ T, spec.width, spec.height, spec.mm_per_px, spec.gel_thickness_mm,
-                    stride=stride).reshape(len(q), -1)
+    h = gel_heights(
+        obj_rc, T_ow @ T, spec.width, spec.height, spec.mm_per_px, spec.gel_thickness_mm, stride=stride
+    ).reshape(len(q), -1)
     return h.max(1).astype(np.float64), (h > spec.contact_threshold_mm).mean(1)
 
 
@@ -125,9 +127,21 @@ def _closest_contacts(obj_rc: Raycaster, T_wo: np.ndarray, gel_world: np.ndarray
     return p_w, np.where(flip[:, None], -n_w, n_w)
 
 
-def _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, sensor, spec, depth_mm: np.ndarray,
-                    scan: int = 12, iters: int = 8, guess: np.ndarray | None = None,
-                    window: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+def _close_to_depth(
+    hk,
+    obj_rc,
+    T_ow,
+    q_open,
+    q_closed,
+    cols,
+    sensor,
+    spec,
+    depth_mm: np.ndarray,
+    scan: int = 12,
+    iters: int = 8,
+    guess: np.ndarray | None = None,
+    window: float = 0.04,
+) -> tuple[np.ndarray, np.ndarray]:
     """Per frame, the synergy value where ``sensor`` first reaches ``depth_mm`` of indentation.
 
     The closing motion is scanned coarsely (first level that is deep enough = first contact, as a
@@ -146,15 +160,17 @@ def _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, sensor, spec, dept
         reached = np.zeros(n, bool)
         if (~ok).any():
             bad = np.nonzero(~ok)[0]
-            s_out[bad], reached[bad] = _close_to_depth(hk, obj_rc, T_ow[bad], q_open, q_closed, cols, sensor, spec,
-                                                       depth_mm[bad], scan, iters)
+            s_out[bad], reached[bad] = _close_to_depth(
+                hk, obj_rc, T_ow[bad], q_open, q_closed, cols, sensor, spec, depth_mm[bad], scan, iters
+            )
         if ok.any():
             good = np.nonzero(ok)[0]
             a, b = lo[good], hi[good]
             for _ in range(iters):
                 mid = 0.5 * (a + b)
-                h, _ = _max_indentation(hk, obj_rc, T_ow[good], _posture(q_open, q_closed, cols, {sensor: mid}),
-                                        sensor, spec)
+                h, _ = _max_indentation(
+                    hk, obj_rc, T_ow[good], _posture(q_open, q_closed, cols, {sensor: mid}), sensor, spec
+                )
                 deep = h >= depth_mm[good]
                 b = np.where(deep, mid, b)
                 a = np.where(deep, a, mid)
@@ -167,8 +183,9 @@ def _close_to_depth(hk, obj_rc, T_ow, q_open, q_closed, cols, sensor, spec, dept
         todo = first < 0
         if not todo.any():
             break
-        h, _ = _max_indentation(hk, obj_rc, T_ow[todo],
-                                _posture(q_open, q_closed, cols, {sensor: np.full(todo.sum(), lv)}), sensor, spec)
+        h, _ = _max_indentation(
+            hk, obj_rc, T_ow[todo], _posture(q_open, q_closed, cols, {sensor: np.full(todo.sum(), lv)}), sensor, spec
+        )
         idx = np.nonzero(todo)[0]
         first[idx[h >= depth_mm[todo]]] = k
     reached = first > 0
@@ -217,10 +234,9 @@ def object_rest_pose(hk: HandKinematics, obj: ObjectMesh, q_ref: np.ndarray) -> 
     return se3.make_transform(R_world_target @ R_target_obj, centre)
 
 
-
-
-def object_trajectory(T0: np.ndarray, times: np.ndarray, axis, speed: float, amplitude: float,
-                      ramp_s: float = 0.5) -> np.ndarray:
+def object_trajectory(
+    T0: np.ndarray, times: np.ndarray, axis, speed: float, amplitude: float, ramp_s: float = 0.5
+) -> np.ndarray:
     """(N, 4, 4) object poses: rotation about a world ``axis`` through the object centre at ``speed``
     rad/s (cosine ramp-in over ``ramp_s``), plus a Lissajous translation of ``amplitude`` m."""
     t = np.asarray(times, dtype=np.float64)
@@ -232,17 +248,30 @@ def object_trajectory(T0: np.ndarray, times: np.ndarray, axis, speed: float, amp
     angle = speed * ramp_int
     R = se3.so3_exp(a[None] * angle[:, None])
     env = 0.5 - 0.5 * np.cos(np.pi * r)
-    trans = amplitude * env[:, None] * np.stack(
-        [np.sin(2 * np.pi * 0.37 * t), np.sin(2 * np.pi * 0.23 * t + 1.0), np.sin(2 * np.pi * 0.29 * t + 2.0)],
-        axis=1)
+    trans = (
+        amplitude
+        * env[:, None]
+        * np.stack(
+            [np.sin(2 * np.pi * 0.37 * t), np.sin(2 * np.pi * 0.23 * t + 1.0), np.sin(2 * np.pi * 0.29 * t + 2.0)],
+            axis=1,
+        )
+    )
     T = np.repeat(T0[None], len(t), axis=0)
     T[:, :3, :3] = R @ T0[:3, :3]
     T[:, :3, 3] = T0[:3, 3] + trans
     return T
 
 
-def gel_heights(obj_rc: Raycaster, T_object_sensor: np.ndarray, width: int, height: int, mm_per_px: float,
-                thickness_mm: float, stride: int = 1, max_rays: int = 400_000) -> np.ndarray:
+def gel_heights(
+    obj_rc: Raycaster,
+    T_object_sensor: np.ndarray,
+    width: int,
+    height: int,
+    mm_per_px: float,
+    thickness_mm: float,
+    stride: int = 1,
+    max_rays: int = 400_000,
+) -> np.ndarray:
     """Gel indentation height maps (mm, >= 0) by casting one ray per pixel along the gel normal.
 
     Rays start ``thickness_mm`` below the gel surface (inside the sensor) and go along +z of the
@@ -265,8 +294,9 @@ def gel_heights(obj_rc: Raycaster, T_object_sensor: np.ndarray, width: int, heig
     return _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px, thickness_mm, max_rays)
 
 
-def _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px, thickness_mm, max_rays,
-                  probe_mm: float = 0.0) -> np.ndarray:
+def _cast_heights(
+    obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px, thickness_mm, max_rays, probe_mm: float = 0.0
+) -> np.ndarray:
     s = mm_per_px / 1000.0
     X, Y = np.meshgrid((cols - (width - 1) / 2.0) * s, (rows - (height - 1) / 2.0) * s)
     thk = thickness_mm / 1000.0
@@ -274,7 +304,7 @@ def _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px,
     out = np.zeros((len(T_object_sensor), len(rows), len(cols)), dtype=np.float32)
     chunk = max(1, max_rays // len(o_s))
     for i0 in range(0, len(T_object_sensor), chunk):
-        T = T_object_sensor[i0:i0 + chunk]
+        T = T_object_sensor[i0 : i0 + chunk]
         o = np.matmul(o_s[None], np.swapaxes(T[:, :3, :3], 1, 2)) + T[:, None, :3, 3]
         d = np.broadcast_to(T[:, None, :3, 2], o.shape)
         hit = obj_rc.cast(o, d)
@@ -286,7 +316,7 @@ def _cast_heights(obj_rc, T_object_sensor, rows, cols, width, height, mm_per_px,
         # surface shell between two scan levels reads "no contact" and closes through the object.
         inside = np.isfinite(t) & (np.einsum("...i,...i->...", hit["normal"], d) > 0)
         h = np.where(inside, thickness_mm, h)
-        out[i0:i0 + chunk] = np.clip(h, -probe_mm, thickness_mm).reshape(len(T), len(rows), len(cols))
+        out[i0 : i0 + chunk] = np.clip(h, -probe_mm, thickness_mm).reshape(len(T), len(rows), len(cols))
     return out
 
 
@@ -294,8 +324,7 @@ def _gel_heights_windowed(obj_rc, T_os, width, height, mm_per_px, thickness_mm, 
     rows_c = np.arange(0, height, step)
     cols_c = np.arange(0, width, step)
     # Probe 3 mm beyond the gel so the window also covers thin features between coarse samples.
-    coarse = _cast_heights(obj_rc, T_os, rows_c, cols_c, width, height, mm_per_px, thickness_mm, max_rays,
-                           probe_mm=3.0)
+    coarse = _cast_heights(obj_rc, T_os, rows_c, cols_c, width, height, mm_per_px, thickness_mm, max_rays, probe_mm=3.0)
     out = np.zeros((len(T_os), height, width), dtype=np.float32)
     near = coarse > -3.0
     for i in np.nonzero(near.any(axis=(1, 2)))[0]:
@@ -304,13 +333,24 @@ def _gel_heights_windowed(obj_rc, T_os, width, height, mm_per_px, thickness_mm, 
         r1 = min(height, (rr.max() + 3) * step)
         c0 = max(0, (cc.min() - 2) * step)
         c1 = min(width, (cc.max() + 3) * step)
-        win = _cast_heights(obj_rc, T_os[i:i + 1], np.arange(r0, r1), np.arange(c0, c1), width, height,
-                            mm_per_px, thickness_mm, max_rays)[0]
+        win = _cast_heights(
+            obj_rc,
+            T_os[i : i + 1],
+            np.arange(r0, r1),
+            np.arange(c0, c1),
+            width,
+            height,
+            mm_per_px,
+            thickness_mm,
+            max_rays,
+        )[0]
         out[i, r0:r1, c0:c1] = np.maximum(win, 0.0)
     return out
 
-def _fit_rest_pose(hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, depth_mm: float,
-                   n_s: int = 41, iters: int = 20) -> np.ndarray:
+
+def _fit_rest_pose(
+    hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, depth_mm: float, n_s: int = 41, iters: int = 20
+) -> np.ndarray:
     """Rest pose where every gel can lie flush on the object.
 
     For finger f at synergy value s the gel centre is P_f(s) with inward normal N_f(s); the object
@@ -346,8 +386,9 @@ def _fit_rest_pose(hk, obj, obj_rc, tactile_specs, q_open, q_closed, cols, depth
     return T
 
 
-def _tune_first_joints(hk, obj_rc, T_ow, q_open, q_closed, cols, tactile_specs, depth_mm: float,
-                       offsets: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _tune_first_joints(
+    hk, obj_rc, T_ow, q_open, q_closed, cols, tactile_specs, depth_mm: float, offsets: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Per finger, shift its first joint (abduction / thumb rotation) in the synergy so the gel meets
     the object flush: the offset giving the largest contact patch at the target depth over a few
     sample frames (a gel touching with its edge gives a thin sliver; flush gives a patch)."""
@@ -363,8 +404,9 @@ def _tune_first_joints(hk, obj_rc, T_ow, q_open, q_closed, cols, tactile_specs, 
             qo, qc = q_open.copy(), q_closed.copy()
             qo[j] = np.clip(qo[j] + off, lo, hi)
             qc[j] = np.clip(qc[j] + off, lo, hi)
-            sv, ok = _close_to_depth(hk, obj_rc, T_ow, qo, qc, cols, s, tactile_specs[s], np.full(m, depth_mm),
-                                     scan=10, iters=5)
+            sv, ok = _close_to_depth(
+                hk, obj_rc, T_ow, qo, qc, cols, s, tactile_specs[s], np.full(m, depth_mm), scan=10, iters=5
+            )
             _, area = _max_indentation(hk, obj_rc, T_ow, _posture(qo, qc, cols, {s: sv}), s, tactile_specs[s])
             score = float(np.where(ok, area, -1.0).mean()) - 0.02 * abs(off)  # prefer small changes
             if score > best_score:
@@ -374,8 +416,16 @@ def _tune_first_joints(hk, obj_rc, T_ow, q_open, q_closed, cols, tactile_specs, 
     return q_open, q_closed
 
 
-def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tactile_specs: dict,
-               times: np.ndarray, rng: np.random.Generator, align_normals: bool = False) -> GraspPlan:
+def plan_grasp(
+    hk: HandKinematics,
+    obj: ObjectMesh,
+    obj_rc: Raycaster,
+    sim,
+    tactile_specs: dict,
+    times: np.ndarray,
+    rng: np.random.Generator,
+    align_normals: bool = False,
+) -> GraspPlan:
     """Object trajectory and joint angles keeping every fingertip in contact (see module docstring).
 
     Args:
@@ -394,8 +444,16 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
     axis_world = T0[:3, :3] @ np.asarray(sim.rotation_axis, dtype=np.float64)
     T_wo = object_trajectory(T0, times, axis_world, sim.rotation_speed, sim.translation_amplitude)
     T_ow = se3.invert(T_wo)
-    q_open, q_closed = _tune_first_joints(hk, obj_rc, T_ow[np.linspace(0, n - 1, min(n, 6)).astype(int)],
-                                          q_open, q_closed, cols, tactile_specs, lo + 0.5 * span)
+    q_open, q_closed = _tune_first_joints(
+        hk,
+        obj_rc,
+        T_ow[np.linspace(0, n - 1, min(n, 6)).astype(int)],
+        q_open,
+        q_closed,
+        cols,
+        tactile_specs,
+        lo + 0.5 * span,
+    )
 
     d_target, lift = {}, {}
     fingers = [s for s in names if "thumb" not in s]
@@ -421,8 +479,7 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
         s_env = lipschitz_envelope(sv, MAX_CLOSING_RATE * dt)
         # Opening is not always safe: the gel's lower part can swing into the object. Where the
         # smoothed posture would press deeper than the range, keep the planned (exact) one.
-        h_env, _ = _max_indentation(hk, obj_rc, T_ow, _posture(q_open, q_closed, cols, {s: s_env}), s,
-                                    tactile_specs[s])
+        h_env, _ = _max_indentation(hk, obj_rc, T_ow, _posture(q_open, q_closed, cols, {s: s_env}), s, tactile_specs[s])
         bad = np.nonzero(h_env > hi)[0]
         if bad.size:
             # Move only as far towards the planned posture as needed (smallest jump in range).
@@ -430,8 +487,9 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
             for _ in range(8):
                 mid = 0.5 * (a + b)
                 s_try = s_env[bad] + mid * (sv[bad] - s_env[bad])
-                h_try, _ = _max_indentation(hk, obj_rc, T_ow[bad], _posture(q_open, q_closed, cols, {s: s_try}),
-                                            s, tactile_specs[s])
+                h_try, _ = _max_indentation(
+                    hk, obj_rc, T_ow[bad], _posture(q_open, q_closed, cols, {s: s_try}), s, tactile_specs[s]
+                )
                 ok_try = h_try <= hi
                 b = np.where(ok_try, mid, b)
                 a = np.where(ok_try, a, mid)
@@ -445,8 +503,18 @@ def plan_grasp(hk: HandKinematics, obj: ObjectMesh, obj_rc: Raycaster, sim, tact
         meas[s], _ = _max_indentation(hk, obj_rc, T_ow, q, s, tactile_specs[s], stride_mm=FINE_STRIDE_MM)
         # A first contact can jump (e.g. onto a rim) inside a bisection bracket: not a controlled contact.
         phase_ok[s] &= np.abs(meas[s] - d_target[s]) < 0.15
-    return GraspPlan(times, T_wo, q, phase_ok, d_target, meas, T0, axis_world, float(sim.rotation_speed),
-                     float(sim.translation_amplitude))
+    return GraspPlan(
+        times,
+        T_wo,
+        q,
+        phase_ok,
+        d_target,
+        meas,
+        T0,
+        axis_world,
+        float(sim.rotation_speed),
+        float(sim.translation_amplitude),
+    )
 
 
 def _align_gels(hk, obj_rc, T_wo, q_syn, tactile_specs, d_target, active, iters: int = 4) -> np.ndarray:
@@ -470,8 +538,18 @@ def _align_gels(hk, obj_rc, T_wo, q_syn, tactile_specs, d_target, active, iters:
             p, n_w = _closest_contacts(obj_rc, T_wo, g, sp[s][:, :3, 2])
             tp[s] = p - n_w * (d_cmd[s] / 1000.0)[:, None]
             tn[s] = -n_w
-        q_new = solve_sensor_ik(hk, q_syn, tp, tn, active=active, q_init=q, iterations=12,
-                                normal_weight=0.05, tangent_weight=0.3, rest_weight=0.01).q
+        q_new = solve_sensor_ik(
+            hk,
+            q_syn,
+            tp,
+            tn,
+            active=active,
+            q_init=q,
+            iterations=12,
+            normal_weight=0.05,
+            tangent_weight=0.3,
+            rest_weight=0.01,
+        ).q
         # Inactive fingers keep their synergy posture exactly.
         for s in names:
             c = hk.chain_joints(hk.sensor_links[s])

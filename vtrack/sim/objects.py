@@ -69,13 +69,19 @@ def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
         if m.is_watertight:
             if m.volume < 0:
                 m.invert()
-            warnings.warn(f"{path}: object mesh was not watertight; holes were filled (repaired in memory)",
-                          MeshNotWatertightWarning, stacklevel=2)
+            warnings.warn(
+                f"{path}: object mesh was not watertight; holes were filled (repaired in memory)",
+                MeshNotWatertightWarning,
+                stacklevel=2,
+            )
         else:
             n_open = int(len(trimesh.grouping.group_rows(m.edges_sorted, require_count=1)))
-            warnings.warn(f"{path}: object mesh is not watertight ({n_open} open edges after hole filling); "
-                          "simulated depth and contacts may miss the object where it is open",
-                          MeshNotWatertightWarning, stacklevel=2)
+            warnings.warn(
+                f"{path}: object mesh is not watertight ({n_open} open edges after hole filling); "
+                "simulated depth and contacts may miss the object where it is open",
+                MeshNotWatertightWarning,
+                stacklevel=2,
+            )
     v = np.asarray(m.vertices, dtype=np.float64) * float(scale)
     if not np.all(np.isfinite(v)):
         raise InputError("object mesh has non-finite vertices", path=path, field="object.mesh")
@@ -83,9 +89,13 @@ def load_object_mesh(path: str | Path, scale: float = 1.0) -> ObjectMesh:
     v = v - centre
     ext = float((v.max(0) - v.min(0)).max())
     if not 0.005 <= ext <= 0.5:
-        raise InputError("object size is implausible for an in-hand object (mesh must be in metres; "
-                         "use object.scale)", path=path, field="object.mesh", expected="extent 5 mm .. 0.5 m",
-                         got=f"{ext:.4g} m")
+        raise InputError(
+            "object size is implausible for an in-hand object (mesh must be in metres; use object.scale)",
+            path=path,
+            field="object.mesh",
+            expected="extent 5 mm .. 0.5 m",
+            got=f"{ext:.4g} m",
+        )
     T = np.eye(4)
     T[:3, 3] = centre
     return ObjectMesh(v, np.asarray(m.faces, dtype=np.int32), T, path)

@@ -39,8 +39,9 @@ def sensor_seed(name: str) -> int:
     return int(zlib.crc32(name.encode("utf-8")))
 
 
-def ball_height(shape_hw: tuple[int, int], centre_xy_px: tuple[float, float], radius_mm: float, depth_mm: float,
-                mm_per_px: float) -> np.ndarray:
+def ball_height(
+    shape_hw: tuple[int, int], centre_xy_px: tuple[float, float], radius_mm: float, depth_mm: float, mm_per_px: float
+) -> np.ndarray:
     """Indentation (mm, (H, W) float32) of a ball of ``radius_mm`` pressed ``depth_mm`` into a flat gel."""
     H, W = shape_hw
     yy, xx = np.mgrid[0:H, 0:W]
@@ -61,11 +62,21 @@ def press_depth_mm(ball_radius_mm: float, contact_radius_mm: float) -> float:
     return float(ball_radius_mm - np.sqrt(ball_radius_mm**2 - a**2))
 
 
-def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball_radius_mm: float | None = None,
-                     mm_per_px: float | None = None, width: int | None = None, height: int | None = None,
-                     background: np.ndarray | None = None,
-                     seed: int = 0, model: Any = None, depth_frac: tuple[float, float] = (0.15, 0.45),
-                     noise: float = 1.0) -> Path:
+def render_press_set(
+    sensor_type: str,
+    out_dir: str | Path,
+    *,
+    n: int = 30,
+    ball_radius_mm: float | None = None,
+    mm_per_px: float | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    background: np.ndarray | None = None,
+    seed: int = 0,
+    model: Any = None,
+    depth_frac: tuple[float, float] = (0.15, 0.45),
+    noise: float = 1.0,
+) -> Path:
     """Render ``n`` ball presses at random positions/depths and write a press set (see module docstring).
 
     Args:
@@ -98,8 +109,9 @@ def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball
         if mm_per_px is None:
             mm_per_px = preset.pitch_at(width, height)
     if not (width > 0 and height > 0 and np.isfinite(mm_per_px) and mm_per_px > 0):
-        raise InputError("bad sensor geometry", field="width/height/mm_per_px", expected="> 0",
-                         got=(width, height, mm_per_px))
+        raise InputError(
+            "bad sensor geometry", field="width/height/mm_per_px", expected="> 0", got=(width, height, mm_per_px)
+        )
     R = float(ball_radius_mm if ball_radius_mm is not None else BALL_RADIUS_MM.get(sensor_type, 2.0))
     model = model if model is not None else OpticalModel.for_sensor(sensor_type, seed)
     if background is None:
@@ -108,14 +120,16 @@ def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball
         background = default_background(sensor_type, width, height)
     bg = np.asarray(background)
     if bg.shape != (height, width, 3):
-        raise InputError("background size differs from the sensor", field="background",
-                         expected=f"{height}x{width}x3", got=bg.shape)
+        raise InputError(
+            "background size differs from the sensor", field="background", expected=f"{height}x{width}x3", got=bg.shape
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     # the no-contact capture a person would take (real background + this camera's noise)
-    cv2.imwrite(str(out / "background.png"), model.render(np.zeros((height, width), np.float32), mm_per_px, bg,
-                                                        rng, noise))
+    cv2.imwrite(
+        str(out / "background.png"), model.render(np.zeros((height, width), np.float32), mm_per_px, bg, rng, noise)
+    )
     rows = []
     for i in range(n):
         d = float(rng.uniform(*depth_frac)) * R
@@ -137,8 +151,18 @@ def render_press_set(sensor_type: str, out_dir: str | Path, *, n: int = 30, ball
         w = csv.writer(f)
         w.writerow(["file", "center_x_px", "center_y_px", "contact_radius_px"])
         w.writerows(rows)
-    (out / "meta.json").write_text(json.dumps({"sensor": sensor_type, "mm_per_px": float(mm_per_px),
-                                               "ball_radius_mm": R, "simulated": True, "seed": seed}, indent=1))
+    (out / "meta.json").write_text(
+        json.dumps(
+            {
+                "sensor": sensor_type,
+                "mm_per_px": float(mm_per_px),
+                "ball_radius_mm": R,
+                "simulated": True,
+                "seed": seed,
+            },
+            indent=1,
+        )
+    )
     return out
 
 
@@ -146,8 +170,14 @@ def _file_digest(path: Path) -> str:
     return hashlib.sha1(path.read_bytes()).hexdigest()[:12] if path.is_file() else "none"
 
 
-def sensor_calibration(spec: Any, seed: int | None = None, *, n: int = SIM_PRESSES, method: str = DEFAULT_METHOD,
-                       holdout: str = DEFAULT_HOLDOUT) -> Path:
+def sensor_calibration(
+    spec: Any,
+    seed: int | None = None,
+    *,
+    n: int = SIM_PRESSES,
+    method: str = DEFAULT_METHOD,
+    holdout: str = DEFAULT_HOLDOUT,
+) -> Path:
     """Calibration ``.npz`` of a simulated sensor (a scene's ``TactileSpec``), trained like ``vtrack calibrate``.
 
     Renders a press set with the sensor's optical model (unit jitter ``seed``, default
@@ -165,16 +195,37 @@ def sensor_calibration(spec: Any, seed: int | None = None, *, n: int = SIM_PRESS
     seed = sensor_seed(spec.name) if seed is None else int(seed)
     bg = default_background(spec.type, spec.width, spec.height, spec.background)
     opts = TrainOptions()
-    key = json.dumps({"optics": optics_fingerprint(), "presses": _file_digest(Path(__file__)),
-                      "type": spec.type, "w": spec.width, "h": spec.height, "mm_per_px": spec.mm_per_px,
-                      "bg": hashlib.sha1(np.ascontiguousarray(bg).tobytes()).hexdigest()[:12], "seed": seed,
-                      "n": n, "method": method, "holdout": holdout, "opts": opts.__dict__}, sort_keys=True)
+    key = json.dumps(
+        {
+            "optics": optics_fingerprint(),
+            "presses": _file_digest(Path(__file__)),
+            "type": spec.type,
+            "w": spec.width,
+            "h": spec.height,
+            "mm_per_px": spec.mm_per_px,
+            "bg": hashlib.sha1(np.ascontiguousarray(bg).tobytes()).hexdigest()[:12],
+            "seed": seed,
+            "n": n,
+            "method": method,
+            "holdout": holdout,
+            "opts": opts.__dict__,
+        },
+        sort_keys=True,
+    )
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
     path = cache_dir() / "sim_calib" / f"{spec.type}_{digest}.npz"
     if path.is_file():
         return path
-    ps_dir = render_press_set(spec.type, cache_dir() / "sim_presses" / digest, n=n, mm_per_px=spec.mm_per_px,
-                              width=spec.width, height=spec.height, background=bg, seed=seed)
+    ps_dir = render_press_set(
+        spec.type,
+        cache_dir() / "sim_presses" / digest,
+        n=n,
+        mm_per_px=spec.mm_per_px,
+        width=spec.width,
+        height=spec.height,
+        background=bg,
+        seed=seed,
+    )
     ps = load_press_set(ps_dir)
     train, _ = ps.split(holdout)
     calib = calibrate(ps, method, train, opts)

@@ -39,9 +39,15 @@ class RenderedFrame:
     points_obj: np.ndarray  # (H, W, 3) object-frame hit points (valid where object_mask)
 
 
-def render_geometry(rays_cam: np.ndarray, T_world_camera: np.ndarray, obj_rc: Raycaster, T_world_object: np.ndarray,
-                    hand_rc: Raycaster | None, depth_max: float,
-                    window: tuple[int, int, int, int] | None = None) -> RenderedFrame:
+def render_geometry(
+    rays_cam: np.ndarray,
+    T_world_camera: np.ndarray,
+    obj_rc: Raycaster,
+    T_world_object: np.ndarray,
+    hand_rc: Raycaster | None,
+    depth_max: float,
+    window: tuple[int, int, int, int] | None = None,
+) -> RenderedFrame:
     """Cast ``rays_cam`` (H, W, 3), z = 1 per ray, from the camera against the object and the hand.
 
     ``window`` = (r0, r1, c0, c1) casts only that pixel block (the rest is background), e.g. the
@@ -51,9 +57,15 @@ def render_geometry(rays_cam: np.ndarray, T_world_camera: np.ndarray, obj_rc: Ra
         r0, r1, c0, c1 = window
         H, W, _ = rays_cam.shape
         sub = render_geometry(rays_cam[r0:r1, c0:c1], T_world_camera, obj_rc, T_world_object, hand_rc, depth_max)
-        full = RenderedFrame(np.zeros((H, W)), np.zeros((H, W), bool), np.zeros((H, W), bool),
-                             np.zeros((H, W, 3)), np.zeros((H, W)), np.zeros((H, W), np.int8),
-                             np.zeros((H, W, 3)))
+        full = RenderedFrame(
+            np.zeros((H, W)),
+            np.zeros((H, W), bool),
+            np.zeros((H, W), bool),
+            np.zeros((H, W, 3)),
+            np.zeros((H, W)),
+            np.zeros((H, W), np.int8),
+            np.zeros((H, W, 3)),
+        )
         for f in ("depth_m", "object_mask", "object_unoccluded", "normal", "cos_incidence", "kind", "points_obj"):
             getattr(full, f)[r0:r1, c0:c1] = getattr(sub, f)
         return full
@@ -115,8 +127,7 @@ def _albedo_object(points_obj: np.ndarray, base_rgb: np.ndarray) -> np.ndarray:
     return base_rgb * pattern[..., None]
 
 
-def shade_rgb(fr: RenderedFrame, object_rgb: np.ndarray, rng: np.random.Generator,
-              noise: float = 2.0) -> np.ndarray:
+def shade_rgb(fr: RenderedFrame, object_rgb: np.ndarray, rng: np.random.Generator, noise: float = 2.0) -> np.ndarray:
     """uint8 sRGB image: Lambertian + ambient lighting with a head light and a key light."""
     H, W = fr.kind.shape
     key = np.array([0.3, -0.4, 0.85])
@@ -141,13 +152,16 @@ def object_colour(name: str) -> np.ndarray:
     import zlib
 
     h = zlib.crc32(name.encode())
-    palette = np.array([[200, 50, 40], [220, 190, 40], [60, 120, 200], [70, 160, 80], [200, 120, 60],
-                        [180, 180, 170], [140, 80, 160]], dtype=np.float64)
+    palette = np.array(
+        [[200, 50, 40], [220, 190, 40], [60, 120, 200], [70, 160, 80], [200, 120, 60], [180, 180, 170], [140, 80, 160]],
+        dtype=np.float64,
+    )
     return palette[h % len(palette)]
 
 
-def projected_window(K, T_world_camera: np.ndarray, points_world: np.ndarray, width: int, height: int,
-                     margin: int = 6) -> tuple[int, int, int, int] | None:
+def projected_window(
+    K, T_world_camera: np.ndarray, points_world: np.ndarray, width: int, height: int, margin: int = 6
+) -> tuple[int, int, int, int] | None:
     """Pixel block (r0, r1, c0, c1) covering the projection of ``points_world`` (None: nothing in view
     or a point behind the camera, i.e. no safe bound: cast the whole image)."""
     T_cw = np.linalg.inv(T_world_camera)

@@ -71,34 +71,62 @@ class Light:
     def position_mm(self, centre_xy_mm: tuple[float, float]) -> np.ndarray:
         """LED position in the sensor frame (mm)."""
         az, el = math.radians(self.azimuth_deg), math.radians(self.elevation_deg)
-        return np.array([centre_xy_mm[0] + self.distance_mm * math.cos(el) * math.cos(az),
-                         centre_xy_mm[1] + self.distance_mm * math.cos(el) * math.sin(az),
-                         self.distance_mm * math.sin(el)])
+        return np.array(
+            [
+                centre_xy_mm[0] + self.distance_mm * math.cos(el) * math.cos(az),
+                centre_xy_mm[1] + self.distance_mm * math.cos(el) * math.sin(az),
+                self.distance_mm * math.sin(el),
+            ]
+        )
 
 
 #: Preset LED layouts per sensor type (see the module docstring); distances in mm from the image centre.
 _PRESETS: dict[str, dict[str, Any]] = {
     "digit": {
-        "lights": [Light((0.05, 0.12, 1.0), 90.0, 30.0, 16.0, 70.0),
-                   Light((0.08, 1.0, 0.10), 210.0, 30.0, 16.0, 70.0),
-                   Light((1.0, 0.15, 0.05), 330.0, 30.0, 16.0, 70.0)],
-        "kd": 1.0, "ks": 0.25, "shininess": 18.0, "blur_mm": 0.25, "camera_height_mm": 22.0,
-        "shadow_soft_mm": 0.06, "read_noise": 1.0, "shot_gain": 0.02,
+        "lights": [
+            Light((0.05, 0.12, 1.0), 90.0, 30.0, 16.0, 70.0),
+            Light((0.08, 1.0, 0.10), 210.0, 30.0, 16.0, 70.0),
+            Light((1.0, 0.15, 0.05), 330.0, 30.0, 16.0, 70.0),
+        ],
+        "kd": 1.0,
+        "ks": 0.25,
+        "shininess": 18.0,
+        "blur_mm": 0.25,
+        "camera_height_mm": 22.0,
+        "shadow_soft_mm": 0.06,
+        "read_noise": 1.0,
+        "shot_gain": 0.02,
     },
     "gelsight": {
-        "lights": [Light((0.05, 0.10, 1.0), 0.0, 35.0, 20.0, 80.0),
-                   Light((0.10, 1.0, 0.10), 270.0, 35.0, 20.0, 70.0),
-                   Light((1.0, 0.20, 0.05), 135.0, 35.0, 20.0, 70.0)],
-        "kd": 1.0, "ks": 0.15, "shininess": 12.0, "blur_mm": 0.12, "camera_height_mm": 30.0,
-        "shadow_soft_mm": 0.05, "read_noise": 1.0, "shot_gain": 0.02,
+        "lights": [
+            Light((0.05, 0.10, 1.0), 0.0, 35.0, 20.0, 80.0),
+            Light((0.10, 1.0, 0.10), 270.0, 35.0, 20.0, 70.0),
+            Light((1.0, 0.20, 0.05), 135.0, 35.0, 20.0, 70.0),
+        ],
+        "kd": 1.0,
+        "ks": 0.15,
+        "shininess": 12.0,
+        "blur_mm": 0.12,
+        "camera_height_mm": 30.0,
+        "shadow_soft_mm": 0.05,
+        "read_noise": 1.0,
+        "shot_gain": 0.02,
     },
     "gelsight_mini": {
-        "lights": [Light((0.05, 0.10, 1.0), 0.0, 30.0, 14.0, 70.0),
-                   Light((0.10, 1.0, 0.10), 120.0, 30.0, 14.0, 65.0),
-                   Light((1.0, 0.15, 0.05), 240.0, 30.0, 14.0, 65.0),
-                   Light((0.6, 0.6, 0.6), 300.0, 25.0, 14.0, 20.0)],
-        "kd": 1.0, "ks": 0.2, "shininess": 15.0, "blur_mm": 0.2, "camera_height_mm": 18.0,
-        "shadow_soft_mm": 0.05, "read_noise": 1.0, "shot_gain": 0.02,
+        "lights": [
+            Light((0.05, 0.10, 1.0), 0.0, 30.0, 14.0, 70.0),
+            Light((0.10, 1.0, 0.10), 120.0, 30.0, 14.0, 65.0),
+            Light((1.0, 0.15, 0.05), 240.0, 30.0, 14.0, 65.0),
+            Light((0.6, 0.6, 0.6), 300.0, 25.0, 14.0, 20.0),
+        ],
+        "kd": 1.0,
+        "ks": 0.2,
+        "shininess": 15.0,
+        "blur_mm": 0.2,
+        "camera_height_mm": 18.0,
+        "shadow_soft_mm": 0.05,
+        "read_noise": 1.0,
+        "shot_gain": 0.02,
     },
 }
 SENSOR_TYPES = tuple(_PRESETS)
@@ -140,8 +168,12 @@ class OpticalModel:
         colour cross-talk +-0.03; 0 = the nominal preset).
         """
         if sensor_type not in _PRESETS:
-            raise InputError("no optical model for this tactile sensor type", field="type",
-                             expected=" | ".join(SENSOR_TYPES), got=sensor_type)
+            raise InputError(
+                "no optical model for this tactile sensor type",
+                field="type",
+                expected=" | ".join(SENSOR_TYPES),
+                got=sensor_type,
+            )
         p = dict(_PRESETS[sensor_type])
         lights = list(p.pop("lights"))
         if seed is not None and jitter > 0:
@@ -149,10 +181,15 @@ class OpticalModel:
             out = []
             for li in lights:
                 c = np.clip(np.asarray(li.colour_bgr) + jitter * rng.uniform(-0.03, 0.03, 3), 0.0, None)
-                out.append(replace(li, colour_bgr=tuple(float(x) for x in c),
-                                   azimuth_deg=li.azimuth_deg + jitter * rng.uniform(-4, 4),
-                                   elevation_deg=li.elevation_deg + jitter * rng.uniform(-3, 3),
-                                   gain=li.gain * (1.0 + jitter * rng.uniform(-0.08, 0.08))))
+                out.append(
+                    replace(
+                        li,
+                        colour_bgr=tuple(float(x) for x in c),
+                        azimuth_deg=li.azimuth_deg + jitter * rng.uniform(-4, 4),
+                        elevation_deg=li.elevation_deg + jitter * rng.uniform(-3, 3),
+                        gain=li.gain * (1.0 + jitter * rng.uniform(-0.08, 0.08)),
+                    )
+                )
             lights = out
         return cls(lights=lights, sensor_type=sensor_type, seed=seed, **p)
 
@@ -174,9 +211,14 @@ class OpticalModel:
         r2 = (X - c[0]) ** 2 + (Y - c[1]) ** 2
         # cos^4 vignetting of a pinhole camera at camera_height_mm over the gel
         cos_t = self.camera_height_mm / np.sqrt(r2 + self.camera_height_mm**2)
-        g = {"X": X, "Y": Y, "centre": c, "vignette": (cos_t**4).astype(np.float32),
-             "pos": [li.position_mm(c).astype(np.float32) for li in self.lights],
-             "cam": np.array([c[0], c[1], self.camera_height_mm], np.float32)}
+        g = {
+            "X": X,
+            "Y": Y,
+            "centre": c,
+            "vignette": (cos_t**4).astype(np.float32),
+            "pos": [li.position_mm(c).astype(np.float32) for li in self.lights],
+            "cam": np.array([c[0], c[1], self.camera_height_mm], np.float32),
+        }
         self._geom_cache[key] = g
         return g
 
@@ -201,13 +243,21 @@ class OpticalModel:
             t = k * step_px
             # sample h at p + t*u (towards the light); outside the frame the gel is flat
             M = np.array([[1.0, 0.0, -t * ux], [0.0, 1.0, -t * uy]], np.float32)
-            hs = cv2.warpAffine(h, M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                borderValue=0.0)
+            hs = cv2.warpAffine(h, M, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
             np.maximum(occ, hs - h - np.float32(t * mm_per_px * tan_el), out=occ)
         return np.clip(1.0 - occ / np.float32(self.shadow_soft_mm), 0.0, 1.0)
 
-    def _intensity(self, X: np.ndarray, Y: np.ndarray, z: np.ndarray, nx: np.ndarray, ny: np.ndarray,
-                   nz: np.ndarray, geom: dict, i: int) -> np.ndarray:
+    def _intensity(
+        self,
+        X: np.ndarray,
+        Y: np.ndarray,
+        z: np.ndarray,
+        nx: np.ndarray,
+        ny: np.ndarray,
+        nz: np.ndarray,
+        geom: dict,
+        i: int,
+    ) -> np.ndarray:
         """Shading term of light ``i`` at points (X, Y, z) mm with unit normals n (Lambert + Blinn-Phong,
         inverse-square fall-off), unitless."""
         li = self.lights[i]
@@ -269,8 +319,14 @@ class OpticalModel:
             roi += d[..., None] * np.asarray(li.colour_bgr, np.float32)[None, None, :]
         return out
 
-    def render(self, height_mm: np.ndarray, mm_per_px: float, background_bgr: np.ndarray,
-               rng: np.random.Generator | None = None, noise: float = 1.0) -> np.ndarray:
+    def render(
+        self,
+        height_mm: np.ndarray,
+        mm_per_px: float,
+        background_bgr: np.ndarray,
+        rng: np.random.Generator | None = None,
+        noise: float = 1.0,
+    ) -> np.ndarray:
         """Tactile image (uint8 BGR, (H, W, 3)) of the indentation ``height_mm`` (mm, (H, W)).
 
         Args:
@@ -283,8 +339,12 @@ class OpticalModel:
         bg = np.asarray(background_bgr)
         h = np.asarray(height_mm)
         if bg.ndim != 3 or bg.shape[2] != 3 or bg.shape[:2] != h.shape:
-            raise InputError("background must be a BGR image of the height map's size", field="background",
-                             expected=f"{h.shape[0]}x{h.shape[1]}x3", got=bg.shape)
+            raise InputError(
+                "background must be a BGR image of the height map's size",
+                field="background",
+                expected=f"{h.shape[0]}x{h.shape[1]}x3",
+                got=bg.shape,
+            )
         import cv2
 
         geom = self._geometry(h.shape, float(mm_per_px))

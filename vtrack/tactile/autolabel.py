@@ -104,8 +104,13 @@ def change_magnitude(image: np.ndarray, background: np.ndarray, blur_px: float) 
     return cv2.GaussianBlur(a, (0, 0), blur_px), level
 
 
-def detect_contact(image: np.ndarray, background: np.ndarray, ball_radius_px: float, file: str = "",
-                   opts: AutoLabelOptions | None = None) -> Detection:
+def detect_contact(
+    image: np.ndarray,
+    background: np.ndarray,
+    ball_radius_px: float,
+    file: str = "",
+    opts: AutoLabelOptions | None = None,
+) -> Detection:
     """Find the visible contact circle of one ball press (see module docstring).
 
     Args:
@@ -180,16 +185,21 @@ def detect_contact(image: np.ndarray, background: np.ndarray, ball_radius_px: fl
     det.center_x_px, det.center_y_px, det.contact_radius_px = cx, cy, r
     det.coverage, det.fit_rms_px = cov, rms
     if cov < o.min_coverage:
-        det.reason = (f"contact edge found on {100 * cov:.0f} % of the circle (off the image or not round; "
-                      f"need {100 * o.min_coverage:.0f} %)")
+        det.reason = (
+            f"contact edge found on {100 * cov:.0f} % of the circle (off the image or not round; "
+            f"need {100 * o.min_coverage:.0f} %)"
+        )
     elif not np.isfinite(rms) or rms > max(1.5, o.max_fit_rms_frac * r):
         det.reason = f"contact is not circular (fit residual {rms:.1f} px)"
     elif r < o.min_radius_frac * ball_radius_px:
-        det.reason = (f"too shallow (contact radius {r:.1f} px < {o.min_radius_frac:g} x ball radius "
-                      f"{ball_radius_px:.1f} px)")
+        det.reason = (
+            f"too shallow (contact radius {r:.1f} px < {o.min_radius_frac:g} x ball radius {ball_radius_px:.1f} px)"
+        )
     elif r > o.max_radius_frac * ball_radius_px:
-        det.reason = (f"contact radius {r:.1f} px larger than the ball ({ball_radius_px:.1f} px): wrong "
-                      "mm_per_px / ball_radius_mm, or not a ball press")
+        det.reason = (
+            f"contact radius {r:.1f} px larger than the ball ({ball_radius_px:.1f} px): wrong "
+            "mm_per_px / ball_radius_mm, or not a ball press"
+        )
     elif not (0 <= cx < W and 0 <= cy < H):
         det.reason = "contact centre outside the image (off-centre press)"
     return det
@@ -197,13 +207,22 @@ def detect_contact(image: np.ndarray, background: np.ndarray, ball_radius_px: fl
 
 def press_images(root: Path, background_file: str = "background.png") -> list[str]:
     """Image files of a press folder other than the background, sorted by name."""
-    return sorted(p.name for p in root.iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES and p.name != background_file
-                  and not p.name.startswith("."))
+    return sorted(
+        p.name
+        for p in root.iterdir()
+        if p.is_file()
+        and p.suffix.lower() in IMAGE_SUFFIXES
+        and p.name != background_file
+        and not p.name.startswith(".")
+    )
 
 
-def auto_label(root: str | Path, ball_radius_px: float, opts: AutoLabelOptions | None = None,
-               background_file: str = "background.png") -> list[Detection]:
+def auto_label(
+    root: str | Path,
+    ball_radius_px: float,
+    opts: AutoLabelOptions | None = None,
+    background_file: str = "background.png",
+) -> list[Detection]:
     """Detect the contact circle of every press image in a press folder (see module docstring)."""
     from vtrack.tactile.pressset import read_bgr
 
@@ -231,8 +250,17 @@ def auto_label(root: str | Path, ball_radius_px: float, opts: AutoLabelOptions |
     return out
 
 
-AUTO_COLUMNS = ("file", "center_x_px", "center_y_px", "contact_radius_px", "coverage", "fit_rms_px",
-                "peak_change", "used", "reason")
+AUTO_COLUMNS = (
+    "file",
+    "center_x_px",
+    "center_y_px",
+    "contact_radius_px",
+    "coverage",
+    "fit_rms_px",
+    "peak_change",
+    "used",
+    "reason",
+)
 
 
 def write_auto_labels(path: str | Path, detections: list[Detection]) -> Path:
@@ -245,14 +273,28 @@ def write_auto_labels(path: str | Path, detections: list[Detection]) -> Path:
         w.writerow(AUTO_COLUMNS)
         for d in detections:
             row = asdict(d)
-            w.writerow([d.file] + [f"{row[c]:.2f}" if np.isfinite(row[c]) else "" for c in AUTO_COLUMNS[1:4]]
-                       + [f"{d.coverage:.2f}", f"{d.fit_rms_px:.2f}" if np.isfinite(d.fit_rms_px) else "",
-                          f"{d.peak_change:.0f}", int(d.ok), d.reason])
+            w.writerow(
+                [d.file]
+                + [f"{row[c]:.2f}" if np.isfinite(row[c]) else "" for c in AUTO_COLUMNS[1:4]]
+                + [
+                    f"{d.coverage:.2f}",
+                    f"{d.fit_rms_px:.2f}" if np.isfinite(d.fit_rms_px) else "",
+                    f"{d.peak_change:.0f}",
+                    int(d.ok),
+                    d.reason,
+                ]
+            )
     return path
 
 
-def review_sheet(root: str | Path, detections: list[Detection], out: str | Path, tile_px: int = 200,
-                 cols: int = 8, background_file: str = "background.png") -> Path:
+def review_sheet(
+    root: str | Path,
+    detections: list[Detection],
+    out: str | Path,
+    tile_px: int = 200,
+    cols: int = 8,
+    background_file: str = "background.png",
+) -> Path:
     """Contact sheet of every press with its detected circle (green: used; red: dropped, with the reason's
     first words) for a person to check the automatic labels."""
     import cv2
@@ -268,8 +310,9 @@ def review_sheet(root: str | Path, detections: list[Detection], out: str | Path,
             raw = cv2.imread(str(root / d.file), cv2.IMREAD_COLOR)
             img = raw if raw is not None else np.zeros((tile_px, tile_px, 3), np.uint8)
         s = tile_px / max(img.shape[:2])
-        img = cv2.resize(img, (max(1, round(img.shape[1] * s)), max(1, round(img.shape[0] * s))),
-                         interpolation=cv2.INTER_AREA)
+        img = cv2.resize(
+            img, (max(1, round(img.shape[1] * s)), max(1, round(img.shape[0] * s))), interpolation=cv2.INTER_AREA
+        )
         colour = (0, 200, 0) if d.ok else (0, 0, 255)
         if np.isfinite(d.contact_radius_px):
             c = (round(d.center_x_px * s), round(d.center_y_px * s))
@@ -288,7 +331,7 @@ def review_sheet(root: str | Path, detections: list[Detection], out: str | Path,
     sheet = np.zeros((rows * th, cols * tile_px, 3), np.uint8)
     for i, t in enumerate(tiles):
         r, c = divmod(i, cols)
-        sheet[r * th:r * th + t.shape[0], c * tile_px:(c + 1) * tile_px] = t
+        sheet[r * th : r * th + t.shape[0], c * tile_px : (c + 1) * tile_px] = t
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), sheet):
         raise InputError("cannot write the review sheet", path=out, expected="a writable .png path")

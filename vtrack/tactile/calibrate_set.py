@@ -45,8 +45,9 @@ class CalibrationRun:
         return self.held_out is None or self.held_out["normal_err_deg_median"] <= MAX_NORMAL_ERR_DEG
 
 
-def cross_validate(ps, method: str, presses: list, opts=None, *, folds: int = CV_FOLDS,
-                   downsample: int | str = "auto") -> dict[str, Any]:
+def cross_validate(
+    ps, method: str, presses: list, opts=None, *, folds: int = CV_FOLDS, downsample: int | str = "auto"
+) -> dict[str, Any]:
     """K-fold cross-validation of ``method`` over ``presses`` (interleaved folds: press i is in fold i % k).
 
     Every press is predicted once by a model trained on the other folds; the per-press errors are pooled
@@ -69,14 +70,25 @@ def cross_validate(ps, method: str, presses: list, opts=None, *, folds: int = CV
         calib = calibrate(ps, method, train, opts)
         secs += calib.info["train_seconds"]
         rows += evaluate_calibration(ps, calib, test, downsample=downsample)["presses"]
-    return {"method": method, "folds": k, "n_presses": len(rows),
-            "radius_abs_err_pct_median": float(np.median([abs(r["radius_err_pct"]) for r in rows])),
-            "normal_err_deg_median": float(np.median([r["normal_err_deg_median"] for r in rows])),
-            "train_seconds": secs / k}
+    return {
+        "method": method,
+        "folds": k,
+        "n_presses": len(rows),
+        "radius_abs_err_pct_median": float(np.median([abs(r["radius_err_pct"]) for r in rows])),
+        "normal_err_deg_median": float(np.median([r["normal_err_deg_median"] for r in rows])),
+        "train_seconds": secs / k,
+    }
 
 
-def choose_method(ps, presses: list, opts=None, *, methods: tuple[str, ...] = AUTO_METHODS,
-                  folds: int = CV_FOLDS, downsample: int | str = "auto") -> tuple[str, list[dict[str, Any]]]:
+def choose_method(
+    ps,
+    presses: list,
+    opts=None,
+    *,
+    methods: tuple[str, ...] = AUTO_METHODS,
+    folds: int = CV_FOLDS,
+    downsample: int | str = "auto",
+) -> tuple[str, list[dict[str, Any]]]:
     """The method of ``methods`` with the lowest cross-validated median normal error on ``presses`` (the
     training presses: the held-out ones stay unseen, so their errors remain an honest check of the choice),
     and the cross-validation rows (``chosen`` marks the winner). Normals are what a calibration learns;
@@ -84,17 +96,28 @@ def choose_method(ps, presses: list, opts=None, *, methods: tuple[str, ...] = AU
     error."""
     rows = [cross_validate(ps, m, presses, opts, folds=folds, downsample=downsample) for m in methods]
     best_n = min(r["normal_err_deg_median"] for r in rows)
-    best = min((r for r in rows if r["normal_err_deg_median"] <= best_n + 0.25),
-               key=lambda r: r["radius_abs_err_pct_median"])
+    best = min(
+        (r for r in rows if r["normal_err_deg_median"] <= best_n + 0.25), key=lambda r: r["radius_abs_err_pct_median"]
+    )
     for r in rows:
         r["chosen"] = r is best
     return best["method"], rows
 
 
-def calibrate_press_set(root, *, method: str = "mlp", holdout: str | None = "every:4:3", opts=None,
-                        labels: str = "hand_or_auto", edge_weights: tuple[float, ...] = EDGE_WEIGHTS,
-                        meta_file=None, sensor: str | None = None, mm_per_px: float | None = None,
-                        ball_radius_mm: float | None = None, downsample: int | str = "auto") -> CalibrationRun:
+def calibrate_press_set(
+    root,
+    *,
+    method: str = "mlp",
+    holdout: str | None = "every:4:3",
+    opts=None,
+    labels: str = "hand_or_auto",
+    edge_weights: tuple[float, ...] = EDGE_WEIGHTS,
+    meta_file=None,
+    sensor: str | None = None,
+    mm_per_px: float | None = None,
+    ball_radius_mm: float | None = None,
+    downsample: int | str = "auto",
+) -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
 
     ``method="auto"``: the method is chosen among :data:`AUTO_METHODS` by :func:`choose_method`
@@ -108,11 +131,22 @@ def calibrate_press_set(root, *, method: str = "mlp", holdout: str | None = "eve
     from vtrack.tactile.calibration import METHODS
 
     if method != "auto" and method not in METHODS:
-        raise InputError("unknown calibration method", field="method", expected=" | ".join(METHODS + ("auto",)),
-                         got=method)
-    run = _labelled_run(root, method="mlp" if method == "auto" else method, holdout=holdout, opts=opts,
-                        labels=labels, edge_weights=edge_weights, meta_file=meta_file, sensor=sensor,
-                        mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm, downsample=downsample)
+        raise InputError(
+            "unknown calibration method", field="method", expected=" | ".join(METHODS + ("auto",)), got=method
+        )
+    run = _labelled_run(
+        root,
+        method="mlp" if method == "auto" else method,
+        holdout=holdout,
+        opts=opts,
+        labels=labels,
+        edge_weights=edge_weights,
+        meta_file=meta_file,
+        sensor=sensor,
+        mm_per_px=mm_per_px,
+        ball_radius_mm=ball_radius_mm,
+        downsample=downsample,
+    )
     if method != "auto":
         return run
     if len(run.train) < 2 * CV_FOLDS:  # too few presses to split: keep the default method, say so
@@ -133,8 +167,9 @@ def calibrate_press_set(root, *, method: str = "mlp", holdout: str | None = "eve
     return run
 
 
-def _labelled_run(root, *, method, holdout, opts, labels, edge_weights, meta_file, sensor, mm_per_px,
-                  ball_radius_mm, downsample) -> CalibrationRun:
+def _labelled_run(
+    root, *, method, holdout, opts, labels, edge_weights, meta_file, sensor, mm_per_px, ball_radius_mm, downsample
+) -> CalibrationRun:
     """:func:`calibrate_press_set` for one fixed method (edge placement chosen for auto labels)."""
     from vtrack.tactile.autolabel import AutoLabelOptions
     from vtrack.tactile.calibration import calibrate
@@ -145,8 +180,15 @@ def _labelled_run(root, *, method, holdout, opts, labels, edge_weights, meta_fil
         return evaluate_calibration(ps, calib, test, downsample=downsample)["summary"]
 
     def load(w: float):
-        return load_press_set(root, meta_file, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm,
-                              labels=labels, autolabel_opts=AutoLabelOptions(edge_weight=w))
+        return load_press_set(
+            root,
+            meta_file,
+            sensor=sensor,
+            mm_per_px=mm_per_px,
+            ball_radius_mm=ball_radius_mm,
+            labels=labels,
+            autolabel_opts=AutoLabelOptions(edge_weight=w),
+        )
 
     if not edge_weights:
         raise InputError("no edge placement to try", field="edge_weights", expected="at least one value")
@@ -169,9 +211,14 @@ def _labelled_run(root, *, method, holdout, opts, labels, edge_weights, meta_fil
         calib = calibrate(ps_w, method, train, opts)
         calib.info["autolabel_edge_weight"] = w
         summ = held_out(ps_w, calib, test)
-        trials.append({"edge_weight": w, "n_presses": len(ps_w.presses),
-                       "radius_abs_err_pct_median": summ["radius_abs_err_pct_median"],
-                       "normal_err_deg_median": summ["normal_err_deg_median"]})
+        trials.append(
+            {
+                "edge_weight": w,
+                "n_presses": len(ps_w.presses),
+                "radius_abs_err_pct_median": summ["radius_abs_err_pct_median"],
+                "normal_err_deg_median": summ["normal_err_deg_median"],
+            }
+        )
         runs.append(CalibrationRun(calib, ps_w, train, test, summ))
     # a placement that drops many presses (e.g. rims put beyond the ball radius) is judged on fewer, easier
     # presses: only placements keeping >= 80 % of the best-kept count compete

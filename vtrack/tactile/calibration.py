@@ -90,8 +90,9 @@ def gate_mask(dI: np.ndarray, gate: float) -> np.ndarray:
 _ONES3 = np.ones((1, 3), np.float32)
 
 
-def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 6.0, step: int = 0
-                 ) -> tuple[np.ndarray, float]:
+def drift_offset(
+    image: np.ndarray, background: np.ndarray, max_spread: float = 6.0, step: int = 0
+) -> tuple[np.ndarray, float]:
     """Global colour drift of a frame against the background, and the frame's typical colour change.
 
     Returns ``(offset, level)``: ``offset`` (3,) is the per-channel MODE of the colour change on a sparse
@@ -114,8 +115,9 @@ def drift_offset(image: np.ndarray, background: np.ndarray, max_spread: float = 
     off = np.zeros(3)
     if max_spread >= 0:
         for c in range(3):
-            counts = np.bincount(np.clip(d[:, c], -_MODE_RANGE, _MODE_RANGE) + _MODE_RANGE,
-                                 minlength=2 * _MODE_RANGE + 1).astype(np.float64)
+            counts = np.bincount(
+                np.clip(d[:, c], -_MODE_RANGE, _MODE_RANGE) + _MODE_RANGE, minlength=2 * _MODE_RANGE + 1
+            ).astype(np.float64)
             counts = np.convolve(counts, _MODE_KERNEL, mode="same")  # noise spreads the peak over a few levels
             m = float(np.argmax(counts) - _MODE_RANGE)
             near = np.abs(d[:, c] - m) <= 2.0
@@ -177,12 +179,17 @@ class Calibration:
         if img.ndim != 3 or img.shape[2] != 3:
             raise InputError("tactile image must be (H, W, 3) BGR", field=name, expected="(H, W, 3)", got=img.shape)
         if img.shape[:2] != self.shape:
-            raise InputError("image size differs from the calibration", field=name,
-                             expected=f"{self.shape[0]}x{self.shape[1]} (HxW) as calibrated", got=img.shape[:2])
+            raise InputError(
+                "image size differs from the calibration",
+                field=name,
+                expected=f"{self.shape[0]}x{self.shape[1]} (HxW) as calibrated",
+                got=img.shape[:2],
+            )
         return img
 
-    def normals(self, image: np.ndarray, background: np.ndarray | None = None,
-                mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def normals(
+        self, image: np.ndarray, background: np.ndarray | None = None, mask: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """In-plane normal components (nx, ny), each (H, W) float32, for a BGR image.
 
         ``background`` defaults to the calibration's; ``mask`` (optional) limits the evaluation (others 0);
@@ -195,8 +202,7 @@ class Calibration:
         m = gate_mask_images(img, bg, gate) if mask is None else np.asarray(mask, bool)
         return self.normals_from_change(dI, img, m)
 
-    def normals_from_change(self, dI: np.ndarray, img: np.ndarray, mask: np.ndarray
-                            ) -> tuple[np.ndarray, np.ndarray]:
+    def normals_from_change(self, dI: np.ndarray, img: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(nx, ny) from a precomputed colour change ``dI`` (float32 (H, W, 3)); zero outside ``mask``."""
         H, W = img.shape[:2]
         nx = np.zeros((H, W), np.float32)
@@ -216,8 +222,9 @@ class Calibration:
         ny[rows, cols] = out[:, 1]
         return nx, ny
 
-    def slopes_from_images(self, image: np.ndarray, background: np.ndarray, mask: np.ndarray
-                           ) -> tuple[np.ndarray, np.ndarray]:
+    def slopes_from_images(
+        self, image: np.ndarray, background: np.ndarray, mask: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Slopes (dh/dx, dh/dy, mm/mm, float32) from a uint8 image and background of this model's size;
         zero outside ``mask``. The fast path of the real-time pipeline (LUT: one gather from a slope table)."""
         import cv2
@@ -277,8 +284,9 @@ class Calibration:
             self.params["_slopes"] = t
         return t
 
-    def _predict_pixels(self, d: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                        shape: tuple[int, int]) -> np.ndarray:
+    def _predict_pixels(
+        self, d: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
+    ) -> np.ndarray:
         if self.method == "mlp":
             return _mlp_forward(self.params, _mlp_features(d, raw, rows, cols, shape))
         if self.method == "ps":
@@ -288,11 +296,18 @@ class Calibration:
     def resized(self, background: np.ndarray) -> Calibration:
         """The same model on a resized background (working resolution); colour/position features are
         resolution-independent (positions are normalised to [-1, 1])."""
-        return Calibration(self.method, self.sensor, self.mm_per_px * self.shape[1] / background.shape[1],
-                           np.asarray(background), self.params, self.info)
+        return Calibration(
+            self.method,
+            self.sensor,
+            self.mm_per_px * self.shape[1] / background.shape[1],
+            np.asarray(background),
+            self.params,
+            self.info,
+        )
 
-    def slopes(self, image: np.ndarray, background: np.ndarray | None = None,
-               mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def slopes(
+        self, image: np.ndarray, background: np.ndarray | None = None, mask: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Surface slopes (dh/dx, dh/dy) in mm/mm, each (H, W) float32."""
         nx, ny = self.normals(image, background, mask)
         return normals_to_slopes(nx, ny)
@@ -323,8 +338,13 @@ class Calibration:
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        header = {"format": FORMAT_VERSION, "method": self.method, "sensor": self.sensor,
-                  "mm_per_px": self.mm_per_px, "info": self.info}
+        header = {
+            "format": FORMAT_VERSION,
+            "method": self.method,
+            "sensor": self.sensor,
+            "mm_per_px": self.mm_per_px,
+            "info": self.info,
+        }
         arrays = {f"p_{k}": v for k, v in self.params.items() if not k.startswith("_")}
         with open(path, "wb") as f:
             np.savez_compressed(f, header=np.array(json.dumps(header)), background=self.background, **arrays)
@@ -343,14 +363,18 @@ class Calibration:
         except (OSError, ValueError, KeyError) as e:
             raise InputError(f"not a vtrack calibration ({e})", path=path) from None
         if header.get("format") != FORMAT_VERSION or header.get("method") not in METHODS:
-            raise InputError("unsupported calibration file", path=path, field="header",
-                             expected=f"format {FORMAT_VERSION}, method in {METHODS}", got=header.get("method"))
+            raise InputError(
+                "unsupported calibration file",
+                path=path,
+                field="header",
+                expected=f"format {FORMAT_VERSION}, method in {METHODS}",
+                got=header.get("method"),
+            )
         return cls(header["method"], header["sensor"], float(header["mm_per_px"]), bg, params, header["info"])
 
 
 # ---------------------------------------------------------------------- training data
-def training_samples(ps: PressSet, presses: list[Press], opts: TrainOptions
-                     ) -> dict[str, np.ndarray]:
+def training_samples(ps: PressSet, presses: list[Press], opts: TrainOptions) -> dict[str, np.ndarray]:
     """Pixels with known normals: inside each (shrunk) contact disc from the analytic sphere, plus flat gel
     sampled well outside the disc. Returns dI (N,3), raw colour (N,3), rows, cols, target (nx, ny)."""
     rng = np.random.default_rng(opts.seed)
@@ -410,8 +434,9 @@ def fit_lut(src: np.ndarray, target: np.ndarray, bins: int, lo: float, hi: float
 
 
 # ---------------------------------------------------------------------- MLP
-def _mlp_features(dI: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray,
-                  shape: tuple[int, int]) -> np.ndarray:
+def _mlp_features(
+    dI: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
+) -> np.ndarray:
     H, W = shape
     f = np.empty((len(rows), 8), np.float32)
     f[:, 0:3] = dI * (1.0 / 64.0)
@@ -455,7 +480,7 @@ def fit_mlp(feats: np.ndarray, target: np.ndarray, opts: TrainOptions) -> dict[s
     for _ in range(opts.mlp_epochs):
         perm = torch.randperm(n, generator=g)
         for s in range(0, n, batch):
-            b = perm[s:s + batch]
+            b = perm[s : s + batch]
             loss = torch.nn.functional.smooth_l1_loss(torch.tanh(net(X[b])), Y[b], beta=0.05)
             opt.zero_grad()
             loss.backward()
@@ -482,8 +507,12 @@ def fit_ps(dI: np.ndarray, n_xy: np.ndarray) -> dict[str, np.ndarray]:
     Lt = L.T  # (K, 3) light vectors (scaled by intensity x albedo)
     cond = np.linalg.cond(Lt)
     if not np.isfinite(cond) or cond > 1e6:
-        raise InputError("photometric stereo: light directions are degenerate", field="lights",
-                         expected="K >= 3 non-coplanar lights", got=f"condition number {cond:.3g}")
+        raise InputError(
+            "photometric stereo: light directions are degenerate",
+            field="lights",
+            expected="K >= 3 non-coplanar lights",
+            got=f"condition number {cond:.3g}",
+        )
     return {"lights": Lt.astype(np.float64), "lights_pinv": np.linalg.pinv(Lt).astype(np.float64)}
 
 
@@ -523,8 +552,13 @@ def fit_inverse(dI: np.ndarray, n_xy: np.ndarray, bins: int = 33) -> np.ndarray:
     return _fill_empty(table, filled).astype(np.float32)
 
 
-def lambertian_calibration(background: np.ndarray, mm_per_px: float, gain: float = 110.0,
-                           elevation_deg: float = 35.0, sensor: str = "lambertian") -> Calibration:
+def lambertian_calibration(
+    background: np.ndarray,
+    mm_per_px: float,
+    gain: float = 110.0,
+    elevation_deg: float = 35.0,
+    sensor: str = "lambertian",
+) -> Calibration:
     """Uncalibrated fallback: photometric stereo with the known lights of the Lambertian render model
     (:func:`vtrack.tactile.render.lambert_colour_delta`), so simulated images invert exactly."""
     from vtrack.tactile.render import lambert_light_dirs
@@ -537,8 +571,14 @@ def lambertian_calibration(background: np.ndarray, mm_per_px: float, gain: float
     nz = np.sqrt(1 - (nxy**2).sum(1))
     dI = np.column_stack([nxy, nz - 1.0]) @ L.T
     params = {"lights": L, "lights_pinv": np.linalg.pinv(L), "inverse": fit_inverse(dI, nxy)}
-    return Calibration("ps", sensor, float(mm_per_px), np.asarray(background), params,
-                       {"gate": 6.0, "model": "lambertian", "gain": gain, "elevation_deg": elevation_deg})
+    return Calibration(
+        "ps",
+        sensor,
+        float(mm_per_px),
+        np.asarray(background),
+        params,
+        {"gate": 6.0, "model": "lambertian", "gain": gain, "elevation_deg": elevation_deg},
+    )
 
 
 def height_noise(calib: Calibration, ps: PressSet, presses: list[Press], max_presses: int = 6) -> float:
@@ -557,8 +597,9 @@ def height_noise(calib: Calibration, ps: PressSet, presses: list[Press], max_pre
     return float(np.median(vals)) if vals else 0.0
 
 
-def calibrate(ps: PressSet, method: str = "lut", train: list[Press] | None = None,
-              opts: TrainOptions | None = None) -> Calibration:
+def calibrate(
+    ps: PressSet, method: str = "lut", train: list[Press] | None = None, opts: TrainOptions | None = None
+) -> Calibration:
     """Train a calibration of ``method`` on the ``train`` presses (default all) of a press set."""
     opts = opts or TrainOptions()
     if method not in METHODS:
@@ -568,8 +609,12 @@ def calibrate(ps: PressSet, method: str = "lut", train: list[Press] | None = Non
         raise InputError("no training presses left after the hold-out split", field="holdout")
     t0 = time.perf_counter()
     data = training_samples(ps, train, opts)
-    info: dict[str, Any] = {"gate": opts.gate, "train_files": [p.file for p in train],
-                            "n_train_pixels": int(len(data["n"])), "options": opts.__dict__.copy()}
+    info: dict[str, Any] = {
+        "gate": opts.gate,
+        "train_files": [p.file for p in train],
+        "n_train_pixels": int(len(data["n"])),
+        "options": opts.__dict__.copy(),
+    }
     if method == "lut":
         # bin edges on half-integers: integer colour changes never sit on an edge (float-rounding safe)
         params = fit_lut(data["dI"], data["n"], opts.lut_bins, -opts.lut_range - 0.5, opts.lut_range - 0.5)
@@ -588,8 +633,9 @@ def calibrate(ps: PressSet, method: str = "lut", train: list[Press] | None = Non
     return calib
 
 
-def cached_calibration(ps: PressSet, method: str, holdout: str | None = None,
-                       opts: TrainOptions | None = None) -> Calibration:
+def cached_calibration(
+    ps: PressSet, method: str, holdout: str | None = None, opts: TrainOptions | None = None
+) -> Calibration:
     """Train (or load from ``cache_dir()/tactile``) a calibration on the non-held-out presses of a press set."""
     import hashlib
 
@@ -597,8 +643,17 @@ def cached_calibration(ps: PressSet, method: str, holdout: str | None = None,
 
     opts = opts or TrainOptions()
     train, _ = ps.split(holdout)
-    key = json.dumps({"root": str(ps.root.resolve()), "meta": ps.meta(), "method": method,
-                      "train": [p.file for p in train], "opts": opts.__dict__, "v": FORMAT_VERSION}, sort_keys=True)
+    key = json.dumps(
+        {
+            "root": str(ps.root.resolve()),
+            "meta": ps.meta(),
+            "method": method,
+            "train": [p.file for p in train],
+            "opts": opts.__dict__,
+            "v": FORMAT_VERSION,
+        },
+        sort_keys=True,
+    )
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
     path = cache_dir() / "tactile" / f"calib_{method}_{digest}.npz"
     if path.is_file():

@@ -36,9 +36,17 @@ class ContactStats:
         return self.area_px > 0
 
 
-def contact_mask(height_mm: np.ndarray, threshold_mm: float = 0.05, *, noise_mm: float = 0.0,
-                 k_sigma: float = 3.0, rel: float = 0.0, diff_mask: np.ndarray | None = None,
-                 min_area_px: int = 3, close_px: int = 3) -> np.ndarray:
+def contact_mask(
+    height_mm: np.ndarray,
+    threshold_mm: float = 0.05,
+    *,
+    noise_mm: float = 0.0,
+    k_sigma: float = 3.0,
+    rel: float = 0.0,
+    diff_mask: np.ndarray | None = None,
+    min_area_px: int = 3,
+    close_px: int = 3,
+) -> np.ndarray:
     """Boolean contact mask (H, W). NaN heights are never in contact."""
     import cv2
 
@@ -88,5 +96,14 @@ def contact_stats(height_mm: np.ndarray, mask: np.ndarray, mm_per_px: float) -> 
         axes, angle = (0.5, 0.5), 0.0
     xy = pixel_grid_to_sensor_xy(np.array([cy]), np.array([cx]), W, H, mm_per_px)[0]
     a_px = mm_per_px * mm_per_px
-    return ContactStats(n, n * a_px, (cx, cy), (float(xy[0]), float(xy[1])), axes, angle,
-                        float(h.max()), float(h.mean()), float(h.sum() * a_px))
+    return ContactStats(
+        n,
+        n * a_px,
+        (cx, cy),
+        (float(xy[0]), float(xy[1])),
+        axes,
+        angle,
+        float(h.max()),
+        float(h.mean()),
+        float(h.sum() * a_px),
+    )

@@ -23,8 +23,7 @@ def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     """
     P = np.asarray(points, np.float64)
     if P.ndim != 2 or P.shape[1] not in (2, 3) or len(P) < P.shape[1] + 1 or not np.isfinite(P).all():
-        raise InputError("sphere/circle fit needs >= D+1 finite 2-D or 3-D points", field="points",
-                         got=np.shape(P))
+        raise InputError("sphere/circle fit needs >= D+1 finite 2-D or 3-D points", field="points", got=np.shape(P))
     D = P.shape[1]
     mu = P.mean(0)
     Q = P - mu
@@ -46,8 +45,9 @@ def angle_deg(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(c))
 
 
-def evaluate_press(height_mm: np.ndarray, press: Press, ball_radius_mm: float, mm_per_px: float,
-                   disc_frac: float = 1.0) -> dict[str, float]:
+def evaluate_press(
+    height_mm: np.ndarray, press: Press, ball_radius_mm: float, mm_per_px: float, disc_frac: float = 1.0
+) -> dict[str, float]:
     """Metrics of one reconstructed press (height in mm, same size as the press image)."""
     H, W = height_mm.shape
     R_px = ball_radius_mm / mm_per_px
@@ -74,13 +74,20 @@ def evaluate_press(height_mm: np.ndarray, press: Press, ball_radius_mm: float, m
     # radius both fix the absolute level only approximately); the absolute error is reported too
     rmse_um = float(np.sqrt(np.mean((diff - diff.mean()) ** 2)) * 1000.0)
     abs_rmse_um = float(np.sqrt(np.mean(diff**2)) * 1000.0)
-    return {"fitted_radius_mm": r_fit, "radius_err_pct": 100.0 * (r_fit - ball_radius_mm) / ball_radius_mm,
-            "normal_err_deg_median": float(np.median(err)), "shape_rmse_um": rmse_um, "abs_rmse_um": abs_rmse_um,
-            "max_depth_mm": float(h[disc].max()), "true_depth_mm": float(h_true[disc].max())}
+    return {
+        "fitted_radius_mm": r_fit,
+        "radius_err_pct": 100.0 * (r_fit - ball_radius_mm) / ball_radius_mm,
+        "normal_err_deg_median": float(np.median(err)),
+        "shape_rmse_um": rmse_um,
+        "abs_rmse_um": abs_rmse_um,
+        "max_depth_mm": float(h[disc].max()),
+        "true_depth_mm": float(h_true[disc].max()),
+    }
 
 
-def evaluate_presses(ps: PressSet, presses: list[Press], reconstruct, *, label: dict[str, Any] | None = None
-                     ) -> dict[str, Any]:
+def evaluate_presses(
+    ps: PressSet, presses: list[Press], reconstruct, *, label: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """Run ``reconstruct(image_bgr) -> height_mm`` on each press and collect metrics (the issue's schema)."""
     if not presses:
         raise InputError("no presses to evaluate (hold-out split is empty)", field="holdout")
@@ -105,12 +112,26 @@ def evaluate_presses(ps: PressSet, presses: list[Press], reconstruct, *, label: 
         # process CPU time: robust to other jobs on a shared machine (wall time above is not)
         "cpu_ms_per_frame_p50": float(np.median([x["cpu_ms_per_frame"] for x in rows])),
     }
-    return {**(label or {}), "sensor": ps.sensor, "mm_per_px": ps.mm_per_px, "ball_radius_mm": ps.ball_radius_mm,
-            "image_size_hw": list(ps.shape), "summary": summary, "presses": rows}
+    return {
+        **(label or {}),
+        "sensor": ps.sensor,
+        "mm_per_px": ps.mm_per_px,
+        "ball_radius_mm": ps.ball_radius_mm,
+        "image_size_hw": list(ps.shape),
+        "summary": summary,
+        "presses": rows,
+    }
 
 
-def evaluate_calibration(ps: PressSet, calib, presses: list[Press], *, solver: str = "dct",
-                         downsample: int | str = "auto", label: dict[str, Any] | None = None) -> dict[str, Any]:
+def evaluate_calibration(
+    ps: PressSet,
+    calib,
+    presses: list[Press],
+    *,
+    solver: str = "dct",
+    downsample: int | str = "auto",
+    label: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """:func:`evaluate_presses` of a calibration run through the tactile pipeline (``solver``, ``downsample``)."""
     from vtrack.tactile.pipeline import TactilePipeline
 

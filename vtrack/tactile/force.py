@@ -43,13 +43,19 @@ class ForceModel:
         self.w: np.ndarray | None = None
         self.k_shear: float | None = None
 
-    def fit(self, features: np.ndarray, normal_n: np.ndarray, shear_mm: np.ndarray | None = None,
-            shear_n: np.ndarray | None = None) -> ForceModel:
+    def fit(
+        self,
+        features: np.ndarray,
+        normal_n: np.ndarray,
+        shear_mm: np.ndarray | None = None,
+        shear_n: np.ndarray | None = None,
+    ) -> ForceModel:
         X = np.asarray(features, float)
         y = np.asarray(normal_n, float)
         if X.ndim != 2 or len(X) != len(y) or len(y) < X.shape[1] + 1:
-            raise InputError("force fit needs (N, k) features and N >= k + 1 forces", field="features",
-                             got=(X.shape, y.shape))
+            raise InputError(
+                "force fit needs (N, k) features and N >= k + 1 forces", field="features", got=(X.shape, y.shape)
+            )
         if not (np.isfinite(X).all() and np.isfinite(y).all()):
             raise InputError("non-finite training data", field="features/normal_n")
         A = np.column_stack([X, np.ones(len(X))])

@@ -24,8 +24,9 @@ def _grey(image: np.ndarray) -> np.ndarray:
     return img.astype(np.float32)
 
 
-def detect_markers(image: np.ndarray, *, contrast: float = 25.0, min_area_px: int = 4, max_area_px: int = 400,
-                   blur_px: float = 0.0) -> np.ndarray:
+def detect_markers(
+    image: np.ndarray, *, contrast: float = 25.0, min_area_px: int = 4, max_area_px: int = 400, blur_px: float = 0.0
+) -> np.ndarray:
     """(N, 2) float64 sub-pixel marker centroids (x, y), darkness-weighted.
 
     A pixel is a marker candidate when it is ``contrast`` grey levels darker than its local background
@@ -94,8 +95,9 @@ def rigid_2d(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
     return ang, cd - R @ cs
 
 
-def robust_rigid_2d(src: np.ndarray, dst: np.ndarray, iters: int = 3, min_tol_px: float = 0.3
-                    ) -> tuple[float, np.ndarray]:
+def robust_rigid_2d(
+    src: np.ndarray, dst: np.ndarray, iters: int = 3, min_tol_px: float = 0.3
+) -> tuple[float, np.ndarray]:
     """:func:`rigid_2d` with trimming: matches whose residual exceeds ``max(min_tol_px, 3 x median)`` are
     dropped and the fit repeated. A worn gel gives wrong matches (dust dots that never move, two markers
     merged into one blob, a marker matched to its neighbour's blob); least squares alone lets them drag the

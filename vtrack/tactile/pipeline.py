@@ -113,14 +113,27 @@ class TactilePipeline:
             reported with ``quality`` "saturated"/"dark" and no contact instead of a meaningless height map.
     """
 
-    def __init__(self, calib: Calibration | str | Path | None = None, *, mm_per_px: float | None = None,
-                 background: np.ndarray | None = None, image_shape: tuple[int, int] | None = None,
-                 solver: str = "dct", downsample: int | str = "auto", contact_threshold_mm: float = 0.05,
-                 contact_rel: float = 0.15,
-                 point_stride: int = 1, markers: bool = False, slip: bool = False, force_model: Any = None,
-                 drift_compensation: bool = True, drift_max_spread: float = 6.0, gate_k: float = 2.0,
-                 bad_fraction: float = 0.5,
-                 sensor_name: str = "tactile") -> None:
+    def __init__(
+        self,
+        calib: Calibration | str | Path | None = None,
+        *,
+        mm_per_px: float | None = None,
+        background: np.ndarray | None = None,
+        image_shape: tuple[int, int] | None = None,
+        solver: str = "dct",
+        downsample: int | str = "auto",
+        contact_threshold_mm: float = 0.05,
+        contact_rel: float = 0.15,
+        point_stride: int = 1,
+        markers: bool = False,
+        slip: bool = False,
+        force_model: Any = None,
+        drift_compensation: bool = True,
+        drift_max_spread: float = 6.0,
+        gate_k: float = 2.0,
+        bad_fraction: float = 0.5,
+        sensor_name: str = "tactile",
+    ) -> None:
         if isinstance(calib, (str, Path)):
             calib = Calibration.load(calib)
         if solver not in ("dct", "fft", "lsq"):
@@ -178,8 +191,12 @@ class TactilePipeline:
         if not specs:
             raise InputError("scene has no (non-dome) tactile sensor", field="tactile")
         if sensor_name is not None and sensor_name not in {t.name for t in specs}:
-            raise InputError("unknown tactile sensor", field="sensor_name",
-                             expected=" | ".join(t.name for t in specs), got=sensor_name)
+            raise InputError(
+                "unknown tactile sensor",
+                field="sensor_name",
+                expected=" | ".join(t.name for t in specs),
+                got=sensor_name,
+            )
         built = {t.name: cls._from_spec(t, synthetic=scene.sim is not None, **options) for t in specs}
         main = built[sensor_name or specs[0].name]
         main.sensors = built
@@ -194,27 +211,42 @@ class TactilePipeline:
             bg = _sim_background(spec)
         opts = {"contact_threshold_mm": spec.contact_threshold_mm, **options}
         bg = opts.pop("background", bg)
-        return cls(spec.calibration, mm_per_px=spec.mm_per_px, background=bg,
-                   image_shape=(spec.height, spec.width), sensor_name=spec.name, **opts)
+        return cls(
+            spec.calibration,
+            mm_per_px=spec.mm_per_px,
+            background=bg,
+            image_shape=(spec.height, spec.width),
+            sensor_name=spec.name,
+            **opts,
+        )
 
     def for_sensor(self, name: str) -> TactilePipeline:
         try:
             return self.sensors[name]
         except KeyError:
-            raise InputError("unknown tactile sensor", field="sensor", expected=" | ".join(self.sensors),
-                             got=name) from None
+            raise InputError(
+                "unknown tactile sensor", field="sensor", expected=" | ".join(self.sensors), got=name
+            ) from None
 
     # ------------------------------------------------------------------ background / working resolution
     def _check(self, image: np.ndarray, name: str = "image") -> np.ndarray:
         img = np.asarray(image)
         if img.ndim == 2:  # grey has lost the colour -> slope information the calibration reads
-            raise InputError("tactile image is greyscale; the calibration needs the colour channels", field=name,
-                             expected="(H, W, 3) BGR", got=img.shape)
+            raise InputError(
+                "tactile image is greyscale; the calibration needs the colour channels",
+                field=name,
+                expected="(H, W, 3) BGR",
+                got=img.shape,
+            )
         if img.ndim != 3 or img.shape[2] != 3 or img.size == 0:
             raise InputError("tactile image must be (H, W, 3) BGR", field=name, expected="(H, W, 3)", got=img.shape)
         if self.image_shape is not None and img.shape[:2] != tuple(self.image_shape):
-            raise InputError("image size differs from the sensor calibration", field=name,
-                             expected=f"{self.image_shape[0]}x{self.image_shape[1]} (HxW)", got=img.shape[:2])
+            raise InputError(
+                "image size differs from the sensor calibration",
+                field=name,
+                expected=f"{self.image_shape[0]}x{self.image_shape[1]} (HxW)",
+                got=img.shape[:2],
+            )
         if img.dtype != np.uint8:
             # float images: NaN/Inf -> 0 and clip into 8 bits (the calibration is defined on 8-bit colour)
             img = np.clip(np.nan_to_num(img.astype(np.float32), nan=0.0, posinf=255.0, neginf=0.0), 0, 255)
@@ -323,8 +355,9 @@ class TactilePipeline:
             return cv2.resize(a.view(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).view(bool)
         return cv2.resize(a, (W, H), interpolation=cv2.INTER_LINEAR)
 
-    def process(self, image_bgr: np.ndarray | str, image: np.ndarray | None = None,
-                full_res: bool = True) -> TactileFrame:
+    def process(
+        self, image_bgr: np.ndarray | str, image: np.ndarray | None = None, full_res: bool = True
+    ) -> TactileFrame:
         """Run the pipeline on one BGR image of this sensor (see :class:`TactileFrame`).
 
         ``process(image)`` uses this sensor; ``process(sensor_name, image)`` dispatches to the pipeline of
@@ -347,8 +380,9 @@ class TactilePipeline:
             img, hw, gate, quality, drift = self._height_work(img)
         t1 = time.perf_counter()
         s_work = self.mm_per_px * self.downsample
-        mask_w = contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, rel=self.contact_rel,
-                              diff_mask=gate)
+        mask_w = contact_mask(
+            hw, self.contact_threshold_mm, noise_mm=self.noise_mm, rel=self.contact_rel, diff_mask=gate
+        )
         stats = contact_stats(hw, mask_w, s_work)
         if self.downsample > 1 and stats.area_px:
             d = self.downsample
@@ -361,9 +395,16 @@ class TactilePipeline:
         H, W = img.shape[:2]
         if not full_res and self.slip is None:  # slip reads the full-resolution contact mask
             H, W = hw.shape  # working-resolution maps: _to_full is then a no-op
-        frame = TactileFrame(self._to_full(hw, (H, W)), self._to_full(mask_w, (H, W)), pts, nrm, stats,
-                             timings_ms={"height": (t1 - t0) * 1e3, "contact": (t2 - t1) * 1e3,
-                                         "points": (t3 - t2) * 1e3}, quality=quality, drift=drift)
+        frame = TactileFrame(
+            self._to_full(hw, (H, W)),
+            self._to_full(mask_w, (H, W)),
+            pts,
+            nrm,
+            stats,
+            timings_ms={"height": (t1 - t0) * 1e3, "contact": (t2 - t1) * 1e3, "points": (t3 - t2) * 1e3},
+            quality=quality,
+            drift=drift,
+        )
         if self.markers is not None:
             frame.shear = self.markers.update(img)
         if self.slip is not None:
@@ -380,8 +421,9 @@ class TactilePipeline:
         return lo < -3.0 * tau and hi < 0.5 * abs(lo)
 
     @staticmethod
-    def contact_points(height_mm: np.ndarray, mask: np.ndarray, mm_per_px: float, stride: int = 1
-                       ) -> tuple[np.ndarray, np.ndarray]:
+    def contact_points(
+        height_mm: np.ndarray, mask: np.ndarray, mm_per_px: float, stride: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Sensor-frame points (m) and normals of the contact pixels of a height map with pitch ``mm_per_px``.
 
         Only the contact bounding box is lifted (with ``height_to_points``), then shifted to full-map coordinates.

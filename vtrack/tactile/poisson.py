@@ -25,8 +25,12 @@ def _check(gx: np.ndarray, gy: np.ndarray, dtype=np.float64) -> tuple[np.ndarray
     gx = np.asarray(gx, dtype=dtype)
     gy = np.asarray(gy, dtype=dtype)
     if gx.ndim != 2 or gx.shape != gy.shape:
-        raise InputError("gradients must be two 2-D arrays of the same shape", field="gx/gy",
-                         expected="(H, W) and (H, W)", got=(gx.shape, gy.shape))
+        raise InputError(
+            "gradients must be two 2-D arrays of the same shape",
+            field="gx/gy",
+            expected="(H, W) and (H, W)",
+            got=(gx.shape, gy.shape),
+        )
     # Non-finite gradients carry no information: treat them as flat rather than letting NaN spread.
     if not (np.isfinite(gx).all() and np.isfinite(gy).all()):
         gx = np.where(np.isfinite(gx), gx, 0.0)
@@ -60,8 +64,7 @@ def _anchor(z: np.ndarray, zero_mask: np.ndarray | None) -> np.ndarray:
     return z - ref
 
 
-def poisson_dct(gx: np.ndarray, gy: np.ndarray, zero_mask: np.ndarray | None = None,
-                dtype=np.float64) -> np.ndarray:
+def poisson_dct(gx: np.ndarray, gy: np.ndarray, zero_mask: np.ndarray | None = None, dtype=np.float64) -> np.ndarray:
     """Least-squares integration with Neumann boundary, solved by DCT-II (O(HW log HW)).
 
     Exact for integrable gradients (up to half-pixel averaging); the LSQ solution for noisy ones.
@@ -129,8 +132,9 @@ def poisson_fft(gx: np.ndarray, gy: np.ndarray, zero_mask: np.ndarray | None = N
     return _anchor(z, zero_mask)
 
 
-def poisson_masked_lsq(gx: np.ndarray, gy: np.ndarray, mask: np.ndarray, *,
-                       boundary_zero: bool = True, reg: float = 1e-8) -> np.ndarray:
+def poisson_masked_lsq(
+    gx: np.ndarray, gy: np.ndarray, mask: np.ndarray, *, boundary_zero: bool = True, reg: float = 1e-8
+) -> np.ndarray:
     """Sparse least-squares integration using only the gradients inside ``mask``.
 
     Unknown heights are the mask pixels; pixels outside the mask are fixed at zero (``boundary_zero``,

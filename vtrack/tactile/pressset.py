@@ -71,21 +71,33 @@ class PressSet:
     def background(self) -> np.ndarray:
         bg = self.read(self.background_file)
         if float(bg.std()) < 2.0:
-            raise InputError("background image is blank (constant colour)", path=self.root / self.background_file,
-                             expected="the sensor's no-contact tactile image", got=f"std {float(bg.std()):.2f}")
+            raise InputError(
+                "background image is blank (constant colour)",
+                path=self.root / self.background_file,
+                expected="the sensor's no-contact tactile image",
+                got=f"std {float(bg.std()):.2f}",
+            )
         return bg
 
     def image(self, press: Press) -> np.ndarray:
         img = self.read(press.file)
         bg = self.background()
         if img.shape != bg.shape:
-            raise InputError("press image size differs from the background", path=self.root / press.file,
-                             expected=str(bg.shape), got=img.shape)
+            raise InputError(
+                "press image size differs from the background",
+                path=self.root / press.file,
+                expected=str(bg.shape),
+                got=img.shape,
+            )
         # A blank (all-black, all-white, constant) frame carries no press; calibrating on it gives a
         # calibration that looks fine but is ~40 degrees off (issue #22).
         if float(img.std()) < 2.0:
-            raise InputError("press image is blank (constant colour)", path=self.root / press.file,
-                             expected="a tactile image of a ball press", got=f"std {float(img.std()):.2f}")
+            raise InputError(
+                "press image is blank (constant colour)",
+                path=self.root / press.file,
+                expected="a tactile image of a ball press",
+                got=f"std {float(img.std()):.2f}",
+            )
         return img
 
     @property
@@ -113,16 +125,24 @@ def read_bgr(path: str | Path) -> np.ndarray:
     # Tactile calibration maps colour to surface slope: a grey image has lost that information and
     # would give a confidently wrong contact, so it is refused rather than silently expanded to BGR.
     if img.ndim == 2 or img.shape[2] == 1:
-        raise InputError("tactile image is greyscale; the calibration needs the colour channels", path=path,
-                         expected="an 8-bit colour (BGR) image", got=f"{img.shape[1]}x{img.shape[0]} grey")
+        raise InputError(
+            "tactile image is greyscale; the calibration needs the colour channels",
+            path=path,
+            expected="an 8-bit colour (BGR) image",
+            got=f"{img.shape[1]}x{img.shape[0]} grey",
+        )
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     elif img.dtype != np.uint8:
         raise InputError("unsupported pixel type", path=path, expected="8- or 16-bit", got=str(img.dtype))
     img = np.ascontiguousarray(img[..., :3])
     if img.size > 64 and not (np.any(img[..., 0] != img[..., 1]) or np.any(img[..., 1] != img[..., 2])):
-        raise InputError("tactile image has no colour (all three channels are equal)", path=path,
-                         expected="a colour (BGR) tactile image", got="grey stored as colour")
+        raise InputError(
+            "tactile image has no colour (all three channels are equal)",
+            path=path,
+            expected="a colour (BGR) tactile image",
+            got="grey stored as colour",
+        )
     return img
 
 
@@ -152,8 +172,9 @@ def parse_holdout(spec: str | None, presses: list[Press]) -> set[int]:
             want = {int(x) for x in rest.split(",") if x.strip()}
             bad = want - {p.index for p in presses}
             if bad:
-                raise InputError("hold-out index out of range", field="holdout", expected=f"0..{n - 1}",
-                                 got=sorted(bad))
+                raise InputError(
+                    "hold-out index out of range", field="holdout", expected=f"0..{n - 1}", got=sorted(bad)
+                )
             return want
         if kind == "files":
             names = {x.strip() for x in rest.split(",") if x.strip()}
@@ -164,11 +185,15 @@ def parse_holdout(spec: str | None, presses: list[Press]) -> set[int]:
             return found
         if kind == "last":
             k = int(rest)
-            return {p.index for p in presses[n - k:]} if k > 0 else set()
+            return {p.index for p in presses[n - k :]} if k > 0 else set()
     except (ValueError, IndexError):
         pass
-    raise InputError("bad hold-out spec", field="holdout",
-                     expected="every:K[:OFFSET] | idx:i,j | files:a.png,b.png | last:N | none", got=spec)
+    raise InputError(
+        "bad hold-out spec",
+        field="holdout",
+        expected="every:K[:OFFSET] | idx:i,j | files:a.png,b.png | last:N | none",
+        got=spec,
+    )
 
 
 def _read_meta_file(path: Path) -> dict:
@@ -207,8 +232,12 @@ def resolve_meta(root: Path, meta_file: str | Path | None = None, **overrides) -
             meta["mm_per_px_source"] = "preset"
     missing = [k for k in META_FIELDS if k not in meta]
     if missing:
-        raise InputError("press-set metadata missing (add meta.json, pass --meta FILE or the flags "
-                         "--sensor/--mm-per-px/--ball-radius-mm)", path=root, field=",".join(missing))
+        raise InputError(
+            "press-set metadata missing (add meta.json, pass --meta FILE or the flags "
+            "--sensor/--mm-per-px/--ball-radius-mm)",
+            path=root,
+            field=",".join(missing),
+        )
     for k in ("mm_per_px", "ball_radius_mm"):
         try:
             v = float(meta[k])
@@ -221,9 +250,16 @@ def resolve_meta(root: Path, meta_file: str | Path | None = None, **overrides) -
     return meta
 
 
-def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sensor: str | None = None,
-                   mm_per_px: float | None = None, ball_radius_mm: float | None = None,
-                   labels: str = "hand_or_auto", autolabel_opts=None) -> PressSet:
+def load_press_set(
+    path: str | Path,
+    meta_file: str | Path | None = None,
+    *,
+    sensor: str | None = None,
+    mm_per_px: float | None = None,
+    ball_radius_mm: float | None = None,
+    labels: str = "hand_or_auto",
+    autolabel_opts=None,
+) -> PressSet:
     """Load a press-set folder (see module docstring). Images are read on first use.
 
     ``labels``: ``hand`` (``labels.csv`` required), ``auto`` (contact circles detected by
@@ -233,8 +269,11 @@ def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sen
     """
     root = Path(path)
     if not root.is_dir():
-        raise InputError("press-set folder not found", path=root,
-                         expected="folder with background.png and press images (labels.csv optional)")
+        raise InputError(
+            "press-set folder not found",
+            path=root,
+            expected="folder with background.png and press images (labels.csv optional)",
+        )
     if labels not in ("hand", "auto", "hand_or_auto"):
         raise InputError("unknown label source", field="labels", expected="hand | auto | hand_or_auto", got=labels)
     meta = resolve_meta(root, meta_file, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
@@ -246,8 +285,14 @@ def load_press_set(path: str | Path, meta_file: str | Path | None = None, *, sen
     if not csv_path.is_file():
         raise InputError("labels.csv not found in the press set", path=csv_path)
     presses = read_labels(csv_path)
-    return PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"],
-                    mm_per_px_source=meta["mm_per_px_source"])
+    return PressSet(
+        root,
+        presses,
+        meta["sensor"],
+        meta["mm_per_px"],
+        meta["ball_radius_mm"],
+        mm_per_px_source=meta["mm_per_px_source"],
+    )
 
 
 def read_labels(labels: Path) -> list[Press]:
@@ -264,8 +309,9 @@ def read_labels(labels: Path) -> list[Press]:
             except (TypeError, ValueError):
                 raise InputError(f"row {i + 2}: non-numeric label", path=labels, got=row) from None
             if not (np.isfinite([cx, cy, r]).all() and r > 0):
-                raise InputError(f"row {i + 2}: bad contact circle", path=labels, expected="finite, radius > 0",
-                                 got=row)
+                raise InputError(
+                    f"row {i + 2}: bad contact circle", path=labels, expected="finite, radius > 0", got=row
+                )
             presses.append(Press(row["file"], (cx, cy), r, index=i))
     if not presses:
         raise InputError("labels.csv has no presses", path=labels)
@@ -276,8 +322,10 @@ def _auto_press_set(root: Path, meta: dict, opts) -> PressSet:
     from vtrack.tactile.autolabel import MIN_PRESSES, auto_label
 
     dets = auto_label(root, meta["ball_radius_mm"] / meta["mm_per_px"], opts)
-    presses = [Press(d.file, (d.center_x_px, d.center_y_px), d.contact_radius_px, index=i)
-               for i, d in enumerate(x for x in dets if x.ok)]
+    presses = [
+        Press(d.file, (d.center_x_px, d.center_y_px), d.contact_radius_px, index=i)
+        for i, d in enumerate(x for x in dets if x.ok)
+    ]
     if len(presses) < MIN_PRESSES:
         reasons: dict[str, int] = {}
         for d in dets:
@@ -285,17 +333,27 @@ def _auto_press_set(root: Path, meta: dict, opts) -> PressSet:
                 key = d.reason.split(" (")[0]
                 reasons[key] = reasons.get(key, 0) + 1
         why = "; ".join(f"{n} x {k}" for k, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
-        raise InputError(f"only {len(presses)} usable presses of {len(dets)} (dropped: {why})", path=root,
-                         expected=f">= {MIN_PRESSES} ball presses with a clear contact")
-    ps = PressSet(root, presses, meta["sensor"], meta["mm_per_px"], meta["ball_radius_mm"],
-                  mm_per_px_source=meta["mm_per_px_source"])
+        raise InputError(
+            f"only {len(presses)} usable presses of {len(dets)} (dropped: {why})",
+            path=root,
+            expected=f">= {MIN_PRESSES} ball presses with a clear contact",
+        )
+    ps = PressSet(
+        root,
+        presses,
+        meta["sensor"],
+        meta["mm_per_px"],
+        meta["ball_radius_mm"],
+        mm_per_px_source=meta["mm_per_px_source"],
+    )
     ps.labels_source = "auto"
     ps.detections = dets
     return ps
 
 
-def sphere_truth(press: Press, shape: tuple[int, int], ball_radius_px: float
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def sphere_truth(
+    press: Press, shape: tuple[int, int], ball_radius_px: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Analytic ball-press surface of one press.
 
     Returns ``(height_px, gx, gy, inside)``: the indentation (px units) of a sphere of radius

@@ -30,8 +30,9 @@ def lambert_light_dirs(elevation_deg: float = 35.0) -> np.ndarray:
     return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.full(3, np.sin(el))], axis=1)
 
 
-def lambert_colour_delta(gx: np.ndarray, gy: np.ndarray, *, gain: float = 110.0,
-                         elevation_deg: float = 35.0) -> np.ndarray:
+def lambert_colour_delta(
+    gx: np.ndarray, gy: np.ndarray, *, gain: float = 110.0, elevation_deg: float = 35.0
+) -> np.ndarray:
     """(H, W, 3) colour change (BGR, grey levels) of a Lambertian gel with slopes (gx, gy) (mm/mm).
 
     The change is ``gain * (n . l_c - n0 . l_c)`` with ``n0 = (0, 0, 1)``, a flat gel renders the background.
@@ -67,18 +68,27 @@ def _as_bgr(background_bgr: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     if bg.ndim == 2:
         bg = np.repeat(bg[..., None], 3, axis=2)
     if bg.ndim != 3 or bg.shape[2] != 3:
-        raise InputError("background must be an (H, W, 3) BGR image", field="background_bgr",
-                         expected="(H, W, 3)", got=bg.shape)
+        raise InputError(
+            "background must be an (H, W, 3) BGR image", field="background_bgr", expected="(H, W, 3)", got=bg.shape
+        )
     bg = np.nan_to_num(bg.astype(np.float32), nan=0.0, posinf=255.0, neginf=0.0)
     if bg.shape[:2] != shape:
         bg = cv2.resize(bg, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
     return bg
 
 
-def render_tactile_image(height_mm: np.ndarray, mm_per_px: float, background_bgr: np.ndarray,
-                         calib: Any = None, rng: np.random.Generator | None = None, *,
-                         noise_std: float = 1.5, blur_px: float = 0.0, gain: float = 110.0,
-                         elevation_deg: float = 35.0) -> np.ndarray:
+def render_tactile_image(
+    height_mm: np.ndarray,
+    mm_per_px: float,
+    background_bgr: np.ndarray,
+    calib: Any = None,
+    rng: np.random.Generator | None = None,
+    *,
+    noise_std: float = 1.5,
+    blur_px: float = 0.0,
+    gain: float = 110.0,
+    elevation_deg: float = 35.0,
+) -> np.ndarray:
     """Render a uint8 BGR tactile image of a gel indented by ``height_mm``.
 
     Args:
@@ -98,8 +108,7 @@ def render_tactile_image(height_mm: np.ndarray, mm_per_px: float, background_bgr
 
     h = np.asarray(height_mm, dtype=np.float32)
     if h.ndim != 2 or h.size == 0:
-        raise InputError("height map must be a non-empty 2-D array", field="height_mm", expected="(H, W)",
-                         got=h.shape)
+        raise InputError("height map must be a non-empty 2-D array", field="height_mm", expected="(H, W)", got=h.shape)
     if not (np.isfinite(mm_per_px) and mm_per_px > 0):
         raise InputError("pixel pitch must be positive", field="mm_per_px", expected="> 0", got=mm_per_px)
     h = np.nan_to_num(h, nan=0.0, posinf=0.0, neginf=0.0)

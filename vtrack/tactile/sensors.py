@@ -52,20 +52,33 @@ class SensorPreset:
 
 SENSOR_PRESETS: dict[str, SensorPreset] = {
     # DIGIT streams QVGA 320x240 at 60 fps (VGA at 30); stored portrait (240 wide, 320 high).
-    "digit": SensorPreset("digit", 320, 240, 60.0, 0.09, 3.0, 90,
-                          (("blue", 90.0), ("green", 210.0), ("red", 330.0)), ("DIGIT", "Digit")),
+    "digit": SensorPreset(
+        "digit", 320, 240, 60.0, 0.09, 3.0, 90, (("blue", 90.0), ("green", 210.0), ("red", 330.0)), ("DIGIT", "Digit")
+    ),
     # GelSight Mini: 3280x2464 sensor, usually streamed downscaled; 320x240 is the common working size.
-    "gelsight_mini": SensorPreset("gelsight_mini", 320, 240, 25.0, 0.0634, 4.0, 0,
-                                  (("blue", 0.0), ("green", 120.0), ("red", 240.0), ("white", 300.0)),
-                                  ("GelSight Mini", "GelSight")),
-    "gelsight": SensorPreset("gelsight", 640, 480, 30.0, 0.0295, 3.0, 0,
-                             (("blue", 0.0), ("green", 270.0), ("red", 135.0)), ("GelSight",)),
+    "gelsight_mini": SensorPreset(
+        "gelsight_mini",
+        320,
+        240,
+        25.0,
+        0.0634,
+        4.0,
+        0,
+        (("blue", 0.0), ("green", 120.0), ("red", 240.0), ("white", 300.0)),
+        ("GelSight Mini", "GelSight"),
+    ),
+    "gelsight": SensorPreset(
+        "gelsight", 640, 480, 30.0, 0.0295, 3.0, 0, (("blue", 0.0), ("green", 270.0), ("red", 135.0)), ("GelSight",)
+    ),
 }
 
 
 #: No-contact frames shipped in ``vtrack/assets/backgrounds`` (licences beside them), per sensor type.
-_BACKGROUNDS = {"digit": "digit_bg_tacto_240x320.jpg", "gelsight_mini": "gelsight_mini_bg_normalflow_320x240.png",
-                "gelsight": "gelsight_mini_bg_normalflow_320x240.png"}
+_BACKGROUNDS = {
+    "digit": "digit_bg_tacto_240x320.jpg",
+    "gelsight_mini": "gelsight_mini_bg_normalflow_320x240.png",
+    "gelsight": "gelsight_mini_bg_normalflow_320x240.png",
+}
 
 
 def default_background(sensor_type: str, width: int, height: int, path=None):
@@ -101,8 +114,9 @@ def sensor_preset(sensor_type: str, field: str = "sensor") -> SensorPreset:
     """The preset of ``sensor_type``; a clear InputError naming ``field`` for an unknown type."""
     p = SENSOR_PRESETS.get(sensor_type)
     if p is None:
-        raise InputError("unknown tactile sensor type", field=field, expected=" | ".join(SENSOR_PRESETS),
-                         got=sensor_type)
+        raise InputError(
+            "unknown tactile sensor type", field=field, expected=" | ".join(SENSOR_PRESETS), got=sensor_type
+        )
     return p
 
 

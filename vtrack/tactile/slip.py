@@ -57,7 +57,7 @@ class SlipDetector:
         base = float(np.median(self.values)) if self.values else s
         slipping = bool(len(self.values) >= 3 and s > max(self.ratio * base, self.floor))
         if not slipping:  # only non-slip frames update the noise baseline
-            self.values = (self.values + [s])[-self.history:]
+            self.values = (self.values + [s])[-self.history :]
         return SlipState(s, base, slipping)
 
 
@@ -70,9 +70,18 @@ class PartialSlip:
     full: bool  # centre itself lags (gross slip) -- needs the object motion to tell; see ``object_disp_px``
 
 
-def partial_slip(points_px: np.ndarray, disp_px: np.ndarray, centre_px: np.ndarray, radius_px: float, *,
-                 inner: float = 0.5, lag: float = 0.3, min_disp_px: float = 0.5, min_fraction: float = 0.3,
-                 object_disp_px: np.ndarray | None = None) -> PartialSlip:
+def partial_slip(
+    points_px: np.ndarray,
+    disp_px: np.ndarray,
+    centre_px: np.ndarray,
+    radius_px: float,
+    *,
+    inner: float = 0.5,
+    lag: float = 0.3,
+    min_disp_px: float = 0.5,
+    min_fraction: float = 0.3,
+    object_disp_px: np.ndarray | None = None,
+) -> PartialSlip:
     """Partial-slip test on a marker displacement field inside a contact of radius ``radius_px``.
 
     Markers with ``r < inner * radius`` form the centre, ``inner * radius <= r <= radius`` the annulus.

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def sphere_height(h: int, w: int, cx: float, cy: float, ball_r_px: float, depth_px: float,
-                  mm_per_px: float) -> np.ndarray:
+def sphere_height(
+    h: int, w: int, cx: float, cy: float, ball_r_px: float, depth_px: float, mm_per_px: float
+) -> np.ndarray:
     """(h, w) indentation (mm) of a ball of radius ``ball_r_px`` pressed ``depth_px`` deep at (cx, cy) px."""
     yy, xx = np.mgrid[0:h, 0:w]
     rho2 = (xx - cx) ** 2 + (yy - cy) ** 2
@@ -22,8 +23,9 @@ def marker_grid(h: int, w: int, pitch_px: float = 12.0, margin_px: float = 8.0) 
     return np.column_stack([X.ravel(), Y.ravel()])
 
 
-def draw_markers(image: np.ndarray, centres: np.ndarray, radius_px: float = 2.0, darkness: float = 80.0,
-                 ss: int = 4) -> np.ndarray:
+def draw_markers(
+    image: np.ndarray, centres: np.ndarray, radius_px: float = 2.0, darkness: float = 80.0, ss: int = 4
+) -> np.ndarray:
     """Darken anti-aliased discs (sub-pixel accurate via ``ss`` x supersampling) at ``centres`` (x, y)."""
     img = np.asarray(image, np.float32).copy()
     H, W = img.shape[:2]

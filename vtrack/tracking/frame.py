@@ -60,8 +60,9 @@ def _subsample(n: int, budget: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(n, budget, replace=False))
 
 
-def sanitize(frame: TrackingFrame, max_vision: int = 400, max_touch: int = 160, max_free: int = 64,
-             seed: int = 0) -> TrackingFrame:
+def sanitize(
+    frame: TrackingFrame, max_vision: int = 400, max_touch: int = 160, max_free: int = 64, seed: int = 0
+) -> TrackingFrame:
     """A copy of ``frame`` with finite rows only, subsampled to the given budgets.
 
     Raises:
@@ -89,5 +90,4 @@ def sanitize(frame: TrackingFrame, max_vision: int = 400, max_touch: int = 160, 
     F = _rows(frame.free_points, "free_points")
     F = F[np.isfinite(F).all(1)]
     F = F[_subsample(len(F), max_free, rng)]
-    return TrackingFrame(t=t, vision_points=V, touch_points=P, touch_normals=N, free_points=F,
-                         info=dict(frame.info))
+    return TrackingFrame(t=t, vision_points=V, touch_points=P, touch_normals=N, free_points=F, info=dict(frame.info))

@@ -72,31 +72,31 @@ class GlobalRegOptions:
     """Tuning of :func:`global_register` (metres, radians, seconds)."""
 
     seed: int = 0
-    n_frames: int = 3                #: first frames whose observations are accumulated (object ~still)
-    voxel: float | None = None       #: feature voxel, m; None: diameter / 22 clipped to [3, 8] mm
-    n_model_points: int = 6000       #: model surface samples (features use the voxel-downsampled set)
-    max_vision_points: int = 4000    #: per-frame budget after NaN removal
-    min_vision_points: int = 30      #: below this (after downsampling) the touch-only path is used
-    ransac_seeds: int = 3            #: RANSAC runs with different seeds
-    ransac_max_iter: int = 6000      #: samples per RANSAC run
+    n_frames: int = 3  #: first frames whose observations are accumulated (object ~still)
+    voxel: float | None = None  #: feature voxel, m; None: diameter / 22 clipped to [3, 8] mm
+    n_model_points: int = 6000  #: model surface samples (features use the voxel-downsampled set)
+    max_vision_points: int = 4000  #: per-frame budget after NaN removal
+    min_vision_points: int = 30  #: below this (after downsampling) the touch-only path is used
+    ransac_seeds: int = 3  #: RANSAC runs with different seeds
+    ransac_max_iter: int = 6000  #: samples per RANSAC run
     use_fgr: bool = True
     use_pca: bool = True
-    flips: int = 2                   #: best distinct hypotheses also tried turned 180 deg (3 axes)
+    flips: int = 2  #: best distinct hypotheses also tried turned 180 deg (3 axes)
     icp_iterations: int = 25
-    top_k: int = 5                   #: hypotheses returned
-    distinct_frac: float = 0.1       #: hypotheses closer than this * diameter (ADD / ADD-S) are merged
-    sdf_voxel: float = 0.003         #: verification SDF grid spacing, m (ignored if a grid is given)
-    inlier_dist: float = 0.004       #: |sdf| below this counts as a vision inlier, m
-    sigma_vision: float = 0.0015     #: vision point-to-surface tolerance in the score, m
-    max_score_points: int = 1500     #: vision points used by the fine ICP stage and the score
-    sigma_touch: float = 0.001       #: contact-to-surface tolerance in the score, m
-    contact_tolerance: float = 0.002 #: touch points deeper than this inside count as penetration, m
-    free_margin: float = 0.001       #: free gel points deeper than this inside penetrate, m
+    top_k: int = 5  #: hypotheses returned
+    distinct_frac: float = 0.1  #: hypotheses closer than this * diameter (ADD / ADD-S) are merged
+    sdf_voxel: float = 0.003  #: verification SDF grid spacing, m (ignored if a grid is given)
+    inlier_dist: float = 0.004  #: |sdf| below this counts as a vision inlier, m
+    sigma_vision: float = 0.0015  #: vision point-to-surface tolerance in the score, m
+    max_score_points: int = 1500  #: vision points used by the fine ICP stage and the score
+    sigma_touch: float = 0.001  #: contact-to-surface tolerance in the score, m
+    contact_tolerance: float = 0.002  #: touch points deeper than this inside count as penetration, m
+    free_margin: float = 0.001  #: free gel points deeper than this inside penetrate, m
     w_vision: float = 1.0
     w_touch: float = 1.0
     w_free: float = 0.5
-    n_rotations: int = 3000          #: touch-only rotation samples
-    touch_refine: int = 20           #: touch-only candidates refined with ICP
+    n_rotations: int = 3000  #: touch-only rotation samples
+    touch_refine: int = 20  #: touch-only candidates refined with ICP
     #: world camera origin, m (default: ``frames[0].info['camera_origin']``); orients scene normals
     camera_position: tuple[float, float, float] | None = None
 
@@ -112,13 +112,13 @@ class PoseHypothesis:
     """One candidate ``T_world_object`` (4x4, metres) with its verification terms."""
 
     T_world_object: np.ndarray
-    score: float                     #: combined score in [0, 1], higher is better
-    vision_fitness: float = float("nan")   #: fraction of vision points on the surface
-    vision_rmse: float = float("nan")      #: RMSE of the inliers' |sdf|, m
-    contact_residual: float = float("nan") #: median |sdf| of touch points, m
-    normal_agreement: float = float("nan") #: mean cos(measured normal, SDF gradient)
-    penetration: float = float("nan")      #: mean depth of free/touch points inside the object, m
-    source: str = ""                 #: ransac | fgr | pca | touch | prior
+    score: float  #: combined score in [0, 1], higher is better
+    vision_fitness: float = float("nan")  #: fraction of vision points on the surface
+    vision_rmse: float = float("nan")  #: RMSE of the inliers' |sdf|, m
+    contact_residual: float = float("nan")  #: median |sdf| of touch points, m
+    normal_agreement: float = float("nan")  #: mean cos(measured normal, SDF gradient)
+    penetration: float = float("nan")  #: mean depth of free/touch points inside the object, m
+    source: str = ""  #: ransac | fgr | pca | touch | prior
     n_vision: int = 0
     n_touch: int = 0
     n_free: int = 0
@@ -132,14 +132,14 @@ class PoseHypothesis:
 
 @dataclass
 class _Model:
-    points: np.ndarray       # (N, 3) object-frame surface samples, m
-    normals: np.ndarray      # (N, 3) outward unit normals
-    centre: np.ndarray       # bounding-box centre, m
-    diameter: float          # bounding-box diagonal, m
+    points: np.ndarray  # (N, 3) object-frame surface samples, m
+    normals: np.ndarray  # (N, 3) outward unit normals
+    centre: np.ndarray  # bounding-box centre, m
+    diameter: float  # bounding-box diagonal, m
     voxel: float
     grid: SDFGrid
-    pcd: object              # o3d PointCloud with normals (dense, for ICP)
-    down: object             # voxel-downsampled PointCloud with normals
+    pcd: object  # o3d PointCloud with normals (dense, for ICP)
+    down: object  # voxel-downsampled PointCloud with normals
     fpfh: object
     eval_points: np.ndarray  # (200, 3) for hypothesis distances
 
@@ -148,21 +148,32 @@ def _check_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) < 4:
-        raise InputError("mesh vertices must be a (V, 3) array with V >= 4", field="vertices",
-                         expected="(V>=4, 3) metres", got=V.shape)
+        raise InputError(
+            "mesh vertices must be a (V, 3) array with V >= 4",
+            field="vertices",
+            expected="(V>=4, 3) metres",
+            got=V.shape,
+        )
     if not np.isfinite(V).all():
         raise InputError("mesh vertices contain NaN/Inf", field="vertices", expected="finite metres")
     if F.ndim != 2 or F.shape[1] != 3 or len(F) < 4 or F.dtype.kind not in "iu":
-        raise InputError("a closed mesh needs >= 4 integer triangles", field="faces",
-                         expected="(F>=4, 3) vertex indices", got=F.shape)
+        raise InputError(
+            "a closed mesh needs >= 4 integer triangles",
+            field="faces",
+            expected="(F>=4, 3) vertex indices",
+            got=F.shape,
+        )
     if F.min() < 0 or F.max() >= len(V):
-        raise InputError("face index out of range", field="faces", expected=f"indices in [0, {len(V)})",
-                         got=(int(F.min()), int(F.max())))
+        raise InputError(
+            "face index out of range",
+            field="faces",
+            expected=f"indices in [0, {len(V)})",
+            got=(int(F.min()), int(F.max())),
+        )
     return V, F.astype(np.int64)
 
 
-def _prepare_model(vertices: np.ndarray, faces: np.ndarray, opts: GlobalRegOptions,
-                   grid: SDFGrid | None) -> _Model:
+def _prepare_model(vertices: np.ndarray, faces: np.ndarray, opts: GlobalRegOptions, grid: SDFGrid | None) -> _Model:
     import open3d as o3d
 
     from vtrack.eval.reconstruction import sample_surface
@@ -171,8 +182,12 @@ def _prepare_model(vertices: np.ndarray, faces: np.ndarray, opts: GlobalRegOptio
     lo, hi = V.min(0), V.max(0)
     diameter = float(np.linalg.norm(hi - lo))
     if not diameter > 1e-4:
-        raise InputError("mesh is degenerate (extent below 0.1 mm)", field="vertices",
-                         expected="an object of some size, metres", got=diameter)
+        raise InputError(
+            "mesh is degenerate (extent below 0.1 mm)",
+            field="vertices",
+            expected="an object of some size, metres",
+            got=diameter,
+        )
     if grid is None:
         grid = SDFGrid.from_arrays(V, F, voxel=max(opts.sdf_voxel, diameter / 100.0), padding=0.01)
     P, N = sample_surface(V, F, opts.n_model_points, seed=opts.seed)
@@ -190,9 +205,20 @@ def _prepare_model(vertices: np.ndarray, faces: np.ndarray, opts: GlobalRegOptio
     nd = np.asarray(down.normals)
     down.normals = o3d.utility.Vector3dVector(nd / np.maximum(np.linalg.norm(nd, axis=1, keepdims=True), 1e-12))
     fpfh = o3d.pipelines.registration.compute_fpfh_feature(
-        down, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100))
-    return _Model(points=P, normals=N, centre=0.5 * (lo + hi), diameter=diameter, voxel=voxel, grid=grid,
-                  pcd=pcd, down=down, fpfh=fpfh, eval_points=P[:: max(1, len(P) // 200)][:200])
+        down, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
+    )
+    return _Model(
+        points=P,
+        normals=N,
+        centre=0.5 * (lo + hi),
+        diameter=diameter,
+        voxel=voxel,
+        grid=grid,
+        pcd=pcd,
+        down=down,
+        fpfh=fpfh,
+        eval_points=P[:: max(1, len(P) // 200)][:200],
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -204,21 +230,29 @@ def _prepare_model(vertices: np.ndarray, faces: np.ndarray, opts: GlobalRegOptio
 class _Obs:
     vision: np.ndarray
     touch: np.ndarray
-    normals: np.ndarray      # (M, 3), NaN rows where unknown
+    normals: np.ndarray  # (M, 3), NaN rows where unknown
     free: np.ndarray
     camera: np.ndarray | None = None  # world camera origin, m, when known
 
 
 def _gather(frames: list[TrackingFrame], opts: GlobalRegOptions) -> _Obs:
     if not isinstance(frames, (list, tuple)):
-        raise InputError("frames must be a list of TrackingFrame", field="frames",
-                         expected="list[TrackingFrame]", got=type(frames).__name__)
+        raise InputError(
+            "frames must be a list of TrackingFrame",
+            field="frames",
+            expected="list[TrackingFrame]",
+            got=type(frames).__name__,
+        )
     use = list(frames)[: max(1, int(opts.n_frames))]
     V, P, N, Fr = [], [], [], []
     for i, fr in enumerate(use):
         if not isinstance(fr, TrackingFrame):
-            raise InputError("frames must hold TrackingFrame objects", field=f"frames[{i}]",
-                             expected="TrackingFrame", got=type(fr).__name__)
+            raise InputError(
+                "frames must hold TrackingFrame objects",
+                field=f"frames[{i}]",
+                expected="TrackingFrame",
+                got=type(fr).__name__,
+            )
         s = sanitize(fr, max_vision=opts.max_vision_points, max_touch=200, max_free=200, seed=opts.seed + i)
         V.append(s.vision_points)
         P.append(s.touch_points)
@@ -239,15 +273,17 @@ def _gather(frames: list[TrackingFrame], opts: GlobalRegOptions) -> _Obs:
 # ---------------------------------------------------------------------------------------------
 
 
-def _evaluate(T_wo: np.ndarray, model: _Model, obs: _Obs, opts: GlobalRegOptions, source: str,
-              vision: np.ndarray | None = None) -> PoseHypothesis:
+def _evaluate(
+    T_wo: np.ndarray, model: _Model, obs: _Obs, opts: GlobalRegOptions, source: str, vision: np.ndarray | None = None
+) -> PoseHypothesis:
     """Score ``T_world_object`` against the observations (object-frame SDF lookups)."""
     T_ow = se3.invert(T_wo)
     R_ow = T_ow[:3, :3]
     Vp = obs.vision if vision is None else vision
     parts, wsum = 0.0, 0.0
-    h = PoseHypothesis(T_world_object=T_wo, score=0.0, source=source, n_vision=len(Vp), n_touch=len(obs.touch),
-                       n_free=len(obs.free))
+    h = PoseHypothesis(
+        T_world_object=T_wo, score=0.0, source=source, n_vision=len(Vp), n_touch=len(obs.touch), n_free=len(obs.free)
+    )
     pen = []
     if len(Vp):
         d, _ = model.grid.query(se3.transform_points(T_ow, Vp), with_grad=False)
@@ -280,8 +316,9 @@ def _evaluate(T_wo: np.ndarray, model: _Model, obs: _Obs, opts: GlobalRegOptions
     return h
 
 
-def _distinct(hyps: list[PoseHypothesis], model: _Model, symmetric: bool, opts: GlobalRegOptions
-              ) -> list[PoseHypothesis]:
+def _distinct(
+    hyps: list[PoseHypothesis], model: _Model, symmetric: bool, opts: GlobalRegOptions
+) -> list[PoseHypothesis]:
     from vtrack.eval.pose_metrics import add, add_s
 
     metric = add_s if symmetric else add
@@ -292,8 +329,11 @@ def _distinct(hyps: list[PoseHypothesis], model: _Model, symmetric: bool, opts: 
         if not np.all(np.isfinite(h.T_world_object)):
             continue
         if out:
-            d = metric(np.stack([o.T_world_object for o in out]),
-                       np.repeat(h.T_world_object[None], len(out), 0), model.eval_points)
+            d = metric(
+                np.stack([o.T_world_object for o in out]),
+                np.repeat(h.T_world_object[None], len(out), 0),
+                model.eval_points,
+            )
             if np.any(d < tol):
                 continue
         out.append(h)
@@ -324,7 +364,8 @@ def _scene_cloud(points: np.ndarray, model: _Model, camera: np.ndarray | None):
         Nn[flip] *= -1
         down.normals = o3d.utility.Vector3dVector(Nn)
     fpfh = o3d.pipelines.registration.compute_fpfh_feature(
-        down, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * model.voxel, max_nn=100))
+        down, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * model.voxel, max_nn=100)
+    )
     return down, fpfh
 
 
@@ -341,8 +382,16 @@ def _kabsch(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, t
 
 
-def _feature_ransac(Q: np.ndarray, Fq: np.ndarray, M: np.ndarray, Fm: np.ndarray, rng: np.random.Generator,
-                    n_iter: int, dist: float, chunk: int = 2000) -> np.ndarray | None:
+def _feature_ransac(
+    Q: np.ndarray,
+    Fq: np.ndarray,
+    M: np.ndarray,
+    Fm: np.ndarray,
+    rng: np.random.Generator,
+    n_iter: int,
+    dist: float,
+    chunk: int = 2000,
+) -> np.ndarray | None:
     """RANSAC on nearest-FPFH correspondences (scene Q -> model M); ``T_object_world`` or None.
 
     Samples of 3 correspondences whose pairwise lengths disagree by > 10 % are discarded (the
@@ -397,15 +446,26 @@ def _vision_starts(scene_down, scene_fpfh, model: _Model, opts: GlobalRegOptions
     Q = np.asarray(scene_down.points)
     rng = np.random.default_rng(opts.seed)
     for _ in range(max(0, opts.ransac_seeds)):
-        T = _feature_ransac(Q, np.asarray(scene_fpfh.data), np.asarray(model.down.points),
-                            np.asarray(model.fpfh.data), rng, opts.ransac_max_iter, 2.0 * v)
+        T = _feature_ransac(
+            Q,
+            np.asarray(scene_fpfh.data),
+            np.asarray(model.down.points),
+            np.asarray(model.fpfh.data),
+            rng,
+            opts.ransac_max_iter,
+            2.0 * v,
+        )
         if T is not None:
             starts.append((T, "ransac"))
     if opts.use_fgr:
         o3d.utility.random.seed(int(opts.seed) * 7919 + 101)
         r = reg.registration_fgr_based_on_feature_matching(
-            scene_down, model.down, scene_fpfh, model.fpfh,
-            reg.FastGlobalRegistrationOption(maximum_correspondence_distance=1.5 * v))
+            scene_down,
+            model.down,
+            scene_fpfh,
+            model.fpfh,
+            reg.FastGlobalRegistrationOption(maximum_correspondence_distance=1.5 * v),
+        )
         starts.append((np.asarray(r.transformation).copy(), "fgr"))
     if opts.use_pca:
         # Principal axes of the partial view against the model's: rough but free; ICP does the rest.
@@ -419,8 +479,7 @@ def _vision_starts(scene_down, scene_fpfh, model: _Model, opts: GlobalRegOptions
     return starts
 
 
-def _icp(source_pts: np.ndarray, model: _Model, T_init: np.ndarray, max_dists: tuple[float, ...],
-         iterations: int):
+def _icp(source_pts: np.ndarray, model: _Model, T_init: np.ndarray, max_dists: tuple[float, ...], iterations: int):
     """Robust point-to-plane ICP of world points onto the model; returns ``T_object_world``."""
     import open3d as o3d
 
@@ -440,8 +499,7 @@ def _vision_hypotheses(obs: _Obs, model: _Model, opts: GlobalRegOptions) -> list
     Q = np.asarray(scene_down.points)
     # voxel averages sit slightly inside curved surfaces: the fine stage and the score use raw points
     rng = np.random.default_rng(opts.seed)
-    Qf = obs.vision[np.sort(rng.choice(len(obs.vision), min(len(obs.vision), opts.max_score_points),
-                                       replace=False))]
+    Qf = obs.vision[np.sort(rng.choice(len(obs.vision), min(len(obs.vision), opts.max_score_points), replace=False))]
     starts = _vision_starts(scene_down, scene_fpfh, model, opts)
     v = model.voxel
     out = []
@@ -526,8 +584,9 @@ def _run(model: _Model, obs: _Obs, symmetric: bool, opts: GlobalRegOptions) -> l
     if len(obs.vision):
         import open3d as o3d
 
-        n_scene = len(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(obs.vision)).voxel_down_sample(model.voxel)
-                      .points)
+        n_scene = len(
+            o3d.geometry.PointCloud(o3d.utility.Vector3dVector(obs.vision)).voxel_down_sample(model.voxel).points
+        )
     if n_scene >= opts.min_vision_points:
         hyps = _vision_hypotheses(obs, model, opts)
     else:
@@ -541,9 +600,15 @@ def _run(model: _Model, obs: _Obs, symmetric: bool, opts: GlobalRegOptions) -> l
     return out
 
 
-def global_register(vertices: np.ndarray, faces: np.ndarray, frames: list[TrackingFrame], *,
-                    symmetric: bool = False, options: GlobalRegOptions | None = None,
-                    grid: SDFGrid | None = None) -> list[PoseHypothesis]:
+def global_register(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    frames: list[TrackingFrame],
+    *,
+    symmetric: bool = False,
+    options: GlobalRegOptions | None = None,
+    grid: SDFGrid | None = None,
+) -> list[PoseHypothesis]:
     """Ranked ``T_world_object`` hypotheses (best first) for ``frames[0]`` without any pose prior.
 
     Args:
@@ -584,12 +649,21 @@ class Relocaliser:
         grid: optional ready SDF grid of the mesh.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, *, symmetric: bool = False,
-                 options: GlobalRegOptions | None = None, search_radius: float = 0.05, min_score: float = 0.6,
-                 grid: SDFGrid | None = None) -> None:
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        *,
+        symmetric: bool = False,
+        options: GlobalRegOptions | None = None,
+        search_radius: float = 0.05,
+        min_score: float = 0.6,
+        grid: SDFGrid | None = None,
+    ) -> None:
         if not (np.isfinite(search_radius) and search_radius > 0):
-            raise InputError("search radius must be positive", field="search_radius", expected="> 0 m",
-                             got=search_radius)
+            raise InputError(
+                "search radius must be positive", field="search_radius", expected="> 0 m", got=search_radius
+            )
         self.opts = options or GlobalRegOptions()
         self.model = _prepare_model(vertices, faces, self.opts, grid)
         self.symmetric = symmetric
@@ -601,8 +675,12 @@ class Relocaliser:
         """Best hypothesis of ``T_world_object`` for ``frames[0]`` near ``T_last_good``, or None."""
         T_last = np.asarray(T_last_good, dtype=np.float64)
         if T_last.shape != (4, 4) or not np.all(np.isfinite(T_last)):
-            raise InputError("last good pose must be a finite 4x4 matrix", field="T_last_good",
-                             expected="(4, 4) T_world_object", got=T_last.shape)
+            raise InputError(
+                "last good pose must be a finite 4x4 matrix",
+                field="T_last_good",
+                expected="(4, 4) T_world_object",
+                got=T_last.shape,
+            )
         obs = _gather(frames, self.opts)
         c_last = se3.transform_points(T_last, self.model.centre[None])[0]
         reach = self.search_radius + 0.5 * self.model.diameter
@@ -610,11 +688,16 @@ class Relocaliser:
             obs.vision = obs.vision[np.linalg.norm(obs.vision - c_last, axis=1) < reach]
         hyps = _run(self.model, obs, self.symmetric, self.opts)
         # the last good pose itself is a candidate too (the object may not have moved)
-        hyps.append(_evaluate(T_last.copy(), self.model, obs, self.opts, "prior",
-                              vision=_down(obs.vision, self.model.voxel)))
-        near = [h for h in hyps
-                if np.linalg.norm(se3.transform_points(h.T_world_object, self.model.centre[None])[0] - c_last)
-                <= self.search_radius and h.score >= self.min_score]
+        hyps.append(
+            _evaluate(T_last.copy(), self.model, obs, self.opts, "prior", vision=_down(obs.vision, self.model.voxel))
+        )
+        near = [
+            h
+            for h in hyps
+            if np.linalg.norm(se3.transform_points(h.T_world_object, self.model.centre[None])[0] - c_last)
+            <= self.search_radius
+            and h.score >= self.min_score
+        ]
         near.sort(key=lambda h: (-h.score, h.source))
         self.last_hypotheses = near
         return near[0] if near else None
@@ -633,10 +716,20 @@ def _down(points: np.ndarray, voxel: float) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 
 
-def synthetic_frame(vertices: np.ndarray, faces: np.ndarray, T_world_object: np.ndarray, *, seed: int = 0,
-                    n_points: int = 3000, noise: float = 0.001, outlier_frac: float = 0.1, n_contacts: int = 4,
-                    n_free: int = 20, camera_position: tuple[float, float, float] = (0.0, -0.4, 0.25),
-                    t: float = 0.0) -> TrackingFrame:
+def synthetic_frame(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    T_world_object: np.ndarray,
+    *,
+    seed: int = 0,
+    n_points: int = 3000,
+    noise: float = 0.001,
+    outlier_frac: float = 0.1,
+    n_contacts: int = 4,
+    n_free: int = 20,
+    camera_position: tuple[float, float, float] = (0.0, -0.4, 0.25),
+    t: float = 0.0,
+) -> TrackingFrame:
     """One synthetic observation of the mesh at ``T_world_object`` (world frame, metres).
 
     Vision: surface samples visible from ``camera_position`` (Open3D hidden-point removal), plus
@@ -652,8 +745,9 @@ def synthetic_frame(vertices: np.ndarray, faces: np.ndarray, T_world_object: np.
     P, N = sample_surface(vertices, faces, n_points, seed=seed + 11)
     # face normals are outward only for consistently wound meshes: flip those pointing inside
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
-                        o3d.core.Tensor(np.asarray(faces, np.uint32)))
+    scene.add_triangles(
+        o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(faces, np.uint32))
+    )
     probe = o3d.core.Tensor((P + 5e-4 * N).astype(np.float32))
     N[scene.compute_signed_distance(probe).numpy() < 0] *= -1
     Pw, Nw = se3.transform_points(T_world_object, P), se3.rotate_vectors(T_world_object, N)
@@ -676,8 +770,14 @@ def synthetic_frame(vertices: np.ndarray, faces: np.ndarray, T_world_object: np.
     if n_free:
         j = rng.choice(len(P), size=n_free, replace=False)
         free = Pw[j] + Nw[j] * rng.uniform(0.003, 0.008, (n_free, 1))
-    return TrackingFrame(t=t, vision_points=vis, touch_points=Pw[k] + rng.normal(0, 2e-4, (len(k), 3)),
-                         touch_normals=Nw[k], free_points=free, info={"camera_origin": cam.copy()})
+    return TrackingFrame(
+        t=t,
+        vision_points=vis,
+        touch_points=Pw[k] + rng.normal(0, 2e-4, (len(k), 3)),
+        touch_normals=Nw[k],
+        free_points=free,
+        info={"camera_origin": cam.copy()},
+    )
 
 
 def random_pose(seed: int, centre: np.ndarray | None = None, spread: float = 0.03) -> np.ndarray:

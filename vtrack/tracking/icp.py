@@ -32,8 +32,16 @@ class ICPTracker:
 
     mode = "icp"
 
-    def __init__(self, mesh: str | Path, T_init: np.ndarray, max_corr: float = 0.01, iterations: int = 20,
-                 max_points: int = 300, n_model: int = 4000, **_: Any) -> None:
+    def __init__(
+        self,
+        mesh: str | Path,
+        T_init: np.ndarray,
+        max_corr: float = 0.01,
+        iterations: int = 20,
+        max_points: int = 300,
+        n_model: int = 4000,
+        **_: Any,
+    ) -> None:
         import open3d as o3d
 
         from vtrack.io.mesh import load_mesh
@@ -69,9 +77,13 @@ class ICPTracker:
         if fr.n_vision >= 6:
             src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(fr.vision_points))
             res = o3d.pipelines.registration.registration_icp(
-                src, self.model, self.max_corr, se3.invert(T_pred),
+                src,
+                self.model,
+                self.max_corr,
+                se3.invert(T_pred),
                 o3d.pipelines.registration.TransformationEstimationPointToPlane(),
-                o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.iterations))
+                o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=self.iterations),
+            )
             Tn = se3.invert(np.asarray(res.transformation))
             if np.all(np.isfinite(Tn)) and se3.is_rigid(Tn, tol=1e-4):
                 T = Tn

@@ -51,8 +51,9 @@ def perturb_pose(T: np.ndarray, trans_m: float, rot_rad: float, seed: int = 0) -
     return out
 
 
-def build_tracker(shape: str, mesh: Path | None, T_init: np.ndarray, method: str = "ours",
-                  scene: Any = None, **opts: Any):
+def build_tracker(
+    shape: str, mesh: Path | None, T_init: np.ndarray, method: str = "ours", scene: Any = None, **opts: Any
+):
     """The tracker for a mode: ``ours`` known_shape/slam or the ``icp`` baseline."""
     if method == "icp":
         if mesh is None:
@@ -95,8 +96,12 @@ def slam_origin(frames: Any, max_look: int = 10) -> tuple[np.ndarray, str]:
             frames.reset()
             return T, f"centroid of frame {i}'s object points"
     frames.reset()
-    raise InputError("no object points (segmented depth or contacts) in the first frames: SLAM has nothing to "
-                     "define the object frame", path=frames.path, expected=f"object seen within {max_look} frames")
+    raise InputError(
+        "no object points (segmented depth or contacts) in the first frames: SLAM has nothing to "
+        "define the object frame",
+        path=frames.path,
+        expected=f"object seen within {max_look} frames",
+    )
 
 
 def resolve_mesh(mesh: str | Path | None, scene: Any) -> Path | None:
@@ -119,10 +124,17 @@ def register_known_shape(mesh: Path, tracking_frames: list, symmetric: bool) -> 
     t0 = time.perf_counter()
     hyps = global_register(V, F, tracking_frames, symmetric=symmetric)
     if not hyps:
-        raise InputError("global registration found no pose of the mesh in the first frames", path=mesh,
-                         field="--init-pose", expected="a pose prior (--init-pose) or more visible object")
-    return hyps[0].T_world_object, {"init_seconds": time.perf_counter() - t0, "init_hypotheses": len(hyps),
-                                    "init_score": float(hyps[0].score)}
+        raise InputError(
+            "global registration found no pose of the mesh in the first frames",
+            path=mesh,
+            field="--init-pose",
+            expected="a pose prior (--init-pose) or more visible object",
+        )
+    return hyps[0].T_world_object, {
+        "init_seconds": time.perf_counter() - t0,
+        "init_hypotheses": len(hyps),
+        "init_score": float(hyps[0].score),
+    }
 
 
 def known_shape_init(frames: Any, mesh: Path, symmetric: bool, n_frames: int = 3) -> tuple[np.ndarray, dict]:
@@ -140,9 +152,23 @@ def warm_up(shape: str = "known_shape", method: str = "ours", write: bool = True
     """Import what :func:`track_session` will use (batch workers call this before timing starts)."""
     import importlib
 
-    mods = ["vtrack.frames.session", "vtrack.frames.segmentation", "vtrack.frames.touch", "vtrack.tactile.pipeline",
-            "vtrack.eval.pose_metrics", "vtrack.tracking.sdf_grid", "vtrack.io.session", "vtrack.kinematics.hand",
-            "vtrack.scene.load", "scipy.spatial", "trimesh", "yourdfpy", "zarr", "open3d", "cv2"]
+    mods = [
+        "vtrack.frames.session",
+        "vtrack.frames.segmentation",
+        "vtrack.frames.touch",
+        "vtrack.tactile.pipeline",
+        "vtrack.eval.pose_metrics",
+        "vtrack.tracking.sdf_grid",
+        "vtrack.io.session",
+        "vtrack.kinematics.hand",
+        "vtrack.scene.load",
+        "scipy.spatial",
+        "trimesh",
+        "yourdfpy",
+        "zarr",
+        "open3d",
+        "cv2",
+    ]
     if method == "icp":
         mods.append("vtrack.tracking.icp")
     else:
@@ -160,16 +186,31 @@ TRACK_TOUCH_DOWNSAMPLE = 4
 TRACK_TOUCH_STRIDE = 2
 
 
-def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "known_shape",
-                  modalities: tuple[str, ...] | list[str] = ("vision", "touch"), method: str = "ours", *,
-                  mesh: str | Path | None = None, init_pose: np.ndarray | None = None, init: str = "auto",
-                  init_perturb: tuple[float, float] | None = None, gt: str | Path | None = None,
-                  tactile_source: str = "pipeline", segmentation: str = "pipeline", max_frames: int = 0,
-                  seed: int = 0, depth_stride: int = 4, touch_stride: int = TRACK_TOUCH_STRIDE,
-                  touch_downsample: int | str = TRACK_TOUCH_DOWNSAMPLE,
-                  write: bool = True,
-                  return_poses: bool = False, keep_frames: dict | None = None, keep_step: int = 1,
-                  **opts: Any) -> Any:
+def track_session(
+    session_dir: str | Path,
+    out_dir: str | Path,
+    shape: str = "known_shape",
+    modalities: tuple[str, ...] | list[str] = ("vision", "touch"),
+    method: str = "ours",
+    *,
+    mesh: str | Path | None = None,
+    init_pose: np.ndarray | None = None,
+    init: str = "auto",
+    init_perturb: tuple[float, float] | None = None,
+    gt: str | Path | None = None,
+    tactile_source: str = "pipeline",
+    segmentation: str = "pipeline",
+    max_frames: int = 0,
+    seed: int = 0,
+    depth_stride: int = 4,
+    touch_stride: int = TRACK_TOUCH_STRIDE,
+    touch_downsample: int | str = TRACK_TOUCH_DOWNSAMPLE,
+    write: bool = True,
+    return_poses: bool = False,
+    keep_frames: dict | None = None,
+    keep_step: int = 1,
+    **opts: Any,
+) -> Any:
     """Run a tracker over a session; return the metrics dict (also written to ``out_dir``).
 
     Args:
@@ -203,13 +244,24 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     modalities = tuple(modalities)
     if method == "icp":
         modalities = ("vision",)
-    frames = SessionFrames(session_dir, modalities=modalities, tactile_source=tactile_source,
-                           segmentation=segmentation, depth_stride=depth_stride, touch_stride=touch_stride,
-                           max_frames=max_frames, touch_downsample=touch_downsample)
+    frames = SessionFrames(
+        session_dir,
+        modalities=modalities,
+        tactile_source=tactile_source,
+        segmentation=segmentation,
+        depth_stride=depth_stride,
+        touch_stride=touch_stride,
+        max_frames=max_frames,
+        touch_downsample=touch_downsample,
+    )
     mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known_shape" or method == "icp") else None
     if (shape == "known_shape" or method == "icp") and mesh_path is None:
-        raise InputError("known-shape tracking needs the object mesh", path=frames.path, field="--mesh",
-                         expected="--mesh PATH (object frame, m) or object.mesh in the scene; or use --shape slam")
+        raise InputError(
+            "known-shape tracking needs the object mesh",
+            path=frames.path,
+            field="--mesh",
+            expected="--mesh PATH (object frame, m) or object.mesh in the scene; or use --shape slam",
+        )
     from vtrack.eval.session_gt import SessionGroundTruth
 
     gt_data = SessionGroundTruth.find(gt, frames.path)
@@ -248,8 +300,11 @@ def track_session(session_dir: str | Path, out_dir: str | Path, shape: str = "kn
     status: list[str] = []
     if keep_frames is not None:
         keep_frames.update(frames=frames, built=[])
-    reloc = _Relocalisation(tracker, mesh_path, bool(frames.scene.object.symmetric)) \
-        if (shape == "known_shape" and method == "ours") else None
+    reloc = (
+        _Relocalisation(tracker, mesh_path, bool(frames.scene.object.symmetric))
+        if (shape == "known_shape" and method == "ours")
+        else None
+    )
     for i in range(n):
         raw = frames.read(i)  # disk read + decompression: not part of the per-frame tracking cost
         c0, t0 = time.process_time(), time.perf_counter()
@@ -343,16 +398,30 @@ def _write_outputs(out: Path, frames, est, ms, status, metrics, errors) -> None:
     out.mkdir(parents=True, exist_ok=True)
     write_poses_csv(out / "poses.csv", frames.times, est, extra={"status": status, "ms": list(ms)})
     write_json(out / "metrics.json", metrics)
-    write_json(out / "result.json", {"kind": "tracking", "session": str(frames.path.resolve()),
-                                     "mode": metrics["mode"], "modalities": metrics["modalities"],
-                                     "files": ["poses.csv", "metrics.json"] + (["error.png"] if errors else [])})
+    write_json(
+        out / "result.json",
+        {
+            "kind": "tracking",
+            "session": str(frames.path.resolve()),
+            "mode": metrics["mode"],
+            "modalities": metrics["modalities"],
+            "files": ["poses.csv", "metrics.json"] + (["error.png"] if errors else []),
+        },
+    )
     if errors is not None:
         lost = np.array([s in ("lost",) for s in status])
         key = "add_s_mm" if "add_s_mm" in metrics else "motion_err_mm"
         from vtrack.viz.plots import plot_error_over_time
 
-        plot_error_over_time(out / "error.png", frames.times,
-                             [{"position (centre)": errors["pos"] * 1e3, "ADD-S": errors["add_s"] * 1e3},
-                              {"rotation": np.degrees(errors["rot"])}], ylabel=["mm", "deg"],
-                             title=f"{metrics['mode']} / {'+'.join(metrics['modalities'])}: "
-                                   f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics[key]:.2f} mm", flags=lost)
+        plot_error_over_time(
+            out / "error.png",
+            frames.times,
+            [
+                {"position (centre)": errors["pos"] * 1e3, "ADD-S": errors["add_s"] * 1e3},
+                {"rotation": np.degrees(errors["rot"])},
+            ],
+            ylabel=["mm", "deg"],
+            title=f"{metrics['mode']} / {'+'.join(metrics['modalities'])}: "
+            f"drift {metrics['drift_mm']:.2f} mm, ADD-S {metrics[key]:.2f} mm",
+            flags=lost,
+        )

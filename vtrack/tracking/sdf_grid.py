@@ -42,20 +42,24 @@ class SDFGrid:
     def __post_init__(self) -> None:
         self.values = np.ascontiguousarray(self.values, dtype=np.float32)
         if self.values.ndim != 3 or min(self.values.shape) < 2:
-            raise InputError("SDF grid must be 3-D with at least 2 samples per axis", field="values",
-                             expected="(nx, ny, nz), n >= 2", got=self.values.shape)
+            raise InputError(
+                "SDF grid must be 3-D with at least 2 samples per axis",
+                field="values",
+                expected="(nx, ny, nz), n >= 2",
+                got=self.values.shape,
+            )
         self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
         self.voxel = float(self.voxel)
         if not (np.isfinite(self.voxel) and self.voxel > 0):
             raise InputError("voxel size must be positive", field="voxel", expected="> 0", got=self.voxel)
         self._flat = self.values.ravel()
         self._shape = np.array(self.values.shape, dtype=np.int64)
-        self._strides = np.array([self.values.shape[1] * self.values.shape[2], self.values.shape[2], 1],
-                                 dtype=np.int64)
+        self._strides = np.array([self.values.shape[1] * self.values.shape[2], self.values.shape[2], 1], dtype=np.int64)
         sx, sy, sz = self._strides
         # flat offsets of the 8 cell corners, ordered (x, y, z) with x slowest
-        self._corner_off = np.array([a * sx + b * sy + c * sz for a in (0, 1) for b in (0, 1) for c in (0, 1)],
-                                    dtype=np.int64)[None, :]
+        self._corner_off = np.array(
+            [a * sx + b * sy + c * sz for a in (0, 1) for b in (0, 1) for c in (0, 1)], dtype=np.int64
+        )[None, :]
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -125,8 +129,9 @@ class SDFGrid:
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
-    def from_mesh(cls, mesh_path: str | Path, voxel: float = 0.002, padding: float = 0.03,
-                  cache: bool = True, scale: float = 1.0) -> SDFGrid:
+    def from_mesh(
+        cls, mesh_path: str | Path, voxel: float = 0.002, padding: float = 0.03, cache: bool = True, scale: float = 1.0
+    ) -> SDFGrid:
         """Build (or load from cache) the SDF grid of a closed mesh file (object frame, metres).
 
         Args:
@@ -160,24 +165,30 @@ class SDFGrid:
         return grid
 
     @classmethod
-    def from_arrays(cls, vertices: np.ndarray, faces: np.ndarray, voxel: float = 0.002,
-                    padding: float = 0.03) -> SDFGrid:
+    def from_arrays(
+        cls, vertices: np.ndarray, faces: np.ndarray, voxel: float = 0.002, padding: float = 0.03
+    ) -> SDFGrid:
         """SDF grid of a closed triangle mesh given as arrays (object frame, metres)."""
         import open3d as o3d
 
         V = np.asarray(vertices, dtype=np.float32)
         F = np.asarray(faces, dtype=np.uint32)
         if V.ndim != 2 or V.shape[1] != 3 or len(V) < 4 or F.ndim != 2 or F.shape[1] != 3 or len(F) < 4:
-            raise InputError("mesh needs >= 4 vertices and >= 4 triangles", field="mesh",
-                             expected="(V, 3) vertices, (F, 3) faces", got=(V.shape, F.shape))
+            raise InputError(
+                "mesh needs >= 4 vertices and >= 4 triangles",
+                field="mesh",
+                expected="(V, 3) vertices, (F, 3) faces",
+                got=(V.shape, F.shape),
+            )
         if not np.all(np.isfinite(V)):
             raise InputError("mesh vertices contain NaN/Inf", field="mesh.vertices")
         lo = V.min(0) - padding
         hi = V.max(0) + padding
         n = np.ceil((hi - lo) / voxel).astype(int) + 1
         if np.prod(n) > 40_000_000:
-            raise InputError("SDF grid too large (increase voxel)", field="voxel", expected="< 4e7 samples",
-                             got=int(np.prod(n)))
+            raise InputError(
+                "SDF grid too large (increase voxel)", field="voxel", expected="< 4e7 samples", got=int(np.prod(n))
+            )
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.core.Tensor(V), o3d.core.Tensor(F))
         axes = [lo[i] + voxel * np.arange(n[i]) for i in range(3)]

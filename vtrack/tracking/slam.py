@@ -93,8 +93,9 @@ class SurfelMap:
         return P, N, self.w
 
 
-def estimate_normals(points_w: np.ndarray, viewpoint: np.ndarray | None, centre: np.ndarray,
-                     knn: int = 12) -> np.ndarray:
+def estimate_normals(
+    points_w: np.ndarray, viewpoint: np.ndarray | None, centre: np.ndarray, knn: int = 12
+) -> np.ndarray:
     """PCA normals (Open3D) of world points, oriented to face ``viewpoint`` (or away from ``centre``)."""
     import open3d as o3d
 
@@ -132,11 +133,25 @@ class SLAMTracker(WindowTracker):
 
     mode = "slam"
 
-    def __init__(self, T_init: np.ndarray, mapper: str = "surfel", extent: float = 0.06, map_voxel: float = 0.002,
-                 grid_voxel: float = 0.004, trunc: float = 0.012, refresh_every: int = 5, map_points: int = 1200,
-                 train_ms: float = 40.0, refresh_move: float = 0.0003, full_refresh_every: int = 8,
-                 refresh_growth: float = 0.01, refresh_max_every: int = 20,
-                 touch_map_weight: float = 1.0, box_margin: float = 0.03, **opts: Any) -> None:
+    def __init__(
+        self,
+        T_init: np.ndarray,
+        mapper: str = "surfel",
+        extent: float = 0.06,
+        map_voxel: float = 0.002,
+        grid_voxel: float = 0.004,
+        trunc: float = 0.012,
+        refresh_every: int = 5,
+        map_points: int = 1200,
+        train_ms: float = 40.0,
+        refresh_move: float = 0.0003,
+        full_refresh_every: int = 8,
+        refresh_growth: float = 0.01,
+        refresh_max_every: int = 20,
+        touch_map_weight: float = 1.0,
+        box_margin: float = 0.03,
+        **opts: Any,
+    ) -> None:
         if mapper not in ("surfel", "neural"):
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=mapper)
         opts.setdefault("gate", 0.8 * trunc)
@@ -175,8 +190,9 @@ class SLAMTracker(WindowTracker):
         elif scene.object.T_world_object is not None:
             T0 = scene.object.T_world_object.as_matrix()
         else:
-            raise InputError("SLAM needs an object frame: pass T_init (e.g. from the first frame's points)",
-                             field="T_init")
+            raise InputError(
+                "SLAM needs an object frame: pass T_init (e.g. from the first frame's points)", field="T_init"
+            )
         return cls(T0, **opts)
 
     # -- tracking with map-aware gating ---------------------------------------------------
@@ -216,8 +232,12 @@ class SLAMTracker(WindowTracker):
         # A map that no longer grows (the same faces seen again) needs no new grid: update it when the
         # surface grew by refresh_growth since the last update, and at least every refresh_max_every frames.
         grew = self.map.n_new >= self.refresh_growth * max(len(self.map), 1)
-        if (first or self._n_map_frames <= 5 or (since >= self.refresh_every and grew)
-                or since >= self.refresh_max_every):
+        if (
+            first
+            or self._n_map_frames <= 5
+            or (since >= self.refresh_every and grew)
+            or since >= self.refresh_max_every
+        ):
             self._refresh()
             self._last_refresh = self._n_map_frames
         dm = (time.perf_counter() - t1) * 1e3
@@ -237,8 +257,13 @@ class SLAMTracker(WindowTracker):
                 V = V[rng.choice(len(V), self.map_points, replace=False)]
             cam = frame.info.get("camera_origin")
             cam = None if cam is None else np.asarray(cam, np.float64)
-            Nw = estimate_normals(V, cam, T[:3, 3] if self._box is None else
-                                  se3.transform_points(T, (0.5 * (self._box[0] + self._box[1]))[None])[0])
+            Nw = estimate_normals(
+                V,
+                cam,
+                T[:3, 3]
+                if self._box is None
+                else se3.transform_points(T, (0.5 * (self._box[0] + self._box[1]))[None])[0],
+            )
             Vo = se3.transform_points(Tinv, V)
             No = se3.rotate_vectors(Tinv, Nw)
             self._ensure_box(Vo)
@@ -367,8 +392,11 @@ class SLAMTracker(WindowTracker):
 
     # -- outputs -------------------------------------------------------------------------
     def map_metrics(self) -> dict[str, float]:
-        return {"map_surfels": float(len(self.map)), "ms_map_mean": float(np.mean(self.ms_map)) if self.ms_map
-                else 0.0, "mapper": self.mapper}
+        return {
+            "map_surfels": float(len(self.map)),
+            "ms_map_mean": float(np.mean(self.ms_map)) if self.ms_map else 0.0,
+            "mapper": self.mapper,
+        }
 
     def surfel_cloud(self) -> tuple[np.ndarray, np.ndarray]:
         """Object-frame map points and normals (m)."""

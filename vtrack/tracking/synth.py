@@ -36,11 +36,23 @@ class SynthSequence:
 _OCCLUSION_KEEP = {"none": 1.0, "medium": 0.5, "heavy": 0.15}
 
 
-def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: float = 0.6,
-                  axis=(0.3, 0.2, 1.0), trans_amp: float = 0.006, occlusion: str = "none",
-                  depth_noise: float = 0.001, touch_noise: float = 0.0002, n_fingers: int = 3,
-                  contact_radius: float = 0.005, width: int = 160, height: int = 120, seed: int = 0,
-                  contact_schedule=None) -> SynthSequence:
+def make_sequence(
+    mesh_path,
+    n_frames: int = 60,
+    fps: float = 30.0,
+    rot_speed: float = 0.6,
+    axis=(0.3, 0.2, 1.0),
+    trans_amp: float = 0.006,
+    occlusion: str = "none",
+    depth_noise: float = 0.001,
+    touch_noise: float = 0.0002,
+    n_fingers: int = 3,
+    contact_radius: float = 0.005,
+    width: int = 160,
+    height: int = 120,
+    seed: int = 0,
+    contact_schedule=None,
+) -> SynthSequence:
     """Render a synthetic sequence.
 
     Args:
@@ -70,8 +82,10 @@ def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: f
     rays_c = cam.pixel_rays().reshape(-1, 3)
     rays_c_n = rays_c / np.linalg.norm(rays_c, axis=1, keepdims=True)
     # fingertips: fixed world points on a circle around the object centre
-    fingers = [np.array([0.0, 0.0, 0.1]) + (radius * 0.9) * np.array([np.cos(a), np.sin(a), 0.15 * np.sin(3 * a)])
-               for a in np.linspace(0, 2 * np.pi, n_fingers, endpoint=False) + 0.4]
+    fingers = [
+        np.array([0.0, 0.0, 0.1]) + (radius * 0.9) * np.array([np.cos(a), np.sin(a), 0.15 * np.sin(3 * a)])
+        for a in np.linspace(0, 2 * np.pi, n_fingers, endpoint=False) + 0.4
+    ]
     keep_frac = _OCCLUSION_KEEP[occlusion]
     frames, gts = [], []
     for i in range(n_frames):
@@ -100,7 +114,7 @@ def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: f
                 keep_w = max(1, int(round(span * keep_frac)))
                 start = lo + int((span - keep_w) * (0.5 + 0.5 * np.sin(0.7 * t)))
                 band = np.zeros(width, bool)
-                band[start:start + keep_w] = True
+                band[start : start + keep_w] = True
                 img_hit &= band[None, :]
         sel = img_hit.ravel()
         pts_c = rays_c[sel] * z[sel, None]
@@ -125,18 +139,26 @@ def make_sequence(mesh_path, n_frames: int = 60, fps: float = 30.0, rot_speed: f
                 v = np.cross(N_w[j], u)
                 g = np.linspace(-0.006, 0.006, 4)
                 free.append(np.array([c + a * u + b * v for a in g for b in g]))
-        frames.append(TrackingFrame(
-            t=t, vision_points=Vw,
-            touch_points=np.concatenate(tp) if tp else None,
-            touch_normals=np.concatenate(tn) if tn else None,
-            free_points=np.concatenate(free) if free else None,
-        ))
-    return SynthSequence(frames=frames, gt=np.stack(gts), vertices=V, faces=F, centre=centre,
-                         info={"occlusion": occlusion, "depth_noise": depth_noise, "fps": fps})
+        frames.append(
+            TrackingFrame(
+                t=t,
+                vision_points=Vw,
+                touch_points=np.concatenate(tp) if tp else None,
+                touch_normals=np.concatenate(tn) if tn else None,
+                free_points=np.concatenate(free) if free else None,
+            )
+        )
+    return SynthSequence(
+        frames=frames,
+        gt=np.stack(gts),
+        vertices=V,
+        faces=F,
+        centre=centre,
+        info={"occlusion": occlusion, "depth_noise": depth_noise, "fps": fps},
+    )
 
 
-def run_sequence(tracker, seq: SynthSequence, drop: tuple[str, ...] = (), frames=None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def run_sequence(tracker, seq: SynthSequence, drop: tuple[str, ...] = (), frames=None) -> tuple[np.ndarray, np.ndarray]:
     """Step ``tracker`` over ``seq`` (optionally dropping "vision"/"touch").
 
     Returns the estimates (N, 4, 4) and the per-frame error of the object centre (N,), m.
@@ -144,7 +166,7 @@ def run_sequence(tracker, seq: SynthSequence, drop: tuple[str, ...] = (), frames
     import copy
 
     est = []
-    for f in (frames if frames is not None else seq.frames):
+    for f in frames if frames is not None else seq.frames:
         f = copy.copy(f)
         if "touch" in drop:
             f.touch_points = f.touch_normals = f.free_points = None

@@ -30,8 +30,9 @@ class KnownShapeTracker(WindowTracker):
 
     mode = "known_shape"
 
-    def __init__(self, mesh: str | Path | SDFGrid, T_init: np.ndarray, voxel: float = 0.002, scale: float = 1.0,
-                 **opts: Any) -> None:
+    def __init__(
+        self, mesh: str | Path | SDFGrid, T_init: np.ndarray, voxel: float = 0.002, scale: float = 1.0, **opts: Any
+    ) -> None:
         grid = mesh if isinstance(mesh, SDFGrid) else SDFGrid.from_mesh(mesh, voxel=voxel, scale=scale)
         if "object_radius" not in opts:
             lo, hi = grid.bounds
@@ -41,16 +42,24 @@ class KnownShapeTracker(WindowTracker):
         self.grid = grid
 
     @classmethod
-    def from_scene(cls, scene: Any, T_init: np.ndarray | None = None, mesh: str | Path | None = None,
-                   **opts: Any) -> KnownShapeTracker:
+    def from_scene(
+        cls, scene: Any, T_init: np.ndarray | None = None, mesh: str | Path | None = None, **opts: Any
+    ) -> KnownShapeTracker:
         """Build from a scene with ``object.mesh`` (or an explicit ``mesh`` path, e.g. a session asset)."""
         path = mesh if mesh is not None else scene.object.mesh
         if path is None:
-            raise InputError("known-shape tracking needs the object mesh", path=getattr(scene, "source", None),
-                             field="object.mesh", expected="a mesh file")
+            raise InputError(
+                "known-shape tracking needs the object mesh",
+                path=getattr(scene, "source", None),
+                field="object.mesh",
+                expected="a mesh file",
+            )
         if T_init is None and scene.object.T_world_object is None:
-            raise InputError("known-shape tracking needs an initial pose (the scene gives none)",
-                             path=getattr(scene, "source", None), field="object.T_world_object",
-                             expected="a pose prior, or use vtrack.tracking.run (global registration)")
+            raise InputError(
+                "known-shape tracking needs an initial pose (the scene gives none)",
+                path=getattr(scene, "source", None),
+                field="object.T_world_object",
+                expected="a pose prior, or use vtrack.tracking.run (global registration)",
+            )
         T0 = scene.object.T_world_object.as_matrix() if T_init is None else T_init
         return cls(path, T0, scale=float(scene.object.scale) if mesh is None else 1.0, **opts)

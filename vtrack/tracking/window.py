@@ -48,45 +48,45 @@ class SDF(Protocol):
 class TrackerOptions:
     """Tuning of the window tracker (metres, radians, seconds)."""
 
-    window: int = 3                 #: frames optimised jointly (keyframes + current), >= 1
-    iterations: int = 5             #: max LM iterations per frame
-    converge_trans: float = 2e-5    #: stop when every slot's step is below this (m) ...
-    converge_rot: float = 2e-4      #: ... and this (rad)
-    robust: str = "huber"           #: huber | cauchy
-    sigma_vision: float = 0.002     #: depth point-to-surface noise, m
-    sigma_touch: float = 0.001      #: contact point-to-surface noise, m (patch edges are ~0.3 mm off)
-    sigma_normal: float = 1.0       #: contact normal disagreement (unit vectors); weak on purpose
-    sigma_free: float = 0.001       #: non-penetration, m
+    window: int = 3  #: frames optimised jointly (keyframes + current), >= 1
+    iterations: int = 5  #: max LM iterations per frame
+    converge_trans: float = 2e-5  #: stop when every slot's step is below this (m) ...
+    converge_rot: float = 2e-4  #: ... and this (rad)
+    robust: str = "huber"  #: huber | cauchy
+    sigma_vision: float = 0.002  #: depth point-to-surface noise, m
+    sigma_touch: float = 0.001  #: contact point-to-surface noise, m (patch edges are ~0.3 mm off)
+    sigma_normal: float = 1.0  #: contact normal disagreement (unit vectors); weak on purpose
+    sigma_free: float = 0.001  #: non-penetration, m
     sigma_touch_inside: float = 0.0  #: sigma of contact points INSIDE the surface, m (0: sigma_touch; inf: one-sided)
-    free_margin: float = 0.0        #: free gel points must stay this far outside, m
-    free_gate: float = 0.003        #: ignore free gel points predicted deeper than this inside, m
-    kernel_vision: float = 1.5      #: robust kernel width in sigmas
+    free_margin: float = 0.0  #: free gel points must stay this far outside, m
+    free_gate: float = 0.003  #: ignore free gel points predicted deeper than this inside, m
+    kernel_vision: float = 1.5  #: robust kernel width in sigmas
     kernel_touch: float = 2.0
-    sigma_motion_trans: float = 0.0015   #: constant-velocity deviation per nominal frame, m
-    sigma_motion_rot: float = 0.015      #: rad per nominal frame
-    sigma_anchor_trans: float = 0.0005   #: oldest keyframe prior, m
-    sigma_anchor_rot: float = 0.005      #: rad
+    sigma_motion_trans: float = 0.0015  #: constant-velocity deviation per nominal frame, m
+    sigma_motion_rot: float = 0.015  #: rad per nominal frame
+    sigma_anchor_trans: float = 0.0005  #: oldest keyframe prior, m
+    sigma_anchor_rot: float = 0.005  #: rad
     nominal_dt: float = 1.0 / 30.0  #: s, frame period the motion sigmas refer to
-    gate: float = 0.02              #: drop vision points farther than this from the predicted surface, m
+    gate: float = 0.02  #: drop vision points farther than this from the predicted surface, m
     max_vision_points: int = 300
     max_touch_points: int = 120
     max_free_points: int = 48
     degeneracy_ratio: float = 1e-5  #: relative floor of the spectrum (absolute floor: one vision point)
-    object_radius: float = 0.05     #: m, scales rotation for the spectrum test
+    object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
     max_step_rot: float = 0.15
-    max_correction_trans: float = 0.05   #: per-frame bound on |estimate - prediction|, m
-    max_correction_rot: float = 0.6      #: rad
-    inlier_dist: float = 0.005           #: |sdf| below this counts as inlier, m
+    max_correction_trans: float = 0.05  #: per-frame bound on |estimate - prediction|, m
+    max_correction_rot: float = 0.6  #: rad
+    inlier_dist: float = 0.005  #: |sdf| below this counts as inlier, m
     lost_inlier_frac: float = 0.5
     recover: bool = True
-    kf_trans: float = 0.001          #: promote a frame to keyframe after this motion, m
-    kf_rot: float = 0.01             #: rad
-    kf_dt: float = 0.1               #: or after this much time, s
-    kf_vision_points: int = 100      #: points a keyframe keeps (older frames matter less; saves time)
+    kf_trans: float = 0.001  #: promote a frame to keyframe after this motion, m
+    kf_rot: float = 0.01  #: rad
+    kf_dt: float = 0.1  #: or after this much time, s
+    kf_vision_points: int = 100  #: points a keyframe keeps (older frames matter less; saves time)
     kf_touch_points: int = 60
-    velocity_decay_dt: float = 0.5   #: a gap longer than this resets the velocity, s
+    velocity_decay_dt: float = 0.5  #: a gap longer than this resets the velocity, s
     seed: int = 0
 
     @classmethod
@@ -95,8 +95,9 @@ class TrackerOptions:
 
         o = cls(**checked_fields(cls, opts, "tracker"))
         if o.window < 1 or o.iterations < 1:
-            raise InputError("window and iterations must be >= 1", field="window/iterations",
-                             got=(o.window, o.iterations))
+            raise InputError(
+                "window and iterations must be >= 1", field="window/iterations", got=(o.window, o.iterations)
+            )
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
         return o
@@ -107,7 +108,7 @@ class StepInfo:
     """Diagnostics of one ``step``."""
 
     t: float
-    status: str = "ok"              #: ok | no_data | degenerate | lost | recovered
+    status: str = "ok"  #: ok | no_data | degenerate | lost | recovered
     iterations: int = 0
     cost: float = 0.0
     inlier_frac: float = float("nan")
@@ -220,8 +221,12 @@ class WindowTracker:
         self.sdf = sdf
         T0 = np.asarray(T_init, dtype=np.float64)
         if T0.shape != (4, 4) or not se3.is_rigid(T0, tol=1e-4):
-            raise InputError("initial pose must be a finite 4x4 rigid transform", field="T_init",
-                             expected="T_world_object (4, 4)", got=T0.shape)
+            raise InputError(
+                "initial pose must be a finite 4x4 rigid transform",
+                field="T_init",
+                expected="T_world_object (4, 4)",
+                got=T0.shape,
+            )
         T0 = T0.copy()
         T0[:3, :3] = se3.orthonormalize(T0[:3, :3])
         self.T = T0
@@ -248,20 +253,24 @@ class WindowTracker:
         t_start = time.perf_counter()
         o = self.opts
         self._frame_count += 1
-        fr = sanitize(frame, o.max_vision_points, o.max_touch_points, o.max_free_points,
-                      seed=o.seed + self._frame_count)
+        fr = sanitize(
+            frame, o.max_vision_points, o.max_touch_points, o.max_free_points, seed=o.seed + self._frame_count
+        )
         dt = o.nominal_dt if self.t_last is None else fr.t - self.t_last
         if self.t_last is not None and dt <= 0:
-            raise InputError("frame timestamps must increase", field="frame.t", expected=f"> {self.t_last}",
-                             got=fr.t)
+            raise InputError("frame timestamps must increase", field="frame.t", expected=f"> {self.t_last}", got=fr.t)
         if dt > o.velocity_decay_dt:
             self.velocity[:] = 0.0
         T_pred = self.T @ _exp(self.velocity * dt) if self.t_last is not None else self.T.copy()
         fr = self._gate(fr, T_pred)
-        info = StepInfo(t=fr.t, n_vision=fr.n_vision, n_touch=fr.n_touch,
-                        n_free=0 if fr.free_points is None else len(fr.free_points))
+        info = StepInfo(
+            t=fr.t,
+            n_vision=fr.n_vision,
+            n_touch=fr.n_touch,
+            n_free=0 if fr.free_points is None else len(fr.free_points),
+        )
         cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy())
-        slots = [*self.keyframes[-(o.window - 1):], cur] if o.window > 1 else [cur]
+        slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
         if info.n_vision + info.n_touch + info.n_free == 0:
             info.status = "no_data"
@@ -378,8 +387,9 @@ class WindowTracker:
                     b[3:] += np.einsum("m,mki,mk->i", wn, Jn, rn)
         return H, b, cost
 
-    def _motion_terms(self, slots: list[_Slot], v_before: np.ndarray, dt_first: float
-                      ) -> tuple[list[tuple[list[int], list[np.ndarray], np.ndarray, np.ndarray]], float]:
+    def _motion_terms(
+        self, slots: list[_Slot], v_before: np.ndarray, dt_first: float
+    ) -> tuple[list[tuple[list[int], list[np.ndarray], np.ndarray, np.ndarray]], float]:
         """Linearised constant-velocity and anchor residuals: (slot ids, Jacobian blocks, r, sqrt-info)."""
         o = self.opts
         terms = []
@@ -451,17 +461,17 @@ class WindowTracker:
         for i, s in enumerate(slots):
             Hi, bi, ci = self._frame_terms(s.T, s.frame)
             datas.append(Hi)
-            H[6 * i:6 * i + 6, 6 * i:6 * i + 6] += Hi
-            b[6 * i:6 * i + 6] += bi
+            H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
+            b[6 * i : 6 * i + 6] += bi
             cost += ci
         terms, cm = self._motion_terms(slots, v_before, dt_first)
         cost += cm
         for ids, Js, r, sq in terms:
             W = sq * sq
             for a, Ja in zip(ids, Js, strict=True):
-                b[6 * a:6 * a + 6] += Ja.T @ (W * r)
+                b[6 * a : 6 * a + 6] += Ja.T @ (W * r)
                 for c, Jc in zip(ids, Js, strict=True):
-                    H[6 * a:6 * a + 6, 6 * c:6 * c + 6] += (Ja.T * W) @ Jc
+                    H[6 * a : 6 * a + 6, 6 * c : 6 * c + 6] += (Ja.T * W) @ Jc
         return H, b, cost, datas
 
     def _optimise(self, slots: list[_Slot], v_before: np.ndarray) -> tuple[float, int, int]:
@@ -480,7 +490,7 @@ class WindowTracker:
             it += 1
             A = H.copy()
             for i, s in enumerate(slots):
-                A[6 * i:6 * i + 6, 6 * i:6 * i + 6] += s.reg
+                A[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += s.reg
             A += lam * np.diag(np.diag(A) + 1e-9)
             try:
                 delta = -np.linalg.solve(A, b)
@@ -490,7 +500,7 @@ class WindowTracker:
                 break
             old = [s.T.copy() for s in slots]
             for i, s in enumerate(slots):
-                d = delta[6 * i:6 * i + 6].copy()
+                d = delta[6 * i : 6 * i + 6].copy()
                 nt, nr = np.linalg.norm(d[:3]), np.linalg.norm(d[3:])
                 if nt > o.max_step_trans:
                     d[:3] *= o.max_step_trans / nt
@@ -500,9 +510,9 @@ class WindowTracker:
             H2, b2, cost2, _ = self._total(slots, v_before, dt_first)
             if cost2 <= cost:
                 step = delta.reshape(-1, 6)
-                converged = (cost - cost2 < 1e-4 * max(cost, 1e-12)
-                             or (np.abs(step[:, :3]).max() < o.converge_trans and np.abs(step[:, 3:]).max()
-                                 < o.converge_rot))
+                converged = cost - cost2 < 1e-4 * max(cost, 1e-12) or (
+                    np.abs(step[:, :3]).max() < o.converge_trans and np.abs(step[:, 3:]).max() < o.converge_rot
+                )
                 H, b, cost = H2, b2, cost2
                 lam = max(lam / 3.0, 1e-7)
                 if converged:
@@ -515,8 +525,9 @@ class WindowTracker:
             s.T[:3, :3] = se3.orthonormalize(s.T[:3, :3])
         return float(cost), it, dims
 
-    def _recover(self, cur: _Slot, slots: list[_Slot], v_before: np.ndarray, T_pred: np.ndarray,
-                 info: StepInfo) -> bool:
+    def _recover(
+        self, cur: _Slot, slots: list[_Slot], v_before: np.ndarray, T_pred: np.ndarray, info: StepInfo
+    ) -> bool:
         """Try a few restarts (zero velocity, centroid shift) on the current frame alone; keep the best."""
         fr = cur.frame
         best_T, best_f = cur.T.copy(), info.inlier_frac
@@ -575,14 +586,16 @@ class WindowTracker:
         promote = last_kf is None
         if last_kf is not None:
             dx = _log(_inv(last_kf.T) @ cur.T)
-            promote = (np.linalg.norm(dx[:3]) > o.kf_trans or np.linalg.norm(dx[3:]) > o.kf_rot
-                       or cur.t - last_kf.t > o.kf_dt)
+            promote = (
+                np.linalg.norm(dx[:3]) > o.kf_trans or np.linalg.norm(dx[3:]) > o.kf_rot or cur.t - last_kf.t > o.kf_dt
+            )
         if promote and o.window > 1:
             cur.T_prior = cur.T.copy()
-            cur.frame = sanitize(cur.frame, o.kf_vision_points, o.kf_touch_points, o.max_free_points,
-                                 seed=o.seed + self._frame_count)
+            cur.frame = sanitize(
+                cur.frame, o.kf_vision_points, o.kf_touch_points, o.max_free_points, seed=o.seed + self._frame_count
+            )
             self.keyframes.append(cur)
-            self.keyframes = self.keyframes[-(o.window - 1):]
+            self.keyframes = self.keyframes[-(o.window - 1) :]
         # keyframes refined in this window keep their new estimates as priors for the anchor
         for s in self.keyframes:
             s.T_prior = s.T.copy() if s is not self.keyframes[0] else s.T_prior

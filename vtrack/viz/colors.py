@@ -28,8 +28,9 @@ def lut(name: str, n: int = 256) -> np.ndarray:
     return (cmap(np.linspace(0.0, 1.0, n))[:, :3] * 255.0 + 0.5).astype(np.uint8)
 
 
-def scalar_colors(values: np.ndarray, vmin: float | None = None, vmax: float | None = None,
-                  cmap: str = "viridis") -> np.ndarray:
+def scalar_colors(
+    values: np.ndarray, vmin: float | None = None, vmax: float | None = None, cmap: str = "viridis"
+) -> np.ndarray:
     """Map values to (N, 3) uint8 colours; NaN/Inf get :data:`NEUTRAL_RGB`; a constant field maps to the
     middle of the map (never divides by zero)."""
     v = np.asarray(values, dtype=np.float64).reshape(-1)

@@ -64,18 +64,23 @@ def _read_result_json(d: Path) -> dict:
         raise InputError("result.json must hold a JSON object", path=p, got=type(meta).__name__)
     kind = meta.get("kind")
     if kind not in ("reconstruction", "tracking"):
-        raise InputError("unknown result kind", path=p, field="kind", expected="'reconstruction' or 'tracking'",
-                         got=kind)
+        raise InputError(
+            "unknown result kind", path=p, field="kind", expected="'reconstruction' or 'tracking'", got=kind
+        )
     return meta
 
 
 def _check_result_files(d: Path, kind: str) -> None:
     if kind == "reconstruction" and not ((d / "mesh.ply").exists() or (d / "cloud.ply").exists()):
-        raise InputError("incomplete reconstruction result: neither mesh.ply nor cloud.ply is present", path=d,
-                         expected="mesh.ply and/or cloud.ply (written by `vtrack reconstruct`)")
+        raise InputError(
+            "incomplete reconstruction result: neither mesh.ply nor cloud.ply is present",
+            path=d,
+            expected="mesh.ply and/or cloud.ply (written by `vtrack reconstruct`)",
+        )
     if kind == "tracking" and not (d / "poses.csv").exists():
-        raise InputError("incomplete tracking result: poses.csv is missing", path=d,
-                         expected="poses.csv (written by `vtrack track`)")
+        raise InputError(
+            "incomplete tracking result: poses.csv is missing", path=d, expected="poses.csv (written by `vtrack track`)"
+        )
 
 
 def _infer_kind(d: Path) -> str | None:
@@ -124,14 +129,18 @@ def resolve_sources(path: str | Path) -> Sources:
     """
     p = Path(path).expanduser()
     if not p.exists():
-        raise InputError("path does not exist", path=p,
-                         expected="a session folder (manifest.json) or a result folder (result.json)")
+        raise InputError(
+            "path does not exist", path=p, expected="a session folder (manifest.json) or a result folder (result.json)"
+        )
     if p.is_file():
         if p.name in ("manifest.json", "result.json") or p.suffix.lower() in (".ply", ".csv"):
             p = p.parent
         else:
-            raise InputError("expected a folder", path=p,
-                             expected="a session folder (manifest.json) or a result folder (result.json)")
+            raise InputError(
+                "expected a folder",
+                path=p,
+                expected="a session folder (manifest.json) or a result folder (result.json)",
+            )
     p = p.resolve()
     src = Sources()
     if (p / "manifest.json").exists():
@@ -159,9 +168,12 @@ def resolve_sources(path: str | Path) -> Sources:
             src.notes.append(f"{p / 'summary.json'} is unreadable; session not found from it")
     if src.session is None and src.reconstruction is None and src.tracking is None:
         listing = sorted(c.name for c in p.iterdir())[:8]
-        raise InputError("not a vtrack session or result folder", path=p,
-                         expected="manifest.json, result.json, mesh.ply/cloud.ply/poses.csv, "
-                                  "or subfolders holding result.json", got=listing or "an empty folder")
+        raise InputError(
+            "not a vtrack session or result folder",
+            path=p,
+            expected="manifest.json, result.json, mesh.ply/cloud.ply/poses.csv, or subfolders holding result.json",
+            got=listing or "an empty folder",
+        )
     return src
 
 
@@ -190,8 +202,13 @@ def read_poses_csv(path: str | Path) -> dict[str, np.ndarray | None]:
     need = ("t", *_POSE_COLS)
     missing = [c for c in need if c not in header]
     if missing:
-        raise InputError("poses.csv lacks required columns", path=path, field=",".join(missing),
-                         expected="header t,x,y,z,qx,qy,qz,qw[,gt_x,...,gt_qw]", got=header)
+        raise InputError(
+            "poses.csv lacks required columns",
+            path=path,
+            field=",".join(missing),
+            expected="header t,x,y,z,qx,qy,qz,qw[,gt_x,...,gt_qw]",
+            got=header,
+        )
     if not rows:
         raise InputError("poses.csv has no rows", path=path)
     # Only the pose columns are numeric; others (e.g. the tracker's ``status``) are ignored.
@@ -200,16 +217,21 @@ def read_poses_csv(path: str | Path) -> dict[str, np.ndarray | None]:
     A = np.full((len(rows), len(names)), np.nan)
     for r, row in enumerate(rows):
         if len(row) != len(header):
-            raise InputError(f"poses.csv row {r + 2} has {len(row)} fields", path=path,
-                             expected=f"{len(header)} (as the header)")
+            raise InputError(
+                f"poses.csv row {r + 2} has {len(row)} fields", path=path, expected=f"{len(header)} (as the header)"
+            )
         for k, j in enumerate(idx):
             cell = row[j].strip()
             if cell:
                 try:
                     A[r, k] = float(cell)
                 except ValueError:
-                    raise InputError(f"poses.csv row {r + 2} holds a non-numeric value {cell!r}", path=path,
-                                     field=names[k], expected="a number or empty") from None
+                    raise InputError(
+                        f"poses.csv row {r + 2} holds a non-numeric value {cell!r}",
+                        path=path,
+                        field=names[k],
+                        expected="a number or empty",
+                    ) from None
     col = {h: i for i, h in enumerate(names)}
     t = A[:, col["t"]]
     if not np.all(np.isfinite(t)):
@@ -343,8 +365,9 @@ def load_cloud(path: Path, max_points: int = DEFAULT_MAX_POINTS, notes: list[str
     }
     if all(k in d for k in ("red", "green", "blue")):
         cols["rgb"] = np.stack([d["red"][keep], d["green"][keep], d["blue"][keep]], axis=1).astype(np.uint8)
-    return CloudData(points=P, t=t, modality=mod, colors=cols, n_total=n_total,
-                     has_time="t" in d and float(np.ptp(t)) > 0)
+    return CloudData(
+        points=P, t=t, modality=mod, colors=cols, n_total=n_total, has_time="t" in d and float(np.ptp(t)) > 0
+    )
 
 
 @dataclass
@@ -390,8 +413,11 @@ def _resize(img: np.ndarray, longest: int, nearest: bool = False) -> np.ndarray:
     s = longest / max(h, w)
     if s >= 1.0:
         return img
-    return cv2.resize(img, (max(1, round(w * s)), max(1, round(h * s))),
-                      interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
+    return cv2.resize(
+        img,
+        (max(1, round(w * s)), max(1, round(h * s))),
+        interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA,
+    )
 
 
 def _hstack(images: list[np.ndarray], gap: int = 3) -> np.ndarray:
@@ -416,8 +442,9 @@ def _hand_cache_path(urdf: Path) -> Path | None:
 
     try:
         root = Path(urdf).resolve().parent
-        stats = sorted((str(p.relative_to(root)), p.stat().st_mtime_ns, p.stat().st_size)
-                       for p in root.rglob("*") if p.is_file())
+        stats = sorted(
+            (str(p.relative_to(root)), p.stat().st_mtime_ns, p.stat().st_size) for p in root.rglob("*") if p.is_file()
+        )
     except OSError:
         return None
     key = hashlib.sha1(json.dumps([str(Path(urdf).resolve()), stats]).encode()).hexdigest()[:16]
@@ -495,8 +522,7 @@ class ViewData:
                 if self.mesh is None:
                     self.notes.append(f"{rec / 'mesh.ply'} has no faces")
             if self.cloud is None and self.mesh is None and self.session is None:
-                raise InputError("reconstruction result holds no points and no faces, and no session to show",
-                                 path=rec)
+                raise InputError("reconstruction result holds no points and no faces, and no session to show", path=rec)
 
         # -- tracking ------------------------------------------------------------------------
         self.est: dict | None = None
@@ -535,9 +561,16 @@ class ViewData:
         if self.session is not None:
             for name, s in sorted(self.session.streams.items()):
                 if name.startswith("camera/") and "K" in s.attrs:
-                    self.cameras.append(CameraInfo(
-                        name.split("/", 1)[1], np.asarray(s.attrs["K"], np.float64), int(s.attrs.get("width", 640)),
-                        int(s.attrs.get("height", 480)), np.asarray(s.attrs.get("T_world_camera", np.eye(4))), s))
+                    self.cameras.append(
+                        CameraInfo(
+                            name.split("/", 1)[1],
+                            np.asarray(s.attrs["K"], np.float64),
+                            int(s.attrs.get("width", 640)),
+                            int(s.attrs.get("height", 480)),
+                            np.asarray(s.attrs.get("T_world_camera", np.eye(4))),
+                            s,
+                        )
+                    )
                 elif name.startswith("tactile/") and s.n:
                     self.tactile.append(name.split("/", 1)[1])
             if "joints" in self.session and self.session["joints"].n:
@@ -548,8 +581,11 @@ class ViewData:
         if self.scene is not None and self.scene.sim is not None:
             self.height_vmax_mm = float(max(self.scene.sim.penetration_mm[1], 0.1)) * 1.25
         self.times = self._timeline()
-        if self.cloud is not None and self.cloud.has_time and (
-                self.cloud.t[0] > self.times[-1] + 1e-6 or self.cloud.t[-1] < self.times[0] - 1e-6):
+        if (
+            self.cloud is not None
+            and self.cloud.has_time
+            and (self.cloud.t[0] > self.times[-1] + 1e-6 or self.cloud.t[-1] < self.times[0] - 1e-6)
+        ):
             # Point times in another time base than the session: "up to the current time" is meaningless.
             self.notes.append("cloud point times lie outside the session's time span; showing the whole cloud")
             self.cloud.has_time = False
@@ -599,7 +635,8 @@ class ViewData:
                 for link, (V, F) in zip(links, meshes, strict=True):
                     Tinv = np.linalg.inv(T0[link][0])
                     self._link_meshes.setdefault(link, []).append(
-                        ((V @ Tinv[:3, :3].T + Tinv[:3, 3]).astype(np.float32), F.astype(np.int32)))
+                        ((V @ Tinv[:3, :3].T + Tinv[:3, 3]).astype(np.float32), F.astype(np.int32))
+                    )
                 _save_hand_cache(hand.urdf_path, self._link_meshes)
         except InputError as e:
             self.notes.append(f"hand not shown: {e}")
@@ -614,8 +651,11 @@ class ViewData:
     def _timeline(self) -> np.ndarray:
         """Frame times (s): the first tactile stream, else camera, joints, GT pose, estimate, cloud."""
         if self.session is not None:
-            order = [f"tactile/{n}" for n in self.tactile] + [f"camera/{c.name}" for c in self.cameras] + [
-                "joints", "gt/object_pose"]
+            order = (
+                [f"tactile/{n}" for n in self.tactile]
+                + [f"camera/{c.name}" for c in self.cameras]
+                + ["joints", "gt/object_pose"]
+            )
             for name in order:
                 if name in self.session and self.session[name].n:
                     return np.asarray(self.session[name].t, np.float64)
@@ -665,8 +705,11 @@ class ViewData:
 
     def object_pose(self, st: FrameState, source: str = "estimate") -> np.ndarray:
         """Pose at which object-frame geometry is drawn: the estimate if asked and valid, else GT, else I."""
-        for T in ((st.T_world_object_est, st.T_world_object_gt) if source == "estimate"
-                  else (st.T_world_object_gt, st.T_world_object_est)):
+        for T in (
+            (st.T_world_object_est, st.T_world_object_gt)
+            if source == "estimate"
+            else (st.T_world_object_gt, st.T_world_object_est)
+        ):
             if T is not None and np.all(np.isfinite(T)):
                 return T
         return np.eye(4)
@@ -777,8 +820,9 @@ class ViewData:
                     h = _resize(np.where(np.isfinite(h), h, np.float32(np.nan)), PANEL_IMAGE_PX)
                     parts.append(colorize_height(h, self.height_vmax_mm))
                 if "contact" in gs.fields:
-                    parts.append(mask_image(_resize(np.asarray(gs["contact"][j], np.uint8), PANEL_IMAGE_PX,
-                                                    nearest=True)))
+                    parts.append(
+                        mask_image(_resize(np.asarray(gs["contact"][j], np.uint8), PANEL_IMAGE_PX, nearest=True))
+                    )
             if parts:
                 out[name] = _hstack(parts)
         return out

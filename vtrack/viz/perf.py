@@ -33,9 +33,17 @@ def _synthetic_result(session: Path, n: int, out: Path) -> Path:
     P *= 0.03 / np.linalg.norm(P, axis=1, keepdims=True)
     mod = (rng.random(n) < 0.05).astype(np.int32)
     out.mkdir(parents=True, exist_ok=True)
-    write_ply_points(out / "cloud.ply", P, scalars={
-        "modality": mod, "t": rng.uniform(ts.min(), ts.max(), n), "sensor_id": np.zeros(n, np.int32),
-        "confidence": rng.random(n).astype(np.float32), "tactile_value": rng.random(n).astype(np.float32)})
+    write_ply_points(
+        out / "cloud.ply",
+        P,
+        scalars={
+            "modality": mod,
+            "t": rng.uniform(ts.min(), ts.max(), n),
+            "sensor_id": np.zeros(n, np.int32),
+            "confidence": rng.random(n).astype(np.float32),
+            "tactile_value": rng.random(n).astype(np.float32),
+        },
+    )
     (out / "result.json").write_text(json.dumps({"kind": "reconstruction", "session": str(session)}))
     return out
 
@@ -81,13 +89,24 @@ def measure(path: str | Path, points: int = 0, frames: int = 60, seed: int = 0) 
 
     def stats(a: list[float]) -> dict:
         x = np.asarray(a, np.float64)
-        return {"n": len(x), "median_ms": float(np.median(x)) if len(x) else None,
-                "p95_ms": float(np.percentile(x, 95)) if len(x) else None}
+        return {
+            "n": len(x),
+            "median_ms": float(np.median(x)) if len(x) else None,
+            "p95_ms": float(np.percentile(x, 95)) if len(x) else None,
+        }
 
-    return {"load_s": t1 - t0, "viewer_s": t2 - t1, "open_s": t2 - t0, "open_cpu_s": c2 - c0, "frames": n,
-            "cloud_shown": len(data.cloud) if data.cloud is not None else 0,
-            "cloud_total": data.cloud.n_total if data.cloud is not None else 0,
-            "cold": stats(cold), "warm": stats(warm), "full_cloud": stats(full)}
+    return {
+        "load_s": t1 - t0,
+        "viewer_s": t2 - t1,
+        "open_s": t2 - t0,
+        "open_cpu_s": c2 - c0,
+        "frames": n,
+        "cloud_shown": len(data.cloud) if data.cloud is not None else 0,
+        "cloud_total": data.cloud.n_total if data.cloud is not None else 0,
+        "cold": stats(cold),
+        "warm": stats(warm),
+        "full_cloud": stats(full),
+    }
 
 
 def main() -> None:

@@ -38,11 +38,16 @@ def _save(fig, out: str | Path) -> Path:
     return out
 
 
-def plot_error_over_time(out: str | Path, t: np.ndarray | Mapping[str, np.ndarray],
-                         series: Mapping[str, np.ndarray] | Sequence[Mapping[str, np.ndarray]],
-                         ylabel: str | Sequence[str] = "error", title: str = "",
-                         xlabel: str = "time (s)", flags: np.ndarray | None = None,
-                         flag_label: str = "lost/recovering") -> Path:
+def plot_error_over_time(
+    out: str | Path,
+    t: np.ndarray | Mapping[str, np.ndarray],
+    series: Mapping[str, np.ndarray] | Sequence[Mapping[str, np.ndarray]],
+    ylabel: str | Sequence[str] = "error",
+    title: str = "",
+    xlabel: str = "time (s)",
+    flags: np.ndarray | None = None,
+    flag_label: str = "lost/recovering",
+) -> Path:
     """Plot error series against time.
 
     Args:
@@ -64,15 +69,13 @@ def plot_error_over_time(out: str | Path, t: np.ndarray | Mapping[str, np.ndarra
     labels = [ylabel] * len(panels) if isinstance(ylabel, str) else list(ylabel)
     if len(labels) != len(panels):
         raise InputError("one y label per panel", field="ylabel", expected=str(len(panels)), got=len(labels))
-    fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.4 * len(panels) + 0.6), dpi=110, sharex=True,
-                             squeeze=False)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.4 * len(panels) + 0.6), dpi=110, sharex=True, squeeze=False)
     for ax, panel, lab in zip(axes[:, 0], panels, labels, strict=True):
         for name, v in panel.items():
             tt = np.asarray(t[name] if isinstance(t, Mapping) else t, np.float64).reshape(-1)
             vv = np.asarray(v, np.float64).reshape(-1)
             if len(tt) != len(vv):
-                raise InputError("time and value lengths differ", field=str(name), expected=str(len(tt)),
-                                 got=len(vv))
+                raise InputError("time and value lengths differ", field=str(name), expected=str(len(tt)), got=len(vv))
             # NaN breaks the line: lost frames show as gaps.
             vv = np.where(np.isfinite(vv), vv, np.nan)
             ax.plot(tt, vv, lw=1.2, label=str(name))
@@ -119,12 +122,19 @@ def plot_pose_errors(poses_csv: str | Path, out: str | Path, title: str = "") ->
 
     p = read_poses_csv(poses_csv)
     if p["T_gt"] is None:
-        raise InputError("poses.csv has no ground-truth columns to compare with", path=poses_csv,
-                         expected="gt_x, gt_y, gt_z, gt_qx, gt_qy, gt_qz, gt_qw")
+        raise InputError(
+            "poses.csv has no ground-truth columns to compare with",
+            path=poses_csv,
+            expected="gt_x, gt_y, gt_z, gt_qx, gt_qy, gt_qz, gt_qw",
+        )
     trans, rot = pose_errors(p["T_est"], p["T_gt"])
-    return plot_error_over_time(out, p["t"], [{"translation": trans}, {"rotation": rot}],
-                                ylabel=["translation error (mm)", "rotation error (deg)"],
-                                title=title or f"pose error ({Path(poses_csv).parent.name})")
+    return plot_error_over_time(
+        out,
+        p["t"],
+        [{"translation": trans}, {"rotation": rot}],
+        ylabel=["translation error (mm)", "rotation error (deg)"],
+        title=title or f"pose error ({Path(poses_csv).parent.name})",
+    )
 
 
 def pareto_front(times: np.ndarray, errors: np.ndarray, higher_is_better: bool = False) -> np.ndarray:
@@ -144,9 +154,17 @@ def pareto_front(times: np.ndarray, errors: np.ndarray, higher_is_better: bool =
     return mask
 
 
-def plot_speed_vs_error(out: str | Path, rows: Sequence[Mapping[str, Any]], time_key: str = "ms",
-                        error_key: str = "error", method_key: str = "method", label_key: str | None = "setting",
-                        higher_is_better: bool = False, title: str = "", log_x: bool | None = None) -> Path:
+def plot_speed_vs_error(
+    out: str | Path,
+    rows: Sequence[Mapping[str, Any]],
+    time_key: str = "ms",
+    error_key: str = "error",
+    method_key: str = "method",
+    label_key: str | None = "setting",
+    higher_is_better: bool = False,
+    title: str = "",
+    log_x: bool | None = None,
+) -> Path:
     """Scatter of error against time per method with the Pareto front dashed.
 
     Args:
@@ -168,8 +186,9 @@ def plot_speed_vs_error(out: str | Path, rows: Sequence[Mapping[str, Any]], time
             for i in idx:
                 lab = rows[i].get(label_key, "")
                 if lab not in ("", None) and np.isfinite(t[i]) and np.isfinite(e[i]):
-                    ax.annotate(str(lab), (t[i], e[i]), fontsize=6, alpha=0.7, xytext=(3, 3),
-                                textcoords="offset points")
+                    ax.annotate(
+                        str(lab), (t[i], e[i]), fontsize=6, alpha=0.7, xytext=(3, 3), textcoords="offset points"
+                    )
     front = pareto_front(t, e, higher_is_better)
     if front.any():
         o = np.argsort(t[front])

@@ -62,8 +62,9 @@ def _frustum_segments(cam, depth: float) -> np.ndarray:
     return np.array(segs)
 
 
-def render_scene(data: ViewData, frame: int = -1, size: tuple[int, int] = (1280, 960),
-                 color_mode: str = "modality") -> np.ndarray:
+def render_scene(
+    data: ViewData, frame: int = -1, size: tuple[int, int] = (1280, 960), color_mode: str = "modality"
+) -> np.ndarray:
     """Render ``data`` at timeline ``frame`` (negative counts from the end) to an (H, W', 3) uint8 image
     (W' = W plus the tactile panel column when the session has tactile streams)."""
     import pyvista as pv
@@ -88,8 +89,11 @@ def render_scene(data: ViewData, frame: int = -1, size: tuple[int, int] = (1280,
         p.add_mesh(pc, scalars="rgb", rgb=True, point_size=3, render_points_as_spheres=False)
     if data.mesh is not None:
         V = data.mesh[0] if data.recon_frame == "world" else _transform(data.mesh[0], T_obj)
-        p.add_mesh(pv.PolyData(np.asarray(V, np.float64), _faces_pv(data.mesh[1])),
-                   color=np.array(MESH_RGB) / 255, smooth_shading=True)
+        p.add_mesh(
+            pv.PolyData(np.asarray(V, np.float64), _faces_pv(data.mesh[1])),
+            color=np.array(MESH_RGB) / 255,
+            smooth_shading=True,
+        )
     if data.gt_mesh is not None and st.T_world_object_gt is not None:
         V = _transform(data.gt_mesh[0], st.T_world_object_gt)
         p.add_mesh(pv.PolyData(V, _faces_pv(data.gt_mesh[1])), color=np.array(GT_MESH_RGB) / 255, opacity=0.3)
@@ -97,8 +101,11 @@ def render_scene(data: ViewData, frame: int = -1, size: tuple[int, int] = (1280,
         if link not in st.link_poses:
             continue
         for V, F in meshes:
-            p.add_mesh(pv.PolyData(_transform(V, st.link_poses[link]), _faces_pv(F)),
-                       color=np.array(HAND_RGB) / 255, opacity=0.8)
+            p.add_mesh(
+                pv.PolyData(_transform(V, st.link_poses[link]), _faces_pv(F)),
+                color=np.array(HAND_RGB) / 255,
+                opacity=0.8,
+            )
     axis_len = 0.012
     for Ts in st.sensor_poses.values():
         o = Ts[:3, 3]
@@ -147,13 +154,19 @@ def _with_panels(img: np.ndarray, panels: dict[str, np.ndarray]) -> np.ndarray:
     for s in scaled:
         if y + s.shape[0] > H:
             break
-        col[y:y + s.shape[0], gap:gap + s.shape[1]] = s
+        col[y : y + s.shape[0], gap : gap + s.shape[1]] = s
         y += s.shape[0] + gap
     return np.concatenate([img, col], axis=1)
 
 
-def render_result(path: str | Path, out_png: str | Path, frame: int = -1, size: tuple[int, int] = (1280, 960),
-                  max_points: int = DEFAULT_MAX_POINTS, color_mode: str = "modality") -> Path:
+def render_result(
+    path: str | Path,
+    out_png: str | Path,
+    frame: int = -1,
+    size: tuple[int, int] = (1280, 960),
+    max_points: int = DEFAULT_MAX_POINTS,
+    color_mode: str = "modality",
+) -> Path:
     """Render a session / result folder (anything ``vtrack view`` accepts) to ``out_png``.
 
     Raises:
@@ -172,9 +185,15 @@ def render_result(path: str | Path, out_png: str | Path, frame: int = -1, size: 
     return out
 
 
-def save_mesh_cloud_screenshot(path: str | Path, vertices: np.ndarray, faces: np.ndarray, cloud: Any = None,
-                               title: str = "", gt_path: Path | None = None,
-                               size: tuple[int, int] = (900, 600)) -> Path:
+def save_mesh_cloud_screenshot(
+    path: str | Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    cloud: Any = None,
+    title: str = "",
+    gt_path: Path | None = None,
+    size: tuple[int, int] = (900, 600),
+) -> Path:
     """Off-screen pyvista render of a reconstruction result alone (no session needed): mesh (object or world
     frame, as given), optional GT mesh file as a wireframe, vision (blue) / touch (red) points of a fused cloud."""
     import pyvista as pv

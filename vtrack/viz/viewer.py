@@ -112,8 +112,9 @@ def wxyz_position_batch(Ts: np.ndarray) -> np.ndarray:
     return np.concatenate([q[:, 3:], q[:, :3]], axis=1)
 
 
-def default_view(data: ViewData, bounds: tuple[np.ndarray, np.ndarray] | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def default_view(
+    data: ViewData, bounds: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A camera ``(position, look_at, up)`` that frames the content from the front-right, above."""
     lo, hi = data.bounds() if bounds is None else bounds
     centre = 0.5 * (lo + hi)
@@ -141,9 +142,16 @@ class _CloudBins:
         self.precision = "float16" if extent < 4.0 else "float32"
         for k in range(n_bins):
             a, b = self.edges[k], self.edges[k + 1]
-            self.handles.append(scene.add_point_cloud(
-                f"{parent}/cloud/bin{k:03d}", cloud.points[a:b], cols[a:b], point_size=point_size,
-                point_shape="rounded", precision=self.precision))
+            self.handles.append(
+                scene.add_point_cloud(
+                    f"{parent}/cloud/bin{k:03d}",
+                    cloud.points[a:b],
+                    cols[a:b],
+                    point_size=point_size,
+                    point_shape="rounded",
+                    precision=self.precision,
+                )
+            )
             self.shown[k] = b - a
 
     def _colors(self, mode: str) -> np.ndarray:
@@ -164,8 +172,8 @@ class _CloudBins:
                 continue
             if want != self.shown[k]:
                 # Points and colours change length together (sent in one atomic batch).
-                h.points = self.cloud.points[a:a + want]
-                h.colors = cols[a:a + want]
+                h.points = self.cloud.points[a : a + want]
+                h.colors = cols[a : a + want]
                 self.shown[k] = want
                 sent += want
             if not h.visible:
@@ -179,7 +187,7 @@ class _CloudBins:
         cols = self._colors(mode)
         for k, h in enumerate(self.handles):
             a = int(self.edges[k])
-            h.colors = cols[a:a + self.shown[k]]
+            h.colors = cols[a : a + self.shown[k]]
 
     def set_point_size(self, size: float) -> None:
         for h in self.handles:
@@ -204,8 +212,14 @@ class Viewer:
         log: where connection/readiness messages go (default: stderr).
     """
 
-    def __init__(self, data: ViewData, host: str = "127.0.0.1", port: int = 8080,
-                 log: Callable[[str], None] | None = None, hdri: bool = False) -> None:
+    def __init__(
+        self,
+        data: ViewData,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        log: Callable[[str], None] | None = None,
+        hdri: bool = False,
+    ) -> None:
         import viser
 
         self.data = data
@@ -268,15 +282,22 @@ class Viewer:
         self.obj_node = sc.add_frame("/object", show_axes=True, axes_length=0.03, axes_radius=0.0012)
         if obj == "/recon":
             sc.add_frame("/recon", show_axes=False)
-        self.gt_node = sc.add_frame("/object_gt", show_axes=True, axes_length=0.02, axes_radius=0.0008,
-                                    visible=d.gt_T is not None)
+        self.gt_node = sc.add_frame(
+            "/object_gt", show_axes=True, axes_length=0.02, axes_radius=0.0008, visible=d.gt_T is not None
+        )
         self.mesh = None
         if d.mesh is not None:
             self.mesh = sc.add_mesh_simple(f"{obj}/mesh", d.mesh[0], d.mesh[1], color=MESH_RGB, side="double")
         self.gt_mesh = None
         if d.gt_mesh is not None:
-            self.gt_mesh = sc.add_mesh_simple("/object_gt/mesh", d.gt_mesh[0], d.gt_mesh[1], color=GT_MESH_RGB,
-                                              opacity=0.35, visible=d.mesh is None and d.cloud is None)
+            self.gt_mesh = sc.add_mesh_simple(
+                "/object_gt/mesh",
+                d.gt_mesh[0],
+                d.gt_mesh[1],
+                color=GT_MESH_RGB,
+                opacity=0.35,
+                visible=d.mesh is None and d.cloud is None,
+            )
         self._bounds = d.bounds()
         self.point_size = self._default_point_size()
         self.bins = None
@@ -295,8 +316,15 @@ class Viewer:
         for c in d.cameras:
             q, p = wxyz_position(c.T_world_camera)
             self.cam_frusta[c.name] = sc.add_camera_frustum(
-                f"/cameras/{c.name}", fov=c.fov_y, aspect=c.width / c.height, scale=0.04, thickness=0.0015,
-                color=(40, 90, 200), wxyz=q, position=p)
+                f"/cameras/{c.name}",
+                fov=c.fov_y,
+                aspect=c.width / c.height,
+                scale=0.04,
+                thickness=0.0015,
+                color=(40, 90, 200),
+                wxyz=q,
+                position=p,
+            )
         self.traj = {}
         if d.gt_T is not None:
             self.traj["gt"] = self._trajectory("/trajectory/gt", d.gt_T, GT_TRAJ_RGB)
@@ -322,8 +350,7 @@ class Viewer:
         n = d.n_frames
         with gui.add_folder("Timeline"):
             # Start at the last frame: the complete result is what one wants to see first.
-            self.slider = gui.add_slider("frame", min=0, max=max(n - 1, 1), step=1, initial_value=n - 1,
-                                         disabled=n < 2)
+            self.slider = gui.add_slider("frame", min=0, max=max(n - 1, 1), step=1, initial_value=n - 1, disabled=n < 2)
             self.time_md = gui.add_markdown("t = 0.000 s")
             self.play_btn = gui.add_button("Play", disabled=n < 2)
             self.steps = gui.add_button_group("step", ["|<", "<", ">", ">|"])
@@ -331,18 +358,26 @@ class Viewer:
         with gui.add_folder("Display"):
             modes = [m for m in COLOR_MODES if d.cloud is not None and m in d.cloud.colors] or ["modality"]
             self.color_dd = gui.add_dropdown("colour cloud by", modes, initial_value=modes[0])
-            self.accumulate = gui.add_checkbox("cloud up to current time",
-                                               initial_value=bool(d.cloud is not None and d.cloud.has_time))
-            self.psize = gui.add_slider("point size (mm)", min=0.2, max=10.0, step=0.1,
-                                        initial_value=round(self.point_size * 1000, 1))
-            self.pose_dd = gui.add_dropdown("object pose", ["estimate", "gt"],
-                                            initial_value="estimate" if d.est is not None else "gt")
+            self.accumulate = gui.add_checkbox(
+                "cloud up to current time", initial_value=bool(d.cloud is not None and d.cloud.has_time)
+            )
+            self.psize = gui.add_slider(
+                "point size (mm)", min=0.2, max=10.0, step=0.1, initial_value=round(self.point_size * 1000, 1)
+            )
+            self.pose_dd = gui.add_dropdown(
+                "object pose", ["estimate", "gt"], initial_value="estimate" if d.est is not None else "gt"
+            )
             self.cb = {}
-            for key, on in (("cloud", d.cloud is not None), ("mesh", d.mesh is not None),
-                            ("GT mesh", d.gt_mesh is not None and d.mesh is None and d.cloud is None),
-                            ("hand", bool(self.hand_nodes)), ("sensor frames", bool(self.sensor_nodes)),
-                            ("cameras", bool(self.cam_frusta)), ("camera images", bool(self.cam_frusta)),
-                            ("trajectories", bool(self.traj))):
+            for key, on in (
+                ("cloud", d.cloud is not None),
+                ("mesh", d.mesh is not None),
+                ("GT mesh", d.gt_mesh is not None and d.mesh is None and d.cloud is None),
+                ("hand", bool(self.hand_nodes)),
+                ("sensor frames", bool(self.sensor_nodes)),
+                ("cameras", bool(self.cam_frusta)),
+                ("camera images", bool(self.cam_frusta)),
+                ("trajectories", bool(self.traj)),
+            ):
                 self.cb[key] = gui.add_checkbox(f"show {key}", initial_value=on)
         self.panel_images = {}
         if d.tactile or d.cameras:
@@ -352,8 +387,9 @@ class Viewer:
                 for name, img in st.panels.items():
                     self.panel_images[name] = gui.add_image(img, label=name, format="jpeg", jpeg_quality=85)
                 for name, img in st.camera_images.items():
-                    self.panel_images[f"camera/{name}"] = gui.add_image(img, label=f"camera {name}",
-                                                                       format="jpeg", jpeg_quality=80)
+                    self.panel_images[f"camera/{name}"] = gui.add_image(
+                        img, label=f"camera {name}", format="jpeg", jpeg_quality=80
+                    )
         with gui.add_folder("Info", expand_by_default=False):
             s = d.summary()
             lines = [f"- **{k}**: {v}" for k, v in s.items() if v not in (None, [], 0, False)]
@@ -364,11 +400,13 @@ class Viewer:
         self.slider.on_update(lambda _: self.request_frame(int(self.slider.value)))
         self.play_btn.on_click(lambda _: self._toggle_play())
         self.steps.on_click(lambda ev: self._step(ev.target.value))
-        self.color_dd.on_update(lambda _: self._with_lock(
-            lambda: self.bins and self.bins.set_mode(self.color_dd.value)))
+        self.color_dd.on_update(
+            lambda _: self._with_lock(lambda: self.bins and self.bins.set_mode(self.color_dd.value))
+        )
         self.accumulate.on_update(lambda _: self.request_frame(int(self.slider.value)))
-        self.psize.on_update(lambda _: self._with_lock(
-            lambda: self.bins and self.bins.set_point_size(self.psize.value / 1000.0)))
+        self.psize.on_update(
+            lambda _: self._with_lock(lambda: self.bins and self.bins.set_point_size(self.psize.value / 1000.0))
+        )
         self.pose_dd.on_update(lambda _: self.request_frame(int(self.slider.value)))
         for cb in self.cb.values():
             cb.on_update(lambda _: self._apply_visibility())
@@ -539,8 +577,15 @@ class Viewer:
         self.server.stop()
 
 
-def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8080, max_points: int = DEFAULT_MAX_POINTS,
-          block: bool = True, log: Callable[[str], None] | None = None, hdri: bool = False) -> Viewer:
+def serve(
+    path: str | Path,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    max_points: int = DEFAULT_MAX_POINTS,
+    block: bool = True,
+    log: Callable[[str], None] | None = None,
+    hdri: bool = False,
+) -> Viewer:
     """Load ``path`` and serve it; with ``block`` run until Ctrl-C.
 
     Raises:
@@ -549,8 +594,10 @@ def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8080, max_point
     t0 = time.perf_counter()
     data = ViewData(path, max_points=max_points)
     viewer = Viewer(data, host=host, port=port, log=log, hdri=hdri)
-    viewer.log(f"ready in {time.perf_counter() - t0:.2f} s: {viewer.url}  "
-               f"({data.n_frames} frames, {len(data.cloud) if data.cloud is not None else 0} cloud points shown)")
+    viewer.log(
+        f"ready in {time.perf_counter() - t0:.2f} s: {viewer.url}  "
+        f"({data.n_frames} frames, {len(data.cloud) if data.cloud is not None else 0} cloud points shown)"
+    )
     if not block:
         return viewer
     try:

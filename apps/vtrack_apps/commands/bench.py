@@ -15,9 +15,12 @@ def register(app: typer.Typer) -> None:
     def bench(
         stage: str = typer.Argument("all", help="tactile | fusion | tracking | dome | segmentation | simreal | all"),
         quick: bool = typer.Option(False, "--quick", help="fewer operating points and frames (< 3 min total)"),
-        out: Path = typer.Option(None, "--out",
-                                 help="output folder (default results/benchmarks under the current folder; "
-                                      "docs/benchmarks refreshes the repository's tables)"),
+        out: Path = typer.Option(
+            None,
+            "--out",
+            help="output folder (default results/benchmarks under the current folder; "
+            "docs/benchmarks refreshes the repository's tables)",
+        ),
     ) -> None:
         """Run stage benchmarks: error against ms at several operating points, Pareto plot per stage."""
         import os

@@ -10,8 +10,9 @@ from vtrack.io.jsonio import write_json
 
 
 def register(app: typer.Typer) -> None:
-    dome_app = typer.Typer(help="Dome (TacTip/FusionTouch-style) marker sensor: simulate, train, eval, reconstruct.",
-                           no_args_is_help=True)
+    dome_app = typer.Typer(
+        help="Dome (TacTip/FusionTouch-style) marker sensor: simulate, train, eval, reconstruct.", no_args_is_help=True
+    )
     app.add_typer(dome_app, name="dome")
 
     @dome_app.command("simulate")
@@ -63,8 +64,14 @@ def register(app: typer.Typer) -> None:
 
         if quick:
             n_train, n_test, epochs_coarse, epochs_fine, epochs_force = 128, 32, 1, 1, 1
-        tc = TrainConfig(n_train=n_train, n_test=n_test, seed=seed, epochs_coarse=epochs_coarse,
-                         epochs_fine=epochs_fine, epochs_force=epochs_force)
+        tc = TrainConfig(
+            n_train=n_train,
+            n_test=n_test,
+            seed=seed,
+            epochs_coarse=epochs_coarse,
+            epochs_fine=epochs_fine,
+            epochs_force=epochs_force,
+        )
         out = out or weights_dir()
         kinds = tuple(m.strip() for m in methods.split(",") if m.strip())
         load_sets(tc, DomeConfig(), progress=True)  # simulate once, before the workers read the cache
@@ -103,8 +110,9 @@ def register(app: typer.Typer) -> None:
         pressure: float = typer.Option(0.0, "--pressure", help="internal (operating) pressure, kPa"),
         method: str = typer.Option("gnn", "--method", help="gnn | cnn"),
         weights: Path = typer.Option(None, "--weights", help="bundle .pt (default: shipped)"),
-        reference: Path = typer.Option(None, "--reference",
-                                       help="no-contact image of the same sensor at the same pressure"),
+        reference: Path = typer.Option(
+            None, "--reference", help="no-contact image of the same sensor at the same pressure"
+        ),
         resize: bool = typer.Option(False, "--resize", help="rescale the image to the model's input size"),
         out: Path = typer.Option(None, "--out", help="write mesh.ply, coarse.ply, result.json here"),
     ) -> None:
@@ -118,8 +126,12 @@ def register(app: typer.Typer) -> None:
         if not res.valid:  # refuse rather than print a confident force for an unreadable image
             from vtrack.errors import InputError
 
-            raise InputError(res.info["invalid_reason"], path=image, field="image",
-                             expected="a marker image of this dome sensor (same size, pressure, lighting)")
+            raise InputError(
+                res.info["invalid_reason"],
+                path=image,
+                field="image",
+                expected="a marker image of this dome sensor (same size, pressure, lighting)",
+            )
         typer.echo(json.dumps(res.summary(), indent=1))
         if out:
             paths = res.save(out)

@@ -34,10 +34,19 @@ def register(app: typer.Typer) -> None:
         from vtrack_apps.output import report
 
         t0 = time.perf_counter()
-        path = generate_session(scene, out, seconds=seconds, seed=seed,
-                                occlusion=occlusion.value if occlusion is not None else None,
-                                object_mesh=object_mesh, overwrite=force, progress=not quiet)
+        path = generate_session(
+            scene,
+            out,
+            seconds=seconds,
+            seed=seed,
+            occlusion=occlusion.value if occlusion is not None else None,
+            object_mesh=object_mesh,
+            overwrite=force,
+            progress=not quiet,
+        )
         r = open_session(path)
-        rows = [{"stream": k, "frames": v["frames"], "duration_s": round(v["duration_s"], 3)}
-                for k, v in r.summary().items()]
+        rows = [
+            {"stream": k, "frames": v["frames"], "duration_s": round(v["duration_s"], 3)}
+            for k, v in r.summary().items()
+        ]
         report(f"session {path} ({time.perf_counter() - t0:.1f} s)", rows, None)

@@ -14,9 +14,13 @@ def _topic_map(items: list[str] | None) -> dict[str, str]:
     for it in items or []:
         topic, sep, role = it.partition("=")
         if not sep:
-            raise InputError("--map must be TOPIC=ROLE", field="--map", got=it,
-                             expected="e.g. /cam/rgb=camera/cam0:rgb, /cam/depth=camera/cam0:depth, "
-                                      "/digit/image=tactile/digit_index, /x=ignore")
+            raise InputError(
+                "--map must be TOPIC=ROLE",
+                field="--map",
+                got=it,
+                expected="e.g. /cam/rgb=camera/cam0:rgb, /cam/depth=camera/cam0:depth, "
+                "/digit/image=tactile/digit_index, /x=ignore",
+            )
         out[topic] = role
     return out
 
@@ -43,22 +47,40 @@ def register(app: typer.Typer) -> None:
         no_hand: bool = typer.Option(False, "--no-hand", help="do not add the DIGIT-Allegro hand to the scene"),
         force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
         json_out: Path = typer.Option(None, "--json", help="write the import report as JSON"),
-        trust_pickle: bool = typer.Option(False, "--trust-pickle",
-                                          help="load data.pkl with plain pickle (runs code in the file; "
-                                               "default: numpy arrays and builtin containers only)"),
+        trust_pickle: bool = typer.Option(
+            False,
+            "--trust-pickle",
+            help="load data.pkl with plain pickle (runs code in the file; "
+            "default: numpy arrays and builtin containers only)",
+        ),
     ) -> None:
         """Import a FeelSight (NeuralFeels) log: DIGIT images, RealSense RGB-D, joints, object pose."""
         from vtrack.io.importers.feelsight import import_feelsight
 
         kw = {"hand_urdf": None} if no_hand else {}
-        _finish(import_feelsight(src, out, overwrite=force, max_frames=max_frames, object_mesh=mesh,
-                                 trust_pickle=trust_pickle, **kw), json_out)
+        _finish(
+            import_feelsight(
+                src, out, overwrite=force, max_frames=max_frames, object_mesh=mesh, trust_pickle=trust_pickle, **kw
+            ),
+            json_out,
+        )
 
-    _register_ros_import(imp, "rosbag", "ROS 1 .bag file or ROS 2 bag folder",
-                         "Import a ROS 1/2 bag (Image, CompressedImage, CameraInfo, JointState, tf).",
-                         "vtrack.io.importers.rosbag", "import_rosbag")
-    _register_ros_import(imp, "mcap", "MCAP file", "Import an MCAP file (ROS 2 CDR or ROS 1 messages).",
-                         "vtrack.io.importers.mcap_import", "import_mcap")
+    _register_ros_import(
+        imp,
+        "rosbag",
+        "ROS 1 .bag file or ROS 2 bag folder",
+        "Import a ROS 1/2 bag (Image, CompressedImage, CameraInfo, JointState, tf).",
+        "vtrack.io.importers.rosbag",
+        "import_rosbag",
+    )
+    _register_ros_import(
+        imp,
+        "mcap",
+        "MCAP file",
+        "Import an MCAP file (ROS 2 CDR or ROS 1 messages).",
+        "vtrack.io.importers.mcap_import",
+        "import_mcap",
+    )
 
 
 def _register_ros_import(imp: typer.Typer, name: str, src_help: str, doc: str, module: str, func: str) -> None:
@@ -78,9 +100,19 @@ def _register_ros_import(imp: typer.Typer, name: str, src_help: str, doc: str, m
         import importlib
 
         importer = getattr(importlib.import_module(module), func)
-        _finish(importer(src, out, topic_map=_topic_map(map_), overwrite=force, world_frame=world_frame,
-                         object_frame=object_frame, pair_tolerance_s=tolerance_ms / 1000.0,
-                         tactile_type=tactile_type), json_out)
+        _finish(
+            importer(
+                src,
+                out,
+                topic_map=_topic_map(map_),
+                overwrite=force,
+                world_frame=world_frame,
+                object_frame=object_frame,
+                pair_tolerance_s=tolerance_ms / 1000.0,
+                tactile_type=tactile_type,
+            ),
+            json_out,
+        )
 
     command.__doc__ = doc
     imp.command(name)(command)

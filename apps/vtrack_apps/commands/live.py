@@ -17,8 +17,9 @@ def register(app: typer.Typer) -> None:
         seconds: float = typer.Option(None, "--seconds", help="replay only the first seconds"),
         loop: int = typer.Option(1, "--loop", help="replay the session this many times"),
         max_lag_ms: float = typer.Option(50.0, "--max-lag-ms", help="source skips frames later than this"),
-        reader: str = typer.Option("thread", "--reader",
-                                   help="decode frames in a child 'process' (no GIL contention) or a 'thread'"),
+        reader: str = typer.Option(
+            "thread", "--reader", help="decode frames in a child 'process' (no GIL contention) or a 'thread'"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the statistics as JSON"),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
@@ -28,17 +29,34 @@ def register(app: typer.Typer) -> None:
         from vtrack_apps.output import print_table, write_json
 
         cons = [make_consumer(c, session) for c in consumer]
-        src = SessionReplaySource(session, streams=replay_streams(session, cons), speed=speed,
-                                  max_lag_s=max_lag_ms / 1000.0, seconds=seconds, loop=loop, reader=reader)
+        src = SessionReplaySource(
+            session,
+            streams=replay_streams(session, cons),
+            speed=speed,
+            max_lag_s=max_lag_ms / 1000.0,
+            seconds=seconds,
+            loop=loop,
+            reader=reader,
+        )
         res = LivePipeline(src, cons).run()
         so = res["source"]
-        src_rows = [{"stream": k, "emitted": v, "rate_hz": so["emitted_rate_hz"].get(k),
-                     "skipped_late": so["skipped_late"].get(k, 0)} for k, v in so["emitted"].items()]
+        src_rows = [
+            {
+                "stream": k,
+                "emitted": v,
+                "rate_hz": so["emitted_rate_hz"].get(k),
+                "skipped_late": so["skipped_late"].get(k, 0),
+            }
+            for k, v in so["emitted"].items()
+        ]
         print_table(f"live source ({res['active_s']} s, max lag {res['source']['max_lag_ms']} ms)", src_rows)
         for name, r in res["consumers"].items():
             rows = [{"stream": s, **v} for s, v in r["streams"].items()]
-            print_table(f"consumer {name}: latency mean {r['latency_ms_mean']} ms, p95 {r['latency_ms_p95']} ms, "
-                        f"busy {r['busy_fraction']}, result {r['result']}", rows)
+            print_table(
+                f"consumer {name}: latency mean {r['latency_ms_mean']} ms, p95 {r['latency_ms_p95']} ms, "
+                f"busy {r['busy_fraction']}, result {r['result']}",
+                rows,
+            )
             if "first_error" in r:
                 typer.secho(f"consumer {name}: {r['errors']} error(s), first: {r['first_error']}", fg="yellow")
         if json_out:

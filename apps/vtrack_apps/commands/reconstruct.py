@@ -14,14 +14,17 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", help="result folder (mesh.ply, cloud.ply, metrics.json, ...)"),
         method: str = typer.Option("neural_sdf", "--method", help="tsdf | neural_sdf"),
         modalities: str = typer.Option("vision,touch", "--modalities", help="vision, touch or vision,touch"),
-        poses: str = typer.Option("track", "--poses",
-                                  help="track (SLAM, or known shape with --mesh) | FILE (poses.csv) | gt (ORACLE)"),
+        poses: str = typer.Option(
+            "track", "--poses", help="track (SLAM, or known shape with --mesh) | FILE (poses.csv) | gt (ORACLE)"
+        ),
         mesh: Path = typer.Option(None, "--mesh", help="known object shape for tracking (object frame, m)"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
-        tactile_source: str = typer.Option("pipeline", "--tactile-source",
-                                           help="pipeline (tactile images) | gt (ORACLE height maps)"),
-        segmentation: str = typer.Option("pipeline", "--segmentation",
-                                         help="pipeline (no GT) | gt (ORACLE masks) | none"),
+        tactile_source: str = typer.Option(
+            "pipeline", "--tactile-source", help="pipeline (tactile images) | gt (ORACLE height maps)"
+        ),
+        segmentation: str = typer.Option(
+            "pipeline", "--segmentation", help="pipeline (no GT) | gt (ORACLE masks) | none"
+        ),
         online: bool = typer.Option(False, "--online", help="neural SDF: frame-by-frame with a time budget"),
         iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = default)"),
         voxel_mm: float = typer.Option(0.0, "--voxel-mm", help="TSDF voxel size in mm (0 = default 2)"),
@@ -37,11 +40,36 @@ def register(app: typer.Typer) -> None:
             opts["n_iters"] = iters
         if voxel_mm > 0:
             opts["voxel_size"] = voxel_mm / 1000.0
-        m = reconstruct_session(session, out, method=method, modalities=modalities, poses=poses, mesh=mesh, gt=gt,
-                                tactile_source=tactile_source, segmentation=segmentation, online=online,
-                                screenshot=not no_screenshot, **opts)
-        keys = ("method", "modalities", "poses", "blind", "oracle", "tactile_source", "fscore", "precision",
-                "recall", "chamfer_mm", "normal_consistency", "seconds", "ms_per_frame", "frames")
+        m = reconstruct_session(
+            session,
+            out,
+            method=method,
+            modalities=modalities,
+            poses=poses,
+            mesh=mesh,
+            gt=gt,
+            tactile_source=tactile_source,
+            segmentation=segmentation,
+            online=online,
+            screenshot=not no_screenshot,
+            **opts,
+        )
+        keys = (
+            "method",
+            "modalities",
+            "poses",
+            "blind",
+            "oracle",
+            "tactile_source",
+            "fscore",
+            "precision",
+            "recall",
+            "chamfer_mm",
+            "normal_consistency",
+            "seconds",
+            "ms_per_frame",
+            "frames",
+        )
         report(f"reconstruct {session}", {k: m.get(k) for k in keys}, json_out)
         if json_out:
             from vtrack_apps.output import write_json

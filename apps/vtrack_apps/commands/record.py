@@ -16,8 +16,7 @@ def _base_scene(scene: Path | None) -> dict | None:
 
 
 def register(app: typer.Typer) -> None:
-    rec = typer.Typer(help="Record live sensors (OAK-D, DIGIT / GelSight Mini) into a session.",
-                      no_args_is_help=True)
+    rec = typer.Typer(help="Record live sensors (OAK-D, DIGIT / GelSight Mini) into a session.", no_args_is_help=True)
     app.add_typer(rec, name="record")
 
     @rec.command("oak")
@@ -33,8 +32,9 @@ def register(app: typer.Typer) -> None:
         flush_every: int = typer.Option(10, "--flush-every", help="commit every N frames (crash-safety step)"),
         device: str = typer.Option(None, "--device", help="device id or IP (default: first found)"),
         scene: Path = typer.Option(None, "--scene", help="scene YAML to embed (the camera entry is added)"),
-        simulate: bool = typer.Option(False, "--simulate",
-                                      help="no device: synthetic frames through a host-only depthai pipeline"),
+        simulate: bool = typer.Option(
+            False, "--simulate", help="no device: synthetic frames through a host-only depthai pipeline"
+        ),
         force: bool = typer.Option(False, "--force", help="overwrite an existing session"),
     ) -> None:
         """Record colour + depth aligned to colour (and IMU) from an OAK-D with device timestamps."""
@@ -43,19 +43,35 @@ def register(app: typer.Typer) -> None:
 
         cfg = OakConfig(name=name, width=width, height=height, fps=fps, imu=imu, device=device)
         if simulate:
-            stats = record_oak_simulated(out, cfg, n_frames=frames or int(round((seconds or 2.0) * fps)),
-                                         flush_every=flush_every, overwrite=force, scene=_base_scene(scene))
+            stats = record_oak_simulated(
+                out,
+                cfg,
+                n_frames=frames or int(round((seconds or 2.0) * fps)),
+                flush_every=flush_every,
+                overwrite=force,
+                scene=_base_scene(scene),
+            )
         else:
-            stats = record_oak(out, cfg, seconds=seconds, max_frames=frames, flush_every=flush_every,
-                               overwrite=force, scene=_base_scene(scene))
+            stats = record_oak(
+                out,
+                cfg,
+                seconds=seconds,
+                max_frames=frames,
+                flush_every=flush_every,
+                overwrite=force,
+                scene=_base_scene(scene),
+            )
         print_table(f"recorded {out}", stats.to_dict())
 
     @rec.command("tactile")
     def tactile(
         out: Path = typer.Option(..., "--out", help="session directory to write"),
-        camera: list[str] = typer.Option(..., "--camera",
-                                         help="NAME=SOURCE[:TYPE], SOURCE = index, /dev/videoN, serial:S or a "
-                                              "video file; TYPE = digit|gelsight_mini|gelsight (repeatable)"),
+        camera: list[str] = typer.Option(
+            ...,
+            "--camera",
+            help="NAME=SOURCE[:TYPE], SOURCE = index, /dev/videoN, serial:S or a "
+            "video file; TYPE = digit|gelsight_mini|gelsight (repeatable)",
+        ),
         joints_csv: Path = typer.Option(None, "--joints-csv", help="joint states CSV (t, names...)"),
         joints_topic: str = typer.Option(None, "--joints-topic", help="sensor_msgs/JointState topic (ROS)"),
         seconds: float = typer.Option(None, "--seconds", help="stop after this many seconds"),
@@ -88,8 +104,17 @@ def register(app: typer.Typer) -> None:
             js = CsvJointSource(joints_csv)
         elif joints_topic is not None:
             js = RosJointSource(joints_topic)
-        stats = record_tactile(out, cams, joints=js, seconds=seconds, max_frames=frames, flush_every=flush_every,
-                               overwrite=force, scene=_base_scene(scene), realtime=not no_realtime)
+        stats = record_tactile(
+            out,
+            cams,
+            joints=js,
+            seconds=seconds,
+            max_frames=frames,
+            flush_every=flush_every,
+            overwrite=force,
+            scene=_base_scene(scene),
+            realtime=not no_realtime,
+        )
         print_table(f"recorded {out}", stats.to_dict())
 
     @rec.command("presses")
@@ -111,14 +136,24 @@ def register(app: typer.Typer) -> None:
         from vtrack_apps.output import print_table
 
         if sensor not in SENSOR_PRESETS:
-            raise InputError("unknown tactile sensor type", field="--sensor", expected=" | ".join(SENSOR_PRESETS),
-                             got=sensor)
+            raise InputError(
+                "unknown tactile sensor type", field="--sensor", expected=" | ".join(SENSOR_PRESETS), got=sensor
+            )
         pitch = mm_per_px if mm_per_px is not None else SENSOR_PRESETS[sensor].mm_per_px
         if mm_per_px is None:
             typer.echo(f"pixel pitch: {pitch} mm/px (nominal {sensor} preset; pass --mm-per-px if you know yours)")
-        rep = record_presses(camera, out, sensor=sensor, ball_radius_mm=ball_radius_mm, mm_per_px=pitch,
-                             n_presses=n, background_frames=background_frames, max_frames=frames, overwrite=force,
-                             echo=typer.echo)
+        rep = record_presses(
+            camera,
+            out,
+            sensor=sensor,
+            ball_radius_mm=ball_radius_mm,
+            mm_per_px=pitch,
+            n_presses=n,
+            background_frames=background_frames,
+            max_frames=frames,
+            overwrite=force,
+            echo=typer.echo,
+        )
         print_table(f"recorded presses {out}", rep.to_dict())
         if rep.presses_saved < 5:
             typer.echo(f"warning: only {rep.presses_saved} presses: calibrate needs at least 5")

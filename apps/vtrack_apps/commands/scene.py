@@ -41,14 +41,18 @@ def register(app: typer.Typer) -> None:
 
             hk = HandKinematics.from_scene(s)
             loaded["hand URDF"] = f"{hk.n_joints} joints, {len(hk.link_names)} links, {len(hk.sensor_names)} sensors"
-        report(f"scene {s.name}", {
-            **loaded,
-            "object": str(s.object.mesh) if s.object.mesh else "unknown shape",
-            "hand": str(s.hand.urdf) if s.hand else "none",
-            "cameras": [c.name for c in s.cameras],
-            "tactile": [f"{t.name}:{t.type}" for t in s.tactile],
-            "reconstruction": s.pipeline.reconstruction,
-            "tracking": s.pipeline.tracking,
-            "modalities": s.effective_modalities,
-            "components": required_components(s),
-        }, json_out)
+        report(
+            f"scene {s.name}",
+            {
+                **loaded,
+                "object": str(s.object.mesh) if s.object.mesh else "unknown shape",
+                "hand": str(s.hand.urdf) if s.hand else "none",
+                "cameras": [c.name for c in s.cameras],
+                "tactile": [f"{t.name}:{t.type}" for t in s.tactile],
+                "reconstruction": s.pipeline.reconstruction,
+                "tracking": s.pipeline.tracking,
+                "modalities": s.effective_modalities,
+                "components": required_components(s),
+            },
+            json_out,
+        )

@@ -61,17 +61,35 @@ def register(app: typer.Typer) -> None:
         problems = verify_session(r)
         frames = sum(s.n for s in r.streams.values())
         if json_out:
-            write_json(json_out, {"session": str(session), "ok": not problems, "frames": frames,
-                                  "problems": [{"path": str(p.path), "stream": p.stream, "field": p.field,
-                                                "frames": list(p.frames) if p.frames else None,
-                                                "message": p.message} for p in problems]})
+            write_json(
+                json_out,
+                {
+                    "session": str(session),
+                    "ok": not problems,
+                    "frames": frames,
+                    "problems": [
+                        {
+                            "path": str(p.path),
+                            "stream": p.stream,
+                            "field": p.field,
+                            "frames": list(p.frames) if p.frames else None,
+                            "message": p.message,
+                        }
+                        for p in problems
+                    ],
+                },
+            )
         if not problems:
             typer.echo(f"session {session}: OK, {len(r.streams)} streams, {frames} frames, every chunk reads back")
             return
         for p in problems:
             typer.echo(str(p))
         first = problems[0]
-        raise InputError(f"{len(problems)} damaged chunk(s), first at frames {first.frames[0]}..{first.frames[1] - 1}"
-                         if first.frames else f"{len(problems)} problem(s)",
-                         path=first.path, field=f"{first.stream}/{first.field}",
-                         expected="every chunk readable (vtrack --on-corrupt skip|stop ... reads around them)")
+        raise InputError(
+            f"{len(problems)} damaged chunk(s), first at frames {first.frames[0]}..{first.frames[1] - 1}"
+            if first.frames
+            else f"{len(problems)} problem(s)",
+            path=first.path,
+            field=f"{first.stream}/{first.field}",
+            expected="every chunk readable (vtrack --on-corrupt skip|stop ... reads around them)",
+        )

@@ -12,8 +12,9 @@ import typer
 _PRESS_HELP = "press-set folder (labels.csv, background.png, press images; meta.json or a preset)"
 
 
-def _load_set(pressset: Path, meta: Path | None, sensor: str | None, mm_per_px: float | None,
-              ball_radius_mm: float | None):
+def _load_set(
+    pressset: Path, meta: Path | None, sensor: str | None, mm_per_px: float | None, ball_radius_mm: float | None
+):
     from vtrack.tactile.pressset import load_press_set
 
     return load_press_set(pressset, meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm)
@@ -32,11 +33,14 @@ def register(app: typer.Typer) -> None:
         pressset: Path = typer.Argument(..., help=_PRESS_HELP),
         out: Path = typer.Option(..., "--out", help="calibration file to write (.npz)"),
         json_out: Path = typer.Option(None, "--json", help="write the calibration report (JSON)"),
-        method: str = typer.Option("mlp", "--method",
-                                   help="lut | lut_raw | mlp | ps | auto (chosen by cross-validation on the "
-                                        "training presses)"),
-        holdout: str = typer.Option("every:4:3", "--holdout",
-                                    help="every:K[:OFF] | idx:1,5 | files:a.png,b.png | last:N | none"),
+        method: str = typer.Option(
+            "mlp",
+            "--method",
+            help="lut | lut_raw | mlp | ps | auto (chosen by cross-validation on the training presses)",
+        ),
+        holdout: str = typer.Option(
+            "every:4:3", "--holdout", help="every:K[:OFF] | idx:1,5 | files:a.png,b.png | last:N | none"
+        ),
         compare: bool = typer.Option(False, "--compare", help="also train and evaluate every other method"),
         meta: Path = typer.Option(None, "--meta", help="press-set meta JSON (sensor, mm_per_px, ball_radius_mm)"),
         sensor: str = typer.Option(None, "--sensor", help="override meta: sensor name"),
@@ -46,8 +50,9 @@ def register(app: typer.Typer) -> None:
         mlp_hidden: int = typer.Option(32, "--mlp-hidden", help="MLP hidden width"),
         mlp_epochs: int = typer.Option(12, "--mlp-epochs", help="MLP training epochs"),
         downsample: int = typer.Option(1, "--downsample", help="working-resolution factor for the evaluation"),
-        labels: str = typer.Option("hand_or_auto", "--labels",
-                                   help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"),
+        labels: str = typer.Option(
+            "hand_or_auto", "--labels", help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"
+        ),
         review: Path = typer.Option(None, "--review", help="auto labels: draw every detected circle into this PNG"),
     ) -> None:
         """Learn colour(+position) -> surface normal from ball presses; report held-out errors.
@@ -63,16 +68,28 @@ def register(app: typer.Typer) -> None:
         from vtrack_apps.output import print_table, write_json
 
         if method not in METHODS + ("auto",):
-            raise InputError("unknown calibration method", field="--method",
-                             expected=" | ".join(METHODS + ("auto",)), got=method)
+            raise InputError(
+                "unknown calibration method", field="--method", expected=" | ".join(METHODS + ("auto",)), got=method
+            )
         opts = TrainOptions(lut_bins=lut_bins, mlp_hidden=mlp_hidden, mlp_epochs=mlp_epochs)
-        run = calibrate_press_set(pressset, method=method, holdout=holdout, opts=opts, labels=labels,
-                                  meta_file=meta, sensor=sensor, mm_per_px=mm_per_px, ball_radius_mm=ball_radius_mm,
-                                  downsample=downsample)
+        run = calibrate_press_set(
+            pressset,
+            method=method,
+            holdout=holdout,
+            opts=opts,
+            labels=labels,
+            meta_file=meta,
+            sensor=sensor,
+            mm_per_px=mm_per_px,
+            ball_radius_mm=ball_radius_mm,
+            downsample=downsample,
+        )
         ps, train, test = run.press_set, run.train, run.test
         if ps.mm_per_px_source == "preset":
-            typer.echo(f"warning: mm_per_px not given: using the {ps.sensor} preset's nominal {ps.mm_per_px:.4f} mm/px "
-                       f"at {ps.shape[1]}x{ps.shape[0]} px (unverified; pass --mm-per-px or add it to meta.json)")
+            typer.echo(
+                f"warning: mm_per_px not given: using the {ps.sensor} preset's nominal {ps.mm_per_px:.4f} mm/px "
+                f"at {ps.shape[1]}x{ps.shape[0]} px (unverified; pass --mm-per-px or add it to meta.json)"
+            )
         auto_csv = None
         if ps.labels_source == "auto":
             auto_csv = write_auto_labels(out.parent / "labels.auto.csv", ps.detections)
@@ -89,8 +106,11 @@ def register(app: typer.Typer) -> None:
         elif review is not None:
             typer.echo("--review: hand labels used (labels.csv), nothing detected to review")
         if run.cv:
-            print_table(f"method choice ({run.cv[0]['folds']}-fold cross-validation on the {len(train)} training "
-                        "presses: the errors to expect on new presses)", run.cv)
+            print_table(
+                f"method choice ({run.cv[0]['folds']}-fold cross-validation on the {len(train)} training "
+                "presses: the errors to expect on new presses)",
+                run.cv,
+            )
         method = run.calib.method
         results = []
         for m in [method] + ([m for m in METHODS if m != method] if compare else []):
@@ -98,25 +118,42 @@ def register(app: typer.Typer) -> None:
             calib.info["holdout"] = holdout
             calib.info["labels"] = ps.labels_source
             calib.info["mm_per_px_source"] = ps.mm_per_px_source
-            row = {"method": m, "train_seconds": calib.info["train_seconds"],
-                   "height_noise_mm": calib.info["height_noise_mm"]}
+            row = {
+                "method": m,
+                "train_seconds": calib.info["train_seconds"],
+                "height_noise_mm": calib.info["height_noise_mm"],
+            }
             if test:
                 row.update(run.held_out if m == method else _eval(ps, calib, test, "dct", downsample)["summary"])
             results.append(row)
-        report = {"press_set": str(ps.root), **ps.meta(), "mm_per_px_source": ps.mm_per_px_source,
-                  "out": str(out), "method": method, "holdout": holdout,
-                  "labels": ps.labels_source, "labels_auto_csv": str(auto_csv) if auto_csv else None,
-                  "edge_trials": run.edge_trials, "cv": run.cv, "train_files": [p.file for p in train],
-                  "test_files": [p.file for p in test], "results": results}
-        print_table(f"calibrate {ps.root.name} ({len(train)} train / {len(test)} held out, "
-                    f"{ps.labels_source} labels)", results)
+        report = {
+            "press_set": str(ps.root),
+            **ps.meta(),
+            "mm_per_px_source": ps.mm_per_px_source,
+            "out": str(out),
+            "method": method,
+            "holdout": holdout,
+            "labels": ps.labels_source,
+            "labels_auto_csv": str(auto_csv) if auto_csv else None,
+            "edge_trials": run.edge_trials,
+            "cv": run.cv,
+            "train_files": [p.file for p in train],
+            "test_files": [p.file for p in test],
+            "results": results,
+        }
+        print_table(
+            f"calibrate {ps.root.name} ({len(train)} train / {len(test)} held out, {ps.labels_source} labels)", results
+        )
         if json_out:
             write_json(json_out, report)
         if not run.plausible:
             h = run.held_out
-            raise InputError(f"calibration not written: held-out normal error {h['normal_err_deg_median']:.1f} deg "
-                             f"(radius error {h['radius_abs_err_pct_median']:.1f} %) is implausible", path=out,
-                             expected=f"<= {MAX_NORMAL_ERR_DEG:g} deg: check the presses, labels and meta")
+            raise InputError(
+                f"calibration not written: held-out normal error {h['normal_err_deg_median']:.1f} deg "
+                f"(radius error {h['radius_abs_err_pct_median']:.1f} %) is implausible",
+                path=out,
+                expected=f"<= {MAX_NORMAL_ERR_DEG:g} deg: check the presses, labels and meta",
+            )
         if not test:
             typer.echo("warning: nothing held out (--holdout none): the calibration's accuracy is unchecked")
         run.calib.save(out)  # its info (holdout, labels) was set in the results loop above
@@ -130,8 +167,9 @@ def register(app: typer.Typer) -> None:
         pressset: Path = typer.Argument(..., help=_PRESS_HELP),
         calib: Path = typer.Option(..., "--calib", help="calibration .npz from `vtrack calibrate`"),
         json_out: Path = typer.Option(None, "--json", help="write per-press results + summary (JSON)"),
-        holdout: str = typer.Option(None, "--holdout",
-                                    help="presses to evaluate (default: those the calibration did not train on)"),
+        holdout: str = typer.Option(
+            None, "--holdout", help="presses to evaluate (default: those the calibration did not train on)"
+        ),
         solver: str = typer.Option("dct", "--solver", help="Poisson solver: dct | fft | lsq"),
         downsample: int = typer.Option(1, "--downsample", help="working-resolution factor"),
         meta: Path = typer.Option(None, "--meta", help="press-set meta JSON"),
@@ -148,8 +186,10 @@ def register(app: typer.Typer) -> None:
         presses = held_out_presses(cal, ps) if holdout is None else ps.split(holdout)[1]
         res = _eval(ps, cal, presses, solver, downsample)
         res["calib"] = str(calib)
-        print_table(f"eval-presses {ps.root.name} ({cal.method}, {solver}, downsample {downsample})",
-                    [{k: v for k, v in r.items() if k != "index"} for r in res["presses"]])
+        print_table(
+            f"eval-presses {ps.root.name} ({cal.method}, {solver}, downsample {downsample})",
+            [{k: v for k, v in r.items() if k != "index"} for r in res["presses"]],
+        )
         print_table("summary", res["summary"])
         if json_out:
             write_json(json_out, res)
@@ -178,20 +218,32 @@ def register(app: typer.Typer) -> None:
         np.save(out / "height_mm.npy", f.height_mm)
         cv2.imwrite(str(out / "contact.png"), f.contact.astype(np.uint8) * 255)
         hv = f.height_mm / max(float(f.height_mm.max()), 1e-6)
-        cv2.imwrite(str(out / "height.png"), cv2.applyColorMap(np.clip(hv * 255, 0, 255).astype(np.uint8),
-                                                               cv2.COLORMAP_VIRIDIS))
+        cv2.imwrite(
+            str(out / "height.png"), cv2.applyColorMap(np.clip(hv * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+        )
         _write_ply(out / "points.ply", f.points, f.normals)
         s = f.stats
-        report("tactile height", {"in_contact": f.in_contact, "area_mm2": s.area_mm2, "max_depth_mm": s.max_depth_mm,
-                                  "centroid_px": s.centroid_px, "n_points": len(f.points), **f.timings_ms},
-               out / "summary.json")
+        report(
+            "tactile height",
+            {
+                "in_contact": f.in_contact,
+                "area_mm2": s.area_mm2,
+                "max_depth_mm": s.max_depth_mm,
+                "centroid_px": s.centroid_px,
+                "n_points": len(f.points),
+                **f.timings_ms,
+            },
+            out / "summary.json",
+        )
 
 
 def _write_ply(path: Path, pts, nrm) -> None:
     """ASCII PLY with normals (sensor frame, m)."""
     with open(path, "w") as fh:
-        fh.write("ply\nformat ascii 1.0\n"
-                 f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
-                 "property float nx\nproperty float ny\nproperty float nz\nend_header\n")
+        fh.write(
+            "ply\nformat ascii 1.0\n"
+            f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+            "property float nx\nproperty float ny\nproperty float nz\nend_header\n"
+        )
         for p, n in zip(pts, nrm, strict=True):
             fh.write(f"{p[0]:.7g} {p[1]:.7g} {p[2]:.7g} {n[0]:.5g} {n[1]:.5g} {n[2]:.5g}\n")

@@ -12,12 +12,15 @@ def register(app: typer.Typer) -> None:
     def track(
         session: Path = typer.Argument(..., help="session directory (no ground truth needed)"),
         out: Path = typer.Option(..., "--out", help="result folder (poses.csv, metrics.json, ...)"),
-        shape: str = typer.Option("known_shape", "--shape",
-                                  help="known_shape (mesh SDF) | slam (shape reconstructed online)"),
+        shape: str = typer.Option(
+            "known_shape", "--shape", help="known_shape (mesh SDF) | slam (shape reconstructed online)"
+        ),
         mesh: Path = typer.Option(None, "--mesh", help="known object shape (object frame, m); default: the scene's"),
-        init_pose: str = typer.Option(None, "--init-pose",
-                                      help="first-frame prior x,y,z,qx,qy,qz,qw or a poses.csv (default: "
-                                           "global registration / SLAM's own frame)"),
+        init_pose: str = typer.Option(
+            None,
+            "--init-pose",
+            help="first-frame prior x,y,z,qx,qy,qz,qw or a poses.csv (default: global registration / SLAM's own frame)",
+        ),
         modalities: str = typer.Option("vision,touch", "--modalities", help="vision, touch or vision,touch"),
         method: str = typer.Option("ours", "--method", help="ours | icp (Open3D point-to-plane, vision only)"),
         mapper: str = typer.Option("surfel", "--mapper", help="SLAM map: surfel (numpy) | neural (neural SDF)"),
@@ -25,12 +28,15 @@ def register(app: typer.Typer) -> None:
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
         init: str = typer.Option("auto", "--init", help="auto | gt (ORACLE: first ground-truth pose)"),
-        tactile_source: str = typer.Option("pipeline", "--tactile-source",
-                                           help="pipeline (tactile images) | gt (ORACLE height maps)"),
-        segmentation: str = typer.Option("pipeline", "--segmentation",
-                                         help="pipeline (no GT) | gt (ORACLE masks) | none"),
-        init_perturb_mm: float = typer.Option(0.0, "--init-perturb-mm",
-                                              help="with --init gt: start moved by this much (mm)"),
+        tactile_source: str = typer.Option(
+            "pipeline", "--tactile-source", help="pipeline (tactile images) | gt (ORACLE height maps)"
+        ),
+        segmentation: str = typer.Option(
+            "pipeline", "--segmentation", help="pipeline (no GT) | gt (ORACLE masks) | none"
+        ),
+        init_perturb_mm: float = typer.Option(
+            0.0, "--init-perturb-mm", help="with --init gt: start moved by this much (mm)"
+        ),
         init_perturb_deg: float = typer.Option(0.0, "--init-perturb-deg", help="... and rotated by this (deg)"),
         max_frames: int = typer.Option(0, "--max-frames", help="track only the first N frames (0 = all)"),
         seed: int = typer.Option(0, "--seed", help="seed of the initial-pose perturbation"),
@@ -46,8 +52,9 @@ def register(app: typer.Typer) -> None:
 
         mods = tuple(m.strip() for m in modalities.split(",") if m.strip())
         if not mods or set(mods) - {"vision", "touch"}:
-            raise InputError("unknown modality", field="--modalities", expected="vision, touch or vision,touch",
-                             got=modalities)
+            raise InputError(
+                "unknown modality", field="--modalities", expected="vision, touch or vision,touch", got=modalities
+            )
         perturb = None
         if init_perturb_mm > 0 or init_perturb_deg > 0:
             perturb = (init_perturb_mm / 1000.0, math.radians(init_perturb_deg))
@@ -56,12 +63,37 @@ def register(app: typer.Typer) -> None:
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
                 opts["mapper"] = mapper
-        m = track_session(session, out, shape=shape, modalities=mods, method=method, mesh=mesh,
-                          init_pose=parse_pose(init_pose) if init_pose else None, init=init, init_perturb=perturb,
-                          gt=gt, tactile_source=tactile_source, segmentation=segmentation, max_frames=max_frames,
-                          seed=seed, **opts)
-        keys = ("mode", "modalities", "blind", "oracle", "frames", "init", "add_s_mm", "drift_mm", "motion_err_mm",
-                "ms_per_frame_mean", "poses_per_s", "status_counts")
+        m = track_session(
+            session,
+            out,
+            shape=shape,
+            modalities=mods,
+            method=method,
+            mesh=mesh,
+            init_pose=parse_pose(init_pose) if init_pose else None,
+            init=init,
+            init_perturb=perturb,
+            gt=gt,
+            tactile_source=tactile_source,
+            segmentation=segmentation,
+            max_frames=max_frames,
+            seed=seed,
+            **opts,
+        )
+        keys = (
+            "mode",
+            "modalities",
+            "blind",
+            "oracle",
+            "frames",
+            "init",
+            "add_s_mm",
+            "drift_mm",
+            "motion_err_mm",
+            "ms_per_frame_mean",
+            "poses_per_s",
+            "status_counts",
+        )
         report(f"track {session}", {k: m.get(k) for k in keys if k in m}, None)
         if json_out:
             write_json(json_out, m)

@@ -69,14 +69,25 @@ def _imread(path: Path, flags: int) -> np.ndarray:
 #: scalars, and builtin containers. Any other global (``os.system``, ``subprocess.Popen``, ...) is
 #: how a pickle runs code on load, so it is refused.
 _SAFE_GLOBALS = {
-    ("numpy", "ndarray"), ("numpy", "dtype"),
-    ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "_reconstruct"),
-    ("numpy._core.multiarray", "scalar"), ("numpy.core.multiarray", "scalar"),
-    ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
-    ("_codecs", "encode"), ("collections", "OrderedDict"),
-    ("builtins", "set"), ("builtins", "frozenset"), ("builtins", "complex"), ("builtins", "slice"),
-    ("builtins", "range"), ("builtins", "bytearray"),
-    ("__builtin__", "set"), ("__builtin__", "frozenset"), ("__builtin__", "complex"),
+    ("numpy", "ndarray"),
+    ("numpy", "dtype"),
+    ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "_reconstruct"),
+    ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.multiarray", "scalar"),
+    ("numpy._core.numeric", "_frombuffer"),
+    ("numpy.core.numeric", "_frombuffer"),
+    ("_codecs", "encode"),
+    ("collections", "OrderedDict"),
+    ("builtins", "set"),
+    ("builtins", "frozenset"),
+    ("builtins", "complex"),
+    ("builtins", "slice"),
+    ("builtins", "range"),
+    ("builtins", "bytearray"),
+    ("__builtin__", "set"),
+    ("__builtin__", "frozenset"),
+    ("__builtin__", "complex"),
 }
 
 
@@ -92,7 +103,8 @@ def _restricted_unpickler(f: Any) -> pickle.Unpickler:
             if (module, name) not in _SAFE_GLOBALS:
                 raise UnsafePickleError(
                     f"refusing to unpickle '{module}.{name}': data.pkl may only hold numpy arrays, "
-                    "numbers, strings and builtin containers (pass --trust-pickle to load a file you trust)")
+                    "numbers, strings and builtin containers (pass --trust-pickle to load a file you trust)"
+                )
             # importlib (not super().find_class) so the Python-2 '__builtin__' alias resolves too.
             return getattr(importlib.import_module("builtins" if module == "__builtin__" else module), name)
 
@@ -115,8 +127,9 @@ def load_data_pkl(path: Path, *, trust: bool = False) -> dict:
     if trust:
         import warnings
 
-        warnings.warn(f"{path}: loading with plain pickle (--trust-pickle): this runs any code the file holds",
-                      stacklevel=2)
+        warnings.warn(
+            f"{path}: loading with plain pickle (--trust-pickle): this runs any code the file holds", stacklevel=2
+        )
     try:
         with open(path, "rb") as f:
             data = pickle.load(f) if trust else _restricted_unpickler(f).load()
@@ -166,8 +179,12 @@ def _intrinsics(v: Any, path: Path, cam: str) -> np.ndarray:
     if K.shape == (4,):  # fx, fy, cx, cy
         return np.array([[K[0], 0, K[2]], [0, K[1], K[3]], [0, 0, 1]])
     if K.shape != (3, 3):
-        raise InputError("intrinsics must be 3x3, (fx, fy, cx, cy) or a dict", path=path,
-                         field=f"realsense.{cam}.intrinsics", got=K.shape)
+        raise InputError(
+            "intrinsics must be 3x3, (fx, fy, cx, cy) or a dict",
+            path=path,
+            field=f"realsense.{cam}.intrinsics",
+            got=K.shape,
+        )
     return K
 
 
@@ -233,18 +250,27 @@ class DepthFrames:
                 self._next += 1
             buf = self._f.read(self.frame_bytes)
         except Exception as e:
-            raise InputError(f"truncated or corrupt depth archive at frame {i} ({type(e).__name__})",
-                             path=self.path) from None
+            raise InputError(
+                f"truncated or corrupt depth archive at frame {i} ({type(e).__name__})", path=self.path
+            ) from None
         if len(buf) != self.frame_bytes:
             raise InputError(f"depth archive ends at frame {i}", path=self.path, expected=f"{len(self)} frames")
         self._next = i + 1
         return np.frombuffer(buf, self.dtype).reshape(self.shape[1:])
 
 
-def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = False, flush_every: int = 256,
-                     max_frames: int | None = None, object_mesh: str | Path | None = None,
-                     hand_urdf: str | None = "${shared}/data/robots/allegro_digit/allegro_digit_left.urdf",
-                     rate_hz: float | None = None, trust_pickle: bool = False) -> ImportReport:
+def import_feelsight(
+    src: str | Path,
+    out: str | Path,
+    *,
+    overwrite: bool = False,
+    flush_every: int = 256,
+    max_frames: int | None = None,
+    object_mesh: str | Path | None = None,
+    hand_urdf: str | None = "${shared}/data/robots/allegro_digit/allegro_digit_left.urdf",
+    rate_hz: float | None = None,
+    trust_pickle: bool = False,
+) -> ImportReport:
     """Convert one FeelSight log folder to a session at ``out``.
 
     Args:
@@ -339,14 +365,19 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
             if not imgs or not (cd / "depth.npz").exists():
                 report.skip(f"realsense/{cd.name}: needs image/ and depth.npz")
                 continue
-            cams[cd.name] = {"image": imgs, "seg": _numbered_images(cd / "seg") if (cd / "seg").is_dir() else [],
-                             "depth_path": cd / "depth.npz"}
+            cams[cd.name] = {
+                "image": imgs,
+                "seg": _numbered_images(cd / "seg") if (cd / "seg").is_dir() else [],
+                "depth_path": cd / "depth.npz",
+            }
 
     # --- per-sensor frame counts --------------------------------------------------------------
     def check_count(what: str, count: int) -> None:
         if count < frames[-1] + 1:
-            raise InputError(f"{what} has {count} frames but data.pkl has {len(t)} timestamps "
-                             f"(need at least {frames[-1] + 1})", path=src / what)
+            raise InputError(
+                f"{what} has {count} frames but data.pkl has {len(t)} timestamps (need at least {frames[-1] + 1})",
+                path=src / what,
+            )
 
     for fname, f in fingers.items():
         check_count(f"allegro/{fname}/image", len(f["image"]))
@@ -355,9 +386,11 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
                 report.skip(f"allegro/{fname}/{kind}: too few frames ({len(f[kind])})")
                 f[kind] = []
     # --- scene ---------------------------------------------------------------------------------
-    scene: dict[str, Any] = {"name": f"feelsight_{src.parent.name}_{src.name}",
-                             "description": f"imported from FeelSight log {src}",
-                             "object": {"name": src.parent.name or "object"}}
+    scene: dict[str, Any] = {
+        "name": f"feelsight_{src.parent.name}_{src.name}",
+        "description": f"imported from FeelSight log {src}",
+        "object": {"name": src.parent.name or "object"},
+    }
     if object_mesh:
         scene["object"]["mesh"] = str(object_mesh)
     cam_specs = {}
@@ -370,8 +403,12 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
         first = _imread(c["image"][frames[0]], 1)
         h, w = first.shape[:2]
         if tuple(depth.shape[1:]) != (h, w):
-            raise InputError("depth frames are not the size of the colour images", path=c["depth_path"],
-                             expected=f"(N, {h}, {w})", got=depth.shape)
+            raise InputError(
+                "depth frames are not the size of the colour images",
+                path=c["depth_path"],
+                expected=f"(N, {h}, {w})",
+                got=depth.shape,
+            )
         K_raw = info.get("intrinsics", info.get("K")) if isinstance(info, dict) else None
         if K_raw is None:
             K = np.array([[float(w), 0, (w - 1) / 2], [0, float(w), (h - 1) / 2], [0, 0, 1]])
@@ -390,8 +427,7 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
         cam_specs[cname] = (depth, store_scale, bool(c["seg"]) and len(c["seg"]) >= frames[-1] + 1)
         if c["seg"] and not cam_specs[cname][2]:
             report.skip(f"realsense/{cname}/seg: too few frames ({len(c['seg'])})")
-        scene.setdefault("cameras", []).append(
-            camera_entry(cname, K, w, h, T, depth_scale=store_scale, rate_hz=rate))
+        scene.setdefault("cameras", []).append(camera_entry(cname, K, w, h, T, depth_scale=store_scale, rate_hz=rate))
     tac_names = {}
     for fname, f in fingers.items():
         first = _imread(f["image"][frames[0]], 1)
@@ -406,26 +442,37 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
             hand["T_world_base"] = {"matrix": _pose_matrix(base, "allegro.base_pose", pkl).tolist()}
         tips = {"index": "link_3.0_tip", "middle": "link_7.0_tip", "ring": "link_11.0_tip", "thumb": "link_15.0_tip"}
         hand["sensors"] = [
-            {"sensor": tac_names[f][0], "link": tips[f],
-             "T_link_sensor": {"xyz": [0.022, 0.0, 0.015], "rpy": [0.0, 1.5707963, 0.0]}}
-            for f in tac_names if f in tips
+            {
+                "sensor": tac_names[f][0],
+                "link": tips[f],
+                "T_link_sensor": {"xyz": [0.022, 0.0, 0.015], "rpy": [0.0, 1.5707963, 0.0]},
+            }
+            for f in tac_names
+            if f in tips
         ]
         hand["joint_names"] = ALLEGRO_JOINTS
         scene["hand"] = hand
         report.note("hand: DIGIT-Allegro URDF from shared data; T_link_sensor is the vtrack default mount")
     if not cam_specs and not tac_names and q is None and obj is None:
         # Only timestamps: writing a session would give an empty one that later commands choke on.
-        raise InputError("nothing to import: no realsense/<camera> images + depth.npz, no allegro/<finger> "
-                         "images, no allegro.joint_state and no object.pose", path=pkl,
-                         expected="at least one sensor stream", got=f"keys {sorted(map(str, data))}")
+        raise InputError(
+            "nothing to import: no realsense/<camera> images + depth.npz, no allegro/<finger> "
+            "images, no allegro.joint_state and no object.pose",
+            path=pkl,
+            expected="at least one sensor stream",
+            got=f"keys {sorted(map(str, data))}",
+        )
     scene_dict = finalize_scene(scene, source=pkl)
 
     # --- write --------------------------------------------------------------------------------
     sinfo = _get(data, "digit_info")
     info = {"importer": "feelsight", "source": str(src)}
     if isinstance(sinfo, dict):
-        info["sensor_info"] = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
-                               for k, v in sinfo.items() if isinstance(v, (int, float, str, list, np.ndarray))}
+        info["sensor_info"] = {
+            k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
+            for k, v in sinfo.items()
+            if isinstance(v, (int, float, str, list, np.ndarray))
+        }
     import cv2
 
     with SessionWriter(out, scene_dict, overwrite=overwrite, flush_every=flush_every, info=info) as w:
@@ -445,9 +492,16 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
                     fields["depth_u8"] = FieldSpec((h, wd), "uint8", "raw 8-bit tactile depth (sim)")
                 if f["mask"]:
                     fields["contact"] = FieldSpec((h, wd), "uint8", "bool")
-                w.add_stream(f"gt/tactile_raw/{name}", StreamSpec(kind="tactile_gt_raw", frame=f"sensor/{name}",
-                                                                   rate_hz=rate, fields=fields,
-                                                                   attrs={"sensor": name}))
+                w.add_stream(
+                    f"gt/tactile_raw/{name}",
+                    StreamSpec(
+                        kind="tactile_gt_raw",
+                        frame=f"sensor/{name}",
+                        rate_hz=rate,
+                        fields=fields,
+                        attrs={"sensor": name},
+                    ),
+                )
         if q is not None:
             w.add_stream("joints", joints_stream(ALLEGRO_JOINTS, rate_hz=rate))
         if obj is not None:
@@ -500,5 +554,6 @@ def import_feelsight(src: str | Path, out: str | Path, *, overwrite: bool = Fals
 
 def _check_shape(a: np.ndarray, shape: tuple[int, ...], path: Path) -> None:
     if a.shape != shape:
-        raise InputError("image size differs from the first frame of this sensor", path=path,
-                         expected=str(shape), got=a.shape)
+        raise InputError(
+            "image size differs from the first frame of this sensor", path=path, expected=str(shape), got=a.shape
+        )

@@ -15,10 +15,18 @@ from vtrack.io.importers.ros_messages import INFO_TYPES, TF_TYPES, RosSessionBui
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def import_mcap(src: str | Path, out: str | Path, *, topic_map: dict[str, str] | None = None,
-                overwrite: bool = False, flush_every: int = 256, pair_tolerance_s: float = 0.02,
-                world_frame: str = "world", object_frame: str = "object",
-                tactile_type: str | None = None) -> ImportReport:
+def import_mcap(
+    src: str | Path,
+    out: str | Path,
+    *,
+    topic_map: dict[str, str] | None = None,
+    overwrite: bool = False,
+    flush_every: int = 256,
+    pair_tolerance_s: float = 0.02,
+    world_frame: str = "world",
+    object_frame: str = "object",
+    tactile_type: str | None = None,
+) -> ImportReport:
     """Convert an MCAP file into a session at ``out``.
 
     Raises:
@@ -39,9 +47,18 @@ def import_mcap(src: str | Path, out: str | Path, *, topic_map: dict[str, str] |
     store2 = get_typestore(Stores.ROS2_HUMBLE)
     store1 = get_typestore(Stores.ROS1_NOETIC)
     report = ImportReport(source=src, session=Path(out))
-    b = RosSessionBuilder(out, report, topic_map=topic_map, overwrite=overwrite, flush_every=flush_every,
-                          pair_tolerance_s=pair_tolerance_s, world_frame=world_frame, object_frame=object_frame,
-                          source=src, tactile_type=tactile_type)
+    b = RosSessionBuilder(
+        out,
+        report,
+        topic_map=topic_map,
+        overwrite=overwrite,
+        flush_every=flush_every,
+        pair_tolerance_s=pair_tolerance_s,
+        world_frame=world_frame,
+        object_frame=object_frame,
+        source=src,
+        tactile_type=tactile_type,
+    )
 
     def decode(schema, data: bytes):
         name = norm_type(schema.name)

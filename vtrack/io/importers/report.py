@@ -41,8 +41,12 @@ class ImportReport:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "source": str(self.source), "session": str(self.session), "seconds": round(self.seconds, 3),
-            "frames": dict(self.frames), "skipped": dict(self.skipped), "notes": list(self.notes),
+            "source": str(self.source),
+            "session": str(self.session),
+            "seconds": round(self.seconds, 3),
+            "frames": dict(self.frames),
+            "skipped": dict(self.skipped),
+            "notes": list(self.notes),
         }
 
     def lines(self) -> list[str]:

@@ -119,17 +119,28 @@ def decode_image(msg: Any, msgtype: str, where: str) -> np.ndarray:
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     raw = np.asarray(msg.data, dtype=np.uint8)
     table = {
-        "rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4), "bgra8": (np.uint8, 4),
-        "mono8": (np.uint8, 1), "8uc1": (np.uint8, 1), "8uc3": (np.uint8, 3), "16uc1": (np.uint16, 1),
-        "mono16": (np.uint16, 1), "32fc1": (np.float32, 1),
+        "rgb8": (np.uint8, 3),
+        "bgr8": (np.uint8, 3),
+        "rgba8": (np.uint8, 4),
+        "bgra8": (np.uint8, 4),
+        "mono8": (np.uint8, 1),
+        "8uc1": (np.uint8, 1),
+        "8uc3": (np.uint8, 3),
+        "16uc1": (np.uint16, 1),
+        "mono16": (np.uint16, 1),
+        "32fc1": (np.float32, 1),
     }
     if enc not in table:
         raise InputError("unsupported image encoding", field=where, expected=f"one of {sorted(table)}", got=enc)
     dt, ch = table[enc]
     item = np.dtype(dt).itemsize
     if raw.size < h * step or step < w * ch * item:
-        raise InputError("image data shorter than height x step (truncated message?)", field=where,
-                         expected=f"{h}x{step} bytes", got=raw.size)
+        raise InputError(
+            "image data shorter than height x step (truncated message?)",
+            field=where,
+            expected=f"{h}x{step} bytes",
+            got=raw.size,
+        )
     rows = raw[: h * step].reshape(h, step)[:, : w * ch * item]
     arr = np.ascontiguousarray(rows).view(dt)
     if int(getattr(msg, "is_bigendian", 0)) and item > 1:
@@ -160,10 +171,20 @@ class RosSessionBuilder:
     :meth:`add` every message in log order, then :meth:`finish`.
     """
 
-    def __init__(self, out: str | Path, report: ImportReport, *, topic_map: dict[str, str] | None = None,
-                 overwrite: bool = False, flush_every: int = 256, pair_tolerance_s: float = 0.02,
-                 world_frame: str = "world", object_frame: str = "object", source: Path | None = None,
-                 tactile_type: str | None = None) -> None:
+    def __init__(
+        self,
+        out: str | Path,
+        report: ImportReport,
+        *,
+        topic_map: dict[str, str] | None = None,
+        overwrite: bool = False,
+        flush_every: int = 256,
+        pair_tolerance_s: float = 0.02,
+        world_frame: str = "world",
+        object_frame: str = "object",
+        source: Path | None = None,
+        tactile_type: str | None = None,
+    ) -> None:
         self.out = Path(out)
         self.report = report
         self.topic_map = dict(topic_map or {})
@@ -342,8 +363,7 @@ class RosSessionBuilder:
             T = self.static_tf.get(cam.frame_id) if cam.frame_id else None
             if T is None:
                 self.report.note(f"{stream}: no static tf {self.world_frame}->camera, camera at world origin")
-            self.scene.setdefault("cameras", []).append(
-                camera_entry(name, K, w, h, T, 0.001, self._rate(stream, 30.0)))
+            self.scene.setdefault("cameras", []).append(camera_entry(name, K, w, h, T, 0.001, self._rate(stream, 30.0)))
         elif stream.startswith("tactile/"):
             name = stream.split("/", 1)[1]
             h, w = v["image"].shape[:2]
@@ -377,11 +397,18 @@ class RosSessionBuilder:
         from vtrack.io.session import SessionWriter
 
         name = (self.source or self.out).stem
-        self.scene: dict[str, Any] = {"name": f"import_{name}", "description": f"imported from {self.source}",
-                                      "object": {"name": "object"}}
-        self.writer = SessionWriter(self.out, finalize_scene(self.scene), overwrite=self.overwrite,
-                                    flush_every=self.flush_every,
-                                    info={"importer": "ros", "source": str(self.source)})
+        self.scene: dict[str, Any] = {
+            "name": f"import_{name}",
+            "description": f"imported from {self.source}",
+            "object": {"name": "object"},
+        }
+        self.writer = SessionWriter(
+            self.out,
+            finalize_scene(self.scene),
+            overwrite=self.overwrite,
+            flush_every=self.flush_every,
+            info={"importer": "ros", "source": str(self.source)},
+        )
         for stream, t, v in self.pending:
             self._write(stream, t, v)
         self.pending = []
@@ -389,15 +416,16 @@ class RosSessionBuilder:
     def finish(self) -> ImportReport:
         for stream, cam in self.cams.items():
             if cam.rgb:
-                self.report.skip(f"{stream}: colour frame without depth within {self.tol * 1000:.0f} ms",
-                                 len(cam.rgb))
+                self.report.skip(f"{stream}: colour frame without depth within {self.tol * 1000:.0f} ms", len(cam.rgb))
             if cam.depth:
-                self.report.skip(f"{stream}: depth frame without colour within {self.tol * 1000:.0f} ms",
-                                 len(cam.depth))
+                self.report.skip(
+                    f"{stream}: depth frame without colour within {self.tol * 1000:.0f} ms", len(cam.depth)
+                )
         if self.writer is None:
             if not self.pending:
-                raise InputError("no importable message (Image, CompressedImage, JointState, tf) found",
-                                 path=self.source)
+                raise InputError(
+                    "no importable message (Image, CompressedImage, JointState, tf) found", path=self.source
+                )
             self._open()
         self.writer.close()
         self.report.frames = {k: v["n"] for k, v in self.writer._streams.items()}

@@ -10,32 +10,56 @@ import numpy as np
 from vtrack.errors import InputError
 
 
-def camera_entry(name: str, K: np.ndarray, width: int, height: int, T_world_camera: np.ndarray | None = None,
-                 depth_scale: float = 0.001, rate_hz: float = 30.0) -> dict[str, Any]:
+def camera_entry(
+    name: str,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    T_world_camera: np.ndarray | None = None,
+    depth_scale: float = 0.001,
+    rate_hz: float = 30.0,
+) -> dict[str, Any]:
     """A scene ``cameras`` entry from a 3x3 intrinsic matrix (px) and extrinsics (m)."""
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise InputError("invalid camera intrinsics", field=f"cameras.{name}.K",
-                         expected="3x3 matrix with positive focal lengths", got=K.tolist())
+        raise InputError(
+            "invalid camera intrinsics",
+            field=f"cameras.{name}.K",
+            expected="3x3 matrix with positive focal lengths",
+            got=K.tolist(),
+        )
     entry: dict[str, Any] = {
-        "name": name, "width": int(width), "height": int(height),
-        "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-        "depth_scale": float(depth_scale), "rate_hz": float(rate_hz),
+        "name": name,
+        "width": int(width),
+        "height": int(height),
+        "fx": float(K[0, 0]),
+        "fy": float(K[1, 1]),
+        "cx": float(K[0, 2]),
+        "cy": float(K[1, 2]),
+        "depth_scale": float(depth_scale),
+        "rate_hz": float(rate_hz),
     }
     if T_world_camera is not None:
         entry["T_world_camera"] = {"matrix": _rigid(T_world_camera, f"cameras.{name}.T_world_camera").tolist()}
     return entry
 
 
-def tactile_entry(name: str, sensor_type: str, width: int, height: int, rate_hz: float,
-                  mm_per_px: float | None = None) -> dict[str, Any]:
+def tactile_entry(
+    name: str, sensor_type: str, width: int, height: int, rate_hz: float, mm_per_px: float | None = None
+) -> dict[str, Any]:
     """A scene ``tactile`` entry; scale and gel thickness default to the sensor type's preset."""
     from vtrack.tactile.sensors import SENSOR_PRESETS
 
     p = SENSOR_PRESETS.get(sensor_type, SENSOR_PRESETS["digit"])
-    return {"name": name, "type": sensor_type, "width": int(width), "height": int(height),
-            "mm_per_px": float(mm_per_px or p.mm_per_px), "gel_thickness_mm": p.gel_thickness_mm,
-            "rate_hz": float(rate_hz)}
+    return {
+        "name": name,
+        "type": sensor_type,
+        "width": int(width),
+        "height": int(height),
+        "mm_per_px": float(mm_per_px or p.mm_per_px),
+        "gel_thickness_mm": p.gel_thickness_mm,
+        "rate_hz": float(rate_hz),
+    }
 
 
 def _rigid(T: Any, what: str) -> np.ndarray:

@@ -73,8 +73,12 @@ class RecordingStats:
 
     def to_dict(self) -> dict[str, Any]:
         el = max(self.elapsed, 1e-9)
-        return {"seconds": round(self.elapsed, 3), "written": dict(self.written), "dropped": dict(self.dropped),
-                "rate_hz": {k: round(v / el, 2) for k, v in self.written.items()}}
+        return {
+            "seconds": round(self.elapsed, 3),
+            "written": dict(self.written),
+            "dropped": dict(self.dropped),
+            "rate_hz": {k: round(v / el, 2) for k, v in self.written.items()},
+        }
 
 
 class StatusLine:

@@ -61,8 +61,11 @@ class CsvJointSource(JointSource):
         with open(self.path, newline="") as f:
             rows = list(csv.reader(f))
         if not rows or len(rows[0]) < 2 or rows[0][0].strip().lower() not in ("t", "time", "timestamp"):
-            raise InputError("joint-state CSV needs a header 't,<joint names...>'", path=self.path,
-                             got=rows[0] if rows else "empty file")
+            raise InputError(
+                "joint-state CSV needs a header 't,<joint names...>'",
+                path=self.path,
+                got=rows[0] if rows else "empty file",
+            )
         self.names = [c.strip() for c in rows[0][1:]]
         data = []
         for i, r in enumerate(rows[1:], start=2):
@@ -73,8 +76,7 @@ class CsvJointSource(JointSource):
             except ValueError:
                 raise InputError(f"non-numeric value on line {i}", path=self.path) from None
             if len(vals) != len(self.names) + 1:
-                raise InputError(f"line {i} has {len(vals)} columns", path=self.path,
-                                 expected=str(len(self.names) + 1))
+                raise InputError(f"line {i} has {len(vals)} columns", path=self.path, expected=str(len(self.names) + 1))
             data.append(vals)
         arr = np.asarray(data, dtype=np.float64).reshape(-1, len(self.names) + 1)
         if not np.all(np.isfinite(arr)):
@@ -124,13 +126,18 @@ class RosJointSource(JointSource):
                 rospy.init_node("vtrack_joint_recorder", anonymous=True, disable_signals=True)
                 rospy.Subscriber(topic, JointState, self._cb, queue_size=100)
             except ImportError:
-                raise InputError("neither rclpy (ROS 2) nor rospy (ROS 1) is installed; source your ROS "
-                                 "environment or use --joints-csv", field="--joints-topic", got=topic) from None
+                raise InputError(
+                    "neither rclpy (ROS 2) nor rospy (ROS 1) is installed; source your ROS "
+                    "environment or use --joints-csv",
+                    field="--joints-topic",
+                    got=topic,
+                ) from None
 
     def _cb(self, msg) -> None:
         st = msg.header.stamp
-        t = float(getattr(st, "sec", getattr(st, "secs", 0))) + 1e-9 * float(getattr(st, "nanosec",
-                                                                                     getattr(st, "nsecs", 0)))
+        t = float(getattr(st, "sec", getattr(st, "secs", 0))) + 1e-9 * float(
+            getattr(st, "nanosec", getattr(st, "nsecs", 0))
+        )
         names = list(msg.name)
         q = np.asarray(msg.position, dtype=np.float64)
         with self._lock:

@@ -82,8 +82,7 @@ def build_device_pipeline(pipeline: Any, cfg: OakConfig) -> dict[str, Any]:
     return queues
 
 
-def build_sync(pipeline: Any, rgb_out: Any, depth_out: Any, cfg: OakConfig, lossless: bool = False
-               ) -> dict[str, Any]:
+def build_sync(pipeline: Any, rgb_out: Any, depth_out: Any, cfg: OakConfig, lossless: bool = False) -> dict[str, Any]:
     """Group colour and depth by timestamp with a host-side ``Sync`` node; returns the queue.
 
     ``lossless``: a blocking output queue (host sources that can wait); devices use a short
@@ -142,8 +141,9 @@ def group_to_frame(group: Any) -> tuple[float, np.ndarray, np.ndarray, int]:
     if depth.dtype != np.uint16:
         raise InputError("depth frame is not uint16 mm", field="depth", got=str(depth.dtype))
     if depth.shape != bgr.shape[:2]:
-        raise InputError("depth is not aligned to colour (sizes differ)", field="depth",
-                         expected=str(bgr.shape[:2]), got=depth.shape)
+        raise InputError(
+            "depth is not aligned to colour (sizes differ)", field="depth", expected=str(bgr.shape[:2]), got=depth.shape
+        )
     t = rgb_msg.getTimestampDevice().total_seconds()
     return t, np.ascontiguousarray(bgr[..., ::-1]), np.ascontiguousarray(depth), int(rgb_msg.getSequenceNum())
 
@@ -168,18 +168,36 @@ def declare_streams(writer: Any, cfg: OakConfig, calib: dict[str, Any] | None) -
         raise InputError("OAK recording needs the colour intrinsics", field="calibration")
     T = np.eye(4) if cfg.T_world_camera is None else np.asarray(cfg.T_world_camera, dtype=np.float64)
     h, w = cfg.height, cfg.width
-    writer.add_stream(f"camera/{cfg.name}", StreamSpec(
-        kind="rgbd", frame=f"camera/{cfg.name}", rate_hz=cfg.fps,
-        fields={"rgb": FieldSpec((h, w, 3), "uint8", "sRGB"), "depth": FieldSpec((h, w), "uint16", "0.001 m")},
-        attrs={"K": K, "width": w, "height": h, "depth_scale": 0.001, "T_world_camera": T.tolist(),
-               "device": "oak-d", "clock": "device", "calibration": calib},
-    ))
+    writer.add_stream(
+        f"camera/{cfg.name}",
+        StreamSpec(
+            kind="rgbd",
+            frame=f"camera/{cfg.name}",
+            rate_hz=cfg.fps,
+            fields={"rgb": FieldSpec((h, w, 3), "uint8", "sRGB"), "depth": FieldSpec((h, w), "uint16", "0.001 m")},
+            attrs={
+                "K": K,
+                "width": w,
+                "height": h,
+                "depth_scale": 0.001,
+                "T_world_camera": T.tolist(),
+                "device": "oak-d",
+                "clock": "device",
+                "calibration": calib,
+            },
+        ),
+    )
     if cfg.imu:
-        writer.add_stream(f"imu/{cfg.name}", StreamSpec(
-            kind="imu", frame=f"imu/{cfg.name}", rate_hz=float(cfg.imu_rate_hz),
-            fields={"accel": FieldSpec((3,), "float64", "m/s^2"), "gyro": FieldSpec((3,), "float64", "rad/s")},
-            attrs={"T_imu_rgb": (calib or {}).get("T_imu_rgb")},
-        ))
+        writer.add_stream(
+            f"imu/{cfg.name}",
+            StreamSpec(
+                kind="imu",
+                frame=f"imu/{cfg.name}",
+                rate_hz=float(cfg.imu_rate_hz),
+                fields={"accel": FieldSpec((3,), "float64", "m/s^2"), "gyro": FieldSpec((3,), "float64", "rad/s")},
+                attrs={"T_imu_rgb": (calib or {}).get("T_imu_rgb")},
+            ),
+        )
 
 
 def oak_scene(cfg: OakConfig, calib: dict[str, Any], base: dict | None = None) -> dict[str, Any]:
@@ -188,16 +206,26 @@ def oak_scene(cfg: OakConfig, calib: dict[str, Any], base: dict | None = None) -
 
     scene = dict(base or {"name": f"oak_{cfg.name}", "object": {"name": "object"}})
     cams = [c for c in scene.get("cameras", []) if c.get("name") != cfg.name]
-    cams.append(camera_entry(cfg.name, np.asarray(calib["K"]), cfg.width, cfg.height, cfg.T_world_camera,
-                             0.001, cfg.fps))
+    cams.append(
+        camera_entry(cfg.name, np.asarray(calib["K"]), cfg.width, cfg.height, cfg.T_world_camera, 0.001, cfg.fps)
+    )
     scene["cameras"] = cams
     return finalize_scene(scene)
 
 
-def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, stop: StopFlag,
-                       is_running: Any = None, max_frames: int | None = None, status: StatusLine | None = None,
-                       stats: RecordingStats | None = None, idle_timeout_s: float = 5.0,
-                       on_frame: Any = None) -> RecordingStats:
+def record_from_queues(
+    queues: dict[str, Any],
+    writer: Any,
+    cfg: OakConfig,
+    *,
+    stop: StopFlag,
+    is_running: Any = None,
+    max_frames: int | None = None,
+    status: StatusLine | None = None,
+    stats: RecordingStats | None = None,
+    idle_timeout_s: float = 5.0,
+    on_frame: Any = None,
+) -> RecordingStats:
     """Host loop: pull synchronised colour/depth groups (and IMU) and append them to ``writer``.
 
     Stops when ``stop`` is set, ``max_frames`` frames were written, or ``is_running()`` turns false
@@ -263,9 +291,9 @@ def record_from_queues(queues: dict[str, Any], writer: Any, cfg: OakConfig, *, s
 def synthetic_frame(i: int, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Deterministic test frame ``i``: BGR colour encoding ``i`` in its first pixels, depth in mm."""
     bgr = np.zeros((height, width, 3), np.uint8)
-    bgr[..., 2] = i % 256          # red channel (RGB[0]) = i mod 256
+    bgr[..., 2] = i % 256  # red channel (RGB[0]) = i mod 256
     bgr[..., 1] = (i // 256) % 256  # green = i div 256
-    bgr[:, : width // 2, 0] = 255   # left half blue, so channel order errors are visible
+    bgr[:, : width // 2, 0] = 255  # left half blue, so channel order errors are visible
     depth = np.full((height, width), 500 + (i % 1000), np.uint16)
     depth[0, 0] = 0  # an invalid pixel, as stereo produces
     return bgr, depth
@@ -282,7 +310,7 @@ def synthetic_calibration(width: int, height: int) -> Any:
     c.setCameraIntrinsics(B, [[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], width, height)
     c.setCameraIntrinsics(C, [[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], width, height)
     eye = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
-    c.setCameraExtrinsics(B, A, eye, [3.75, 0, 0])   # cm, as depthai stores them
+    c.setCameraExtrinsics(B, A, eye, [3.75, 0, 0])  # cm, as depthai stores them
     c.setCameraExtrinsics(C, A, eye, [-3.75, 0, 0])
     return c
 
@@ -343,9 +371,18 @@ def make_synthetic_source(pipeline: Any, cfg: OakConfig, n_frames: int, realtime
     return pipeline.create(SyntheticOak)
 
 
-def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_frames: int = 60,
-                         flush_every: int = 10, overwrite: bool = False, scene: dict | None = None,
-                         status: bool = True, realtime: bool = True, on_frame: Any = None) -> RecordingStats:
+def record_oak_simulated(
+    out: str | Path,
+    cfg: OakConfig | None = None,
+    *,
+    n_frames: int = 60,
+    flush_every: int = 10,
+    overwrite: bool = False,
+    scene: dict | None = None,
+    status: bool = True,
+    realtime: bool = True,
+    on_frame: Any = None,
+) -> RecordingStats:
     """Record ``n_frames`` synthetic frames through a host-only depthai pipeline (no device):
     ``dai.Pipeline(False)`` + :func:`make_synthetic_source` + the same Sync node, queues and host loop
     as :func:`record_oak`."""
@@ -364,15 +401,24 @@ def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_fra
     calib = calibration_attrs(calib_h, cfg.width, cfg.height)
     scene_dict = oak_scene(cfg, calib, scene)
     line = StatusLine(enabled=status)
-    with SessionWriter(out, scene_dict, overwrite=overwrite, flush_every=flush_every,
-                       info={"recorder": "oakd", "device": "simulated"}) as w:
+    with SessionWriter(
+        out, scene_dict, overwrite=overwrite, flush_every=flush_every, info={"recorder": "oakd", "device": "simulated"}
+    ) as w:
         write_scene_yaml(w, scene_dict)
         declare_streams(w, cfg, calib)
         pipeline.start()
         try:
             with StopFlag() as stop:
-                stats = record_from_queues(queues, w, cfg, stop=stop, is_running=pipeline.isRunning,
-                                           max_frames=n_frames, status=line, on_frame=on_frame)
+                stats = record_from_queues(
+                    queues,
+                    w,
+                    cfg,
+                    stop=stop,
+                    is_running=pipeline.isRunning,
+                    max_frames=n_frames,
+                    status=line,
+                    on_frame=on_frame,
+                )
         finally:
             pipeline.stop()
             pipeline.wait()
@@ -381,9 +427,18 @@ def record_oak_simulated(out: str | Path, cfg: OakConfig | None = None, *, n_fra
     return stats
 
 
-def record_oak(out: str | Path, cfg: OakConfig | None = None, *, seconds: float | None = None,
-               max_frames: int | None = None, flush_every: int = 10, overwrite: bool = False,
-               scene: dict | None = None, status: bool = True, on_frame: Any = None) -> RecordingStats:
+def record_oak(
+    out: str | Path,
+    cfg: OakConfig | None = None,
+    *,
+    seconds: float | None = None,
+    max_frames: int | None = None,
+    flush_every: int = 10,
+    overwrite: bool = False,
+    scene: dict | None = None,
+    status: bool = True,
+    on_frame: Any = None,
+) -> RecordingStats:
     """Record from a connected OAK-D until Ctrl-C, ``seconds`` or ``max_frames``.
 
     Raises:
@@ -398,23 +453,40 @@ def record_oak(out: str | Path, cfg: OakConfig | None = None, *, seconds: float 
     try:
         device = dai.Device(cfg.device) if cfg.device else dai.Device()
     except Exception as e:
-        raise InputError(f"cannot open an OAK device ({type(e).__name__}: {e}); check the USB connection, "
-                         "udev rules and that no other program uses it", field="device", got=cfg.device) from None
+        raise InputError(
+            f"cannot open an OAK device ({type(e).__name__}: {e}); check the USB connection, "
+            "udev rules and that no other program uses it",
+            field="device",
+            got=cfg.device,
+        ) from None
     with dai.Pipeline(device) as pipeline:
         calib_h = device.readCalibration()
         calib = calibration_attrs(calib_h, cfg.width, cfg.height)
         queues = build_device_pipeline(pipeline, cfg)
         scene_dict = oak_scene(cfg, calib, scene)
         line = StatusLine(enabled=status)
-        with SessionWriter(out, scene_dict, overwrite=overwrite, flush_every=flush_every,
-                           info={"recorder": "oakd", "device": device.getDeviceId()}) as w:
+        with SessionWriter(
+            out,
+            scene_dict,
+            overwrite=overwrite,
+            flush_every=flush_every,
+            info={"recorder": "oakd", "device": device.getDeviceId()},
+        ) as w:
             write_scene_yaml(w, scene_dict)
             (w.path / "assets" / "oak_calibration.json").write_text(json.dumps(calib_h.eepromToJson(), indent=1))
             declare_streams(w, cfg, calib)
             pipeline.start()
             with StopFlag(seconds) as stop:
-                stats = record_from_queues(queues, w, cfg, stop=stop, is_running=pipeline.isRunning,
-                                           max_frames=max_frames, status=line, on_frame=on_frame)
+                stats = record_from_queues(
+                    queues,
+                    w,
+                    cfg,
+                    stop=stop,
+                    is_running=pipeline.isRunning,
+                    max_frames=max_frames,
+                    status=line,
+                    on_frame=on_frame,
+                )
             line.close()
             w.set_info(stop_reason=stop.reason or "device stopped", stats=stats.to_dict())
         pipeline.stop()

@@ -33,8 +33,14 @@ class PressRecording:
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"out": self.out, "frames_read": self.frames_read, "background_frames": self.background_frames,
-                "episodes": self.episodes, "presses_saved": self.presses_saved, "warnings": len(self.warnings)}
+        return {
+            "out": self.out,
+            "frames_read": self.frames_read,
+            "background_frames": self.background_frames,
+            "episodes": self.episodes,
+            "presses_saved": self.presses_saved,
+            "warnings": len(self.warnings),
+        }
 
 
 def _quick_change(frame: np.ndarray, background: np.ndarray, step: int) -> float:
@@ -45,10 +51,20 @@ def _quick_change(frame: np.ndarray, background: np.ndarray, step: int) -> float
     return float(np.percentile(np.abs(d).sum(axis=2), 99.9))
 
 
-def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm: float, mm_per_px: float,
-                   n_presses: int = 30, background_frames: int = 15, start_level: float = 15.0,
-                   max_frames: int | None = None, overwrite: bool = False,
-                   echo: Callable[[str], None] = print) -> PressRecording:
+def record_presses(
+    source: str,
+    out: str | Path,
+    *,
+    sensor: str,
+    ball_radius_mm: float,
+    mm_per_px: float,
+    n_presses: int = 30,
+    background_frames: int = 15,
+    start_level: float = 15.0,
+    max_frames: int | None = None,
+    overwrite: bool = False,
+    echo: Callable[[str], None] = print,
+) -> PressRecording:
     """Record a press set (see module docstring).
 
     Args:
@@ -68,8 +84,11 @@ def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm:
     from vtrack.tactile.autolabel import Detection, detect_contact, write_auto_labels
 
     if not (np.isfinite(ball_radius_mm) and ball_radius_mm > 0 and np.isfinite(mm_per_px) and mm_per_px > 0):
-        raise InputError("ball radius and pixel pitch must be positive", field="--ball-radius-mm/--mm-per-px",
-                         got=(ball_radius_mm, mm_per_px))
+        raise InputError(
+            "ball radius and pixel pitch must be positive",
+            field="--ball-radius-mm/--mm-per-px",
+            got=(ball_radius_mm, mm_per_px),
+        )
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise InputError("output folder exists and is not empty (pass --force to add to it)", path=out)
@@ -110,8 +129,10 @@ def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm:
         cv2.imwrite(str(out / name), img)
         dets.append(d)
         rep.presses_saved += 1
-        line = (f"press {rep.presses_saved:2d}/{n_presses}: centre ({d.center_x_px:.0f}, {d.center_y_px:.0f}) px, "
-                f"contact radius {d.contact_radius_px:.1f} px, depth ~{depth:.2f} mm")
+        line = (
+            f"press {rep.presses_saved:2d}/{n_presses}: centre ({d.center_x_px:.0f}, {d.center_y_px:.0f}) px, "
+            f"contact radius {d.contact_radius_px:.1f} px, depth ~{depth:.2f} mm"
+        )
         if warn:
             rep.warnings.extend(f"{name}: {w}" for w in warn)
             line += "  ! " + "; ".join(warn)
@@ -134,8 +155,11 @@ def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm:
                     continue
                 background = np.median(np.stack(bg_stack), axis=0).astype(np.uint8)
                 if float(background.std()) < 2.0:
-                    raise InputError("background frames are blank (constant colour): is the camera covered?",
-                                     field="--camera", got=source)
+                    raise InputError(
+                        "background frames are blank (constant colour): is the camera covered?",
+                        field="--camera",
+                        got=source,
+                    )
                 step = max(1, int(np.sqrt(background.shape[0] * background.shape[1] / 4000.0)))
                 noise = float(np.median([_quick_change(f, background, step) for f in bg_stack]))
                 rep.background_frames = len(bg_stack)
@@ -155,12 +179,23 @@ def record_presses(source: str, out: str | Path, *, sensor: str, ball_radius_mm:
     finally:
         cap.release()
         if background is not None:
-            (out / "meta.json").write_text(json.dumps({"sensor": sensor, "mm_per_px": float(mm_per_px),
-                                                       "ball_radius_mm": float(ball_radius_mm),
-                                                       "recorded_with": "vtrack record presses"}, indent=1))
+            (out / "meta.json").write_text(
+                json.dumps(
+                    {
+                        "sensor": sensor,
+                        "mm_per_px": float(mm_per_px),
+                        "ball_radius_mm": float(ball_radius_mm),
+                        "recorded_with": "vtrack record presses",
+                    },
+                    indent=1,
+                )
+            )
             if dets:
                 write_auto_labels(out / "labels.auto.csv", dets)
     if background is None:
-        raise InputError(f"the source ended after {rep.frames_read} frames, before the {background_frames} "
-                         "background frames", field="--camera", got=source)
+        raise InputError(
+            f"the source ended after {rep.frames_read} frames, before the {background_frames} background frames",
+            field="--camera",
+            got=source,
+        )
     return rep

@@ -83,8 +83,9 @@ def open_capture(cam: TactileCamera) -> tuple[Any, bool]:
     if not is_file:
         p = SENSOR_PRESETS.get(cam.type)
         if p is None:
-            raise InputError("unknown tactile sensor type", field=cam.name, expected=str(sorted(SENSOR_PRESETS)),
-                             got=cam.type)
+            raise InputError(
+                "unknown tactile sensor type", field=cam.name, expected=str(sorted(SENSOR_PRESETS)), got=cam.type
+            )
         cap.set(cv2.CAP_PROP_FRAME_WIDTH, p.width)
         cap.set(cv2.CAP_PROP_FRAME_HEIGHT, p.height)
         cap.set(cv2.CAP_PROP_FPS, p.fps)
@@ -103,15 +104,27 @@ def _rotation(cam: TactileCamera, frame: np.ndarray) -> int:
 def _rotate(img: np.ndarray, deg: int) -> np.ndarray:
     import cv2
 
-    return {0: img, 90: cv2.rotate(img, cv2.ROTATE_90_CLOCKWISE), 180: cv2.rotate(img, cv2.ROTATE_180),
-            270: cv2.rotate(img, cv2.ROTATE_90_COUNTERCLOCKWISE)}[deg % 360]
+    return {
+        0: img,
+        90: cv2.rotate(img, cv2.ROTATE_90_CLOCKWISE),
+        180: cv2.rotate(img, cv2.ROTATE_180),
+        270: cv2.rotate(img, cv2.ROTATE_90_COUNTERCLOCKWISE),
+    }[deg % 360]
 
 
 class _Reader(threading.Thread):
     """Reads one camera into a bounded queue (drops the oldest frame when full)."""
 
-    def __init__(self, cam: TactileCamera, cap: Any, is_file: bool, t0: float, realtime: bool,
-                 stats: RecordingStats, maxsize: int = 8) -> None:
+    def __init__(
+        self,
+        cam: TactileCamera,
+        cap: Any,
+        is_file: bool,
+        t0: float,
+        realtime: bool,
+        stats: RecordingStats,
+        maxsize: int = 8,
+    ) -> None:
         super().__init__(daemon=True, name=f"tactile-{cam.name}")
         self.cam, self.cap, self.is_file, self.t0, self.realtime = cam, cap, is_file, t0, realtime
         self.q: queue.Queue = queue.Queue(maxsize=maxsize)
@@ -179,8 +192,9 @@ def _probe(cam: TactileCamera) -> np.ndarray:
     return _rotate(frame, _rotation(cam, frame))
 
 
-def tactile_scene(cams: list[TactileCamera], shapes: dict[str, tuple[int, int]], base: dict | None = None
-                  ) -> dict[str, Any]:
+def tactile_scene(
+    cams: list[TactileCamera], shapes: dict[str, tuple[int, int]], base: dict | None = None
+) -> dict[str, Any]:
     """Scene with these tactile sensors (kept from ``base`` when it already declares them)."""
     from vtrack.io.importers.scene_build import finalize_scene, tactile_entry
 
@@ -191,18 +205,33 @@ def tactile_scene(cams: list[TactileCamera], shapes: dict[str, tuple[int, int]],
         h, w = shapes[c.name]
         if c.name in known:
             if (known[c.name]["height"], known[c.name]["width"]) != (h, w):
-                raise InputError("camera image size differs from the scene's tactile entry", field=c.name,
-                                 expected=f"{known[c.name]['width']}x{known[c.name]['height']}", got=f"{w}x{h}")
+                raise InputError(
+                    "camera image size differs from the scene's tactile entry",
+                    field=c.name,
+                    expected=f"{known[c.name]['width']}x{known[c.name]['height']}",
+                    got=f"{w}x{h}",
+                )
             continue
         tac.append(tactile_entry(c.name, c.type, w, h, SENSOR_PRESETS.get(c.type, SENSOR_PRESETS["digit"]).fps))
     scene["tactile"] = tac
     return finalize_scene(scene)
 
 
-def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointSource | None = None,
-                   seconds: float | None = None, max_frames: int | None = None, flush_every: int = 10,
-                   overwrite: bool = False, scene: dict | None = None, realtime: bool = True,
-                   status: bool = True, joint_poll_hz: float = 200.0, on_frame: Any = None) -> RecordingStats:
+def record_tactile(
+    out: str | Path,
+    cams: list[TactileCamera],
+    *,
+    joints: JointSource | None = None,
+    seconds: float | None = None,
+    max_frames: int | None = None,
+    flush_every: int = 10,
+    overwrite: bool = False,
+    scene: dict | None = None,
+    realtime: bool = True,
+    status: bool = True,
+    joint_poll_hz: float = 200.0,
+    on_frame: Any = None,
+) -> RecordingStats:
     """Record tactile cameras (+ joint states) until Ctrl-C, ``seconds``, ``max_frames`` per
     camera, or every source ended (video files).
 
@@ -230,8 +259,13 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
     sc = scene_from_dict(scene_dict, check_files=False)
     stats = RecordingStats()
     line = StatusLine(enabled=status)
-    with SessionWriter(out, scene_dict, overwrite=overwrite, flush_every=flush_every,
-                       info={"recorder": "tactile", "sources": {c.name: str(c.source) for c in cams}}) as w:
+    with SessionWriter(
+        out,
+        scene_dict,
+        overwrite=overwrite,
+        flush_every=flush_every,
+        info={"recorder": "tactile", "sources": {c.name: str(c.source) for c in cams}},
+    ) as w:
         write_scene_yaml(w, scene_dict)
         for c in cams:
             w.add_stream(f"tactile/{c.name}", tactile_stream(sc.tactile_by_name(c.name)))
@@ -262,8 +296,9 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
                     got = False
                     for r in readers:
                         if r.error is not None:
-                            raise InputError(f"camera read failed ({type(r.error).__name__}: {r.error})",
-                                             field=r.cam.name)
+                            raise InputError(
+                                f"camera read failed ({type(r.error).__name__}: {r.error})", field=r.cam.name
+                            )
                         while True:
                             try:
                                 t, frame = r.q.get_nowait()
@@ -293,7 +328,8 @@ def record_tactile(out: str | Path, cams: list[TactileCamera], *, joints: JointS
                     line.update(stats, w)
                     finished = all(r.done.is_set() and r.q.empty() for r in readers)
                     full = max_frames is not None and all(
-                        stats.written.get(f"tactile/{c.name}", 0) >= max_frames for c in cams)
+                        stats.written.get(f"tactile/{c.name}", 0) >= max_frames for c in cams
+                    )
                     if finished or full:
                         stop.set("sources ended" if finished else "frame count reached")
                         if joints is not None:  # samples up to the last frame's time
