@@ -28,14 +28,14 @@ def main() -> None:
     args = ap.parse_args()
 
     from vtrack.eval.pose_metrics import add, add_s, sample_model_points
+    from vtrack.io.mesh import load_mesh
     from vtrack.paths import shared_data_dir
     from vtrack.tracking.globalreg import global_register, random_pose, synthetic_frame
-    from vtrack.tracking.sdf_grid import load_mesh_arrays
 
     out = {}
     for name in args.objects:
         sym = OBJECTS.get(name, False)
-        V, F = load_mesh_arrays(shared_data_dir() / "objects" / "ycb" / f"{name}.ply")
+        V, F = load_mesh(shared_data_dir() / "objects" / "ycb" / f"{name}.ply")
         M = sample_model_points(V, F, 1000)
         errs, times, cpu, top5 = [], [], [], []
         for s in range(args.seeds):
