@@ -87,3 +87,32 @@ def test_tsdf_scene_never_imports_torch(shared_data) -> None:
     loaded = _loaded_after(_BUILD.format(edit=edit))
     assert "open3d" in loaded  # the TSDF really was built
     assert "torch" not in loaded and "viser" not in loaded and "depthai" not in loaded
+
+
+def test_batch_paths_choose_their_classes_through_the_registry(monkeypatch):
+    """``vtrack track`` / ``reconstruct`` build trackers and reconstructors via ``registry.load``, so the
+    registry is the one table of components (a key swapped there is what the CLI runs)."""
+    import numpy as np
+
+    from vtrack import registry
+    from vtrack.fusion.reconstruct import reconstruct_observations
+    from vtrack.paths import assets_dir
+    from vtrack.tracking.run import build_tracker
+
+    seen: list[str] = []
+    orig = registry.load
+
+    def spy(key: str):
+        seen.append(key)
+        return orig(key)
+
+    monkeypatch.setattr(registry, "load", spy)
+    assert type(build_tracker("slam", None, np.eye(4))).__name__ == "SLAMTracker"
+    can = assets_dir() / "objects" / "005_tomato_soup_can.ply"
+    assert type(build_tracker("known_shape", can, np.eye(4))).__name__ == "KnownShapeTracker"
+    assert type(build_tracker("slam", can, np.eye(4), method="icp")).__name__ == "ICPTracker"
+    reconstruct_observations([], "tsdf")
+    assert seen == ["tracking.slam", "tracking.known_shape", "tracking.icp", "reconstruction.tsdf"]
+    # a swapped entry is what runs
+    monkeypatch.setitem(registry.COMPONENTS, "tracking.slam", "builtins:list")
+    assert type(build_tracker("slam", None, np.eye(4))) is list

@@ -4,7 +4,10 @@ A component is named by a short key and points to ``"module:attribute"``. Nothin
 until :func:`load` is called, so a touch-only scene never imports the RGB-D stack and a TSDF
 scene never imports torch. :func:`required_components` says which components a scene needs.
 
-Component classes expose ``from_scene(scene, **options)``.
+Component classes expose ``from_scene(scene, **options)``. The batch paths choose their classes here too:
+``vtrack reconstruct`` / :func:`vtrack.fusion.reconstruct.reconstruct_session` load
+``reconstruction.<method>``, ``vtrack track`` / :func:`vtrack.tracking.run.build_tracker` load
+``tracking.<mode>`` (and ``tracking.icp``), the live TSDF consumer loads ``reconstruction.tsdf``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ COMPONENTS: dict[str, str] = {
     "reconstruction.neural_sdf": "vtrack.fusion.neural_sdf:NeuralSDFReconstructor",
     "tracking.known_shape": "vtrack.tracking.tracker:KnownShapeTracker",
     "tracking.slam": "vtrack.tracking.slam:SLAMTracker",
+    "tracking.icp": "vtrack.tracking.icp:ICPTracker",  # baseline (vtrack track --method icp)
 }
 
 

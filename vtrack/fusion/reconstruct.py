@@ -49,10 +49,11 @@ def reconstruct_observations(
         raise InputError("unknown reconstruction method", field="method", expected=" or ".join(METHODS), got=method)
     t0 = time.perf_counter()
     out: dict[str, Any] = {"method": method, "online": online}
-    if method == "tsdf":
-        from vtrack.fusion.tsdf import TSDFReconstructor
+    from vtrack import registry
 
-        rec = TSDFReconstructor(**opts)
+    cls = registry.load(f"reconstruction.{method}")
+    if method == "tsdf":
+        rec = cls(**opts)
         frame_ms = []
         for o in obs:
             ti = time.perf_counter()
@@ -66,8 +67,6 @@ def reconstruct_observations(
             mesh_seconds=time.perf_counter() - t_int,
         )
     else:
-        from vtrack.fusion.neural_sdf import NeuralSDFReconstructor
-
         o2 = {**NEURAL_DEFAULTS, **opts}
         n_iters = o2.pop("n_iters")
         if n_iters is None:
@@ -76,7 +75,7 @@ def reconstruct_observations(
             n_iters = OFFLINE_ITERS
         n_iters = int(n_iters)
         budget = o2.pop("time_budget_s", None)
-        rec = NeuralSDFReconstructor(**o2)
+        rec = cls(**o2)
         if online:
             pts = [o.points for o in obs if len(o)]
             if pts and "bounds" not in o2:

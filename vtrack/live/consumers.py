@@ -160,11 +160,11 @@ class ReconstructConsumer(Consumer):
     def __init__(
         self, session: str | Path, voxel_size: float = 0.004, poses: str | Path | None = None, depth_stride: int = 4
     ) -> None:
+        from vtrack import registry
         from vtrack.frames.session import SessionFrames
-        from vtrack.fusion.tsdf import TSDFReconstructor
 
         self.sf = SessionFrames(session, modalities=("vision",), depth_stride=depth_stride)
-        self.tsdf = TSDFReconstructor(voxel_size=voxel_size, block_count=4000)
+        self.tsdf = registry.load("reconstruction.tsdf")(voxel_size=voxel_size, block_count=4000)
         self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
         if not self.cams:
             raise InputError("live reconstruction needs a camera stream", path=self.sf.path)

@@ -55,25 +55,22 @@ def build_tracker(
     shape: str, mesh: Path | None, T_init: np.ndarray, method: str = "ours", scene: Any = None, **opts: Any
 ):
     """The tracker for a mode: ``ours`` known_shape/slam or the ``icp`` baseline."""
+    from vtrack import registry
+
     if method == "icp":
         if mesh is None:
             raise InputError("the ICP baseline needs the object mesh", field="--mesh")
-        from vtrack.tracking.icp import ICPTracker
-
-        return ICPTracker(mesh, T_init, **opts)
+        return registry.load("tracking.icp")(mesh, T_init, **opts)
     if method != "ours":
         raise InputError("unknown method", field="method", expected="|".join(METHODS), got=method)
-    if shape == "known_shape":
-        from vtrack.tracking.tracker import KnownShapeTracker
-
-        if mesh is None:
-            raise InputError("known-shape tracking needs the object mesh", field="--mesh", expected="a mesh file")
-        return KnownShapeTracker(mesh, T_init, **opts)
+    if shape not in SHAPES:
+        raise InputError("unknown shape mode", field="shape", expected="|".join(SHAPES), got=shape)
+    cls = registry.load(f"tracking.{shape}")
     if shape == "slam":
-        from vtrack.tracking.slam import SLAMTracker
-
-        return SLAMTracker(T_init, **opts)
-    raise InputError("unknown shape mode", field="shape", expected="known_shape|slam", got=shape)
+        return cls(T_init, **opts)
+    if mesh is None:
+        raise InputError("known-shape tracking needs the object mesh", field="--mesh", expected="a mesh file")
+    return cls(mesh, T_init, **opts)
 
 
 def centroid_frame(frame: Any) -> np.ndarray | None:
