@@ -91,6 +91,7 @@ def test_auto_labels_agree_with_hand_labels_on_shared_gelsight(shared_data):
     assert abs(np.median(r)) < 0.07 and np.percentile(np.abs(r), 90) < 0.10, np.percentile(r, [10, 50, 90])
 
 
+@pytest.mark.slow
 def test_calibration_from_auto_labels_meets_hand_label_accuracy(shared_data, tmp_path):
     """Calibrate the shared set WITHOUT labels.csv, evaluate the held-out presses against the HAND labels.
 
@@ -149,6 +150,7 @@ def test_too_few_usable_presses_names_the_reasons(shared_data, tmp_path):
         load_press_set(root, labels="hand")
 
 
+@pytest.mark.slow
 def test_method_auto_chooses_by_cross_validation_on_training_presses_only(shared_data):
     """``method="auto"``: 3-fold CV of mlp / lut / ps on the 36 training presses, held-out 12 untouched.
 
