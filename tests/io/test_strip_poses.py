@@ -88,7 +88,7 @@ def test_poses_csv_round_trip_and_interpolation(tmp_path):
     [
         ("t,x\n1,2\n", "header"),
         ("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,0\n", "zero"),
-        ("t,x,y,z,qx,qy,qz,qw\n0,a,0,0,0,0,0,1\n", "line 2"),
+        ("t,x,y,z,qx,qy,qz,qw\n0,a,0,0,0,0,0,1\n", "row 2 holds a non-numeric value 'a'"),
         ("t,x,y,z,qx,qy,qz,qw\n1,0,0,0,0,0,0,1\n0,0,0,0,0,0,0,1\n", "increasing"),
         ("t,x,y,z,qx,qy,qz,qw\n", "no rows"),
     ],

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from vtrack.errors import InputError
+from vtrack.io.poses import read_pose_table
 from vtrack.viz import colors as C
-from vtrack.viz.data import ViewData, decimate_indices, load_cloud, read_poses_csv, resolve_sources
+from vtrack.viz.data import ViewData, decimate_indices, load_cloud, resolve_sources
 
 
 def test_resolve_demo_folder_finds_both_results_and_session(view_fixture):
@@ -63,31 +64,31 @@ def test_recon_only_and_tracking_only(view_fixture, tmp_path):
     assert d2.est is not None and d2.gt_T is not None and d2.n_frames == 12
 
 
-def test_poses_csv_reader(view_fixture, tmp_path):
-    p = read_poses_csv(view_fixture["tracking"] / "poses.csv")
+def test_pose_table_reader(view_fixture, tmp_path):
+    p = read_pose_table(view_fixture["tracking"] / "poses.csv")
     assert p["T_est"].shape == (12, 4, 4) and p["T_gt"].shape == (12, 4, 4)
     R = p["T_gt"][3, :3, :3]
     assert np.allclose(R @ R.T, np.eye(3), atol=1e-6)
     bad = tmp_path / "poses.csv"
     bad.write_text("t,x,y,z,qx,qy,qw\n0,0,0,0,0,0,1\n")
     with pytest.raises(InputError, match="lacks required columns") as e:
-        read_poses_csv(bad)
+        read_pose_table(bad)
     assert "qz" in str(e.value)
     bad.write_text("t,x,y,z,qx,qy,qz,qw\n")
     with pytest.raises(InputError, match="no rows"):
-        read_poses_csv(bad)
+        read_pose_table(bad)
     # Extra text columns (the tracker writes `status`) are ignored; a NaN row is a lost estimate.
     bad.write_text("t,x,y,z,qx,qy,qz,qw,status,ms\n0.1,nan,0,0,0,0,0,0,lost,3.1\n0,1,2,3,0,0,0,1,ok,2.0\n")
-    p = read_poses_csv(bad)
+    p = read_pose_table(bad)
     assert np.allclose(p["t"], [0.0, 0.1])  # sorted by time
     assert np.allclose(p["T_est"][0, :3, 3], [1, 2, 3]) and np.isnan(p["T_est"][1]).all()
     bad.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2,abc,0,0,0,1\n")
     with pytest.raises(InputError, match="non-numeric") as e:
-        read_poses_csv(bad)
+        read_pose_table(bad)
     assert "'z'" in str(e.value) and "abc" in str(e.value)
     bad.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2\n")
     with pytest.raises(InputError, match="row 2 has 3 fields"):
-        read_poses_csv(bad)
+        read_pose_table(bad)
 
 
 @pytest.mark.parametrize(

@@ -100,9 +100,9 @@ def test_plots(view_fixture, tmp_path):
     assert list(pareto_front([1, 2], [0.9, 0.5], higher_is_better=True)) == [True, False]
     assert cv2.imread(str(plot_speed_vs_error(tmp_path / "p.png", rows))) is not None
     # Translation error is the 0.002 * k / 12 m drift of the fixture's estimate, in mm.
-    from vtrack.viz.data import read_poses_csv
+    from vtrack.io.poses import read_pose_table
 
-    d = read_poses_csv(view_fixture["tracking"] / "poses.csv")
+    d = read_pose_table(view_fixture["tracking"] / "poses.csv")
     trans, rot = pose_errors(d["T_est"], d["T_gt"])
     assert np.allclose(trans, 2.0 * np.arange(12) / 12, atol=1e-4)
     assert np.all(rot < 1e-3)

@@ -82,42 +82,94 @@ def write_poses_csv(
     return path
 
 
-def read_poses_csv(path: str | Path) -> PoseTrack:
-    """Read a ``poses.csv`` into a :class:`PoseTrack` (clear errors for a wrong header or bad values)."""
+def read_pose_table(path: str | Path) -> dict[str, np.ndarray | None]:
+    """Read ``poses.csv`` (``t, x, y, z, qx, qy, qz, qw`` and optional ``gt_*`` columns).
+
+    Returns ``{"t": (N,), "T_est": (N, 4, 4), "T_gt": (N, 4, 4) or None, "in_order": bool}`` sorted by time
+    (``in_order``: the file was already strictly increasing in ``t``). Rows with a
+    non-finite or zero-norm estimate keep NaN matrices (a lost track), so callers can skip them.
+
+    Raises:
+        InputError: missing columns, no rows, or non-finite timestamps.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("poses file not found", path=path, expected="a poses.csv (t,x,y,z,qx,qy,qz,qw)")
     try:
         with open(path, newline="") as f:
-            rows = list(csv.reader(f))
+            reader = csv.reader(f)
+            header = [h.strip() for h in next(reader, [])]
+            rows = [r for r in reader if r and any(c.strip() for c in r)]
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise InputError(f"unreadable poses file ({type(e).__name__})", path=path) from None
-    if not rows or any(c not in rows[0] for c in POSE_COLUMNS):
+    need = POSE_COLUMNS
+    missing = [c for c in need if c not in header]
+    if missing:
         raise InputError(
-            "poses file header lacks the pose columns",
+            "poses.csv lacks required columns",
             path=path,
-            field="header",
-            expected=",".join(POSE_COLUMNS),
-            got=",".join(rows[0]) if rows else "empty file",
+            field=",".join(missing),
+            expected="header t,x,y,z,qx,qy,qz,qw[,gt_x,...,gt_qw]",
+            got=header,
         )
-    idx = [rows[0].index(c) for c in POSE_COLUMNS]
-    vals = []
-    for n, r in enumerate(rows[1:], start=2):
-        try:
-            vals.append([float(r[i]) for i in idx])
-        except (ValueError, IndexError):
-            raise InputError("non-numeric or missing pose value", path=path, field=f"line {n}") from None
-    if not vals:
-        raise InputError("poses file has no rows", path=path)
-    a = np.asarray(vals)
-    qn = np.linalg.norm(a[:, 4:8], axis=1)
-    if not np.all(np.isfinite(a)) or np.any(qn < 1e-9):
+    if not rows:
+        raise InputError("poses.csv has no rows", path=path)
+    # Only the pose columns are numeric; others (e.g. the tracker's ``status``) are ignored.
+    names = [c for c in header if c in need or (c.startswith("gt_") and c[3:] in POSE_COLUMNS[1:])]
+    idx = [header.index(c) for c in names]
+    A = np.full((len(rows), len(names)), np.nan)
+    for r, row in enumerate(rows):
+        if len(row) != len(header):
+            raise InputError(
+                f"poses.csv row {r + 2} has {len(row)} fields", path=path, expected=f"{len(header)} (as the header)"
+            )
+        for k, j in enumerate(idx):
+            cell = row[j].strip()
+            if cell:
+                try:
+                    A[r, k] = float(cell)
+                except ValueError:
+                    raise InputError(
+                        f"poses.csv row {r + 2} holds a non-numeric value {cell!r}",
+                        path=path,
+                        field=names[k],
+                        expected="a number or empty",
+                    ) from None
+    col = {h: i for i, h in enumerate(names)}
+    t = A[:, col["t"]]
+    if not np.all(np.isfinite(t)):
+        raise InputError("poses.csv has non-finite timestamps", path=path, field="t")
+    in_order = bool(np.all(np.diff(t) > 0))
+    order = np.argsort(t, kind="stable")
+    A, t = A[order], t[order]
+
+    def mats(prefix: str) -> np.ndarray:
+        xyz = A[:, [col[prefix + c] for c in ("x", "y", "z")]]
+        q = A[:, [col[prefix + c] for c in ("qx", "qy", "qz", "qw")]]
+        nq = np.linalg.norm(q, axis=1)
+        ok = np.isfinite(xyz).all(1) & np.isfinite(q).all(1) & (nq > 1e-9)
+        T = np.full((len(A), 4, 4), np.nan)
+        if ok.any():
+            T[ok] = np.eye(4)
+            T[ok, :3, :3] = se3.quat_to_matrix(q[ok] / nq[ok, None])
+            T[ok, :3, 3] = xyz[ok]
+        return T
+
+    T_gt = mats("gt_") if all("gt_" + c in col for c in POSE_COLUMNS[1:]) else None
+    return {"t": t, "T_est": mats(""), "T_gt": T_gt, "in_order": in_order}
+
+
+def read_poses_csv(path: str | Path) -> PoseTrack:
+    """Read a ``poses.csv`` into a :class:`PoseTrack` (sorted by time): every estimate must be a valid pose
+    (use :func:`read_pose_table` to read a tracker's output with lost frames and ``gt_*`` columns)."""
+    table = read_pose_table(path)
+    if not table["in_order"]:
+        raise InputError("poses file timestamps must be strictly increasing", path=path, field="t")
+    T = table["T_est"]
+    if not np.all(np.isfinite(T)):
         raise InputError("poses file has NaN/Inf values or zero quaternions", path=path)
-    T = np.repeat(np.eye(4)[None], len(a), axis=0)
-    T[:, :3, :3] = se3.quat_to_matrix(a[:, 4:8] / qn[:, None])
-    T[:, :3, 3] = a[:, 1:4]
     try:
-        return PoseTrack(a[:, 0], T)
+        return PoseTrack(table["t"], T)
     except InputError as e:
         raise InputError(e.args[0] if e.args else "invalid poses", path=path) from None
 

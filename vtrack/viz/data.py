@@ -18,7 +18,6 @@ in the world frame. Object-frame geometry is drawn at the current object pose (e
 
 from __future__ import annotations
 
-import csv
 import json
 import threading
 from collections import OrderedDict
@@ -29,13 +28,12 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.io.poses import read_pose_table
 
 #: Default display budget of cloud points (larger clouds are decimated, touch points kept first).
 DEFAULT_MAX_POINTS = 200_000
 #: Longest side of tactile/camera images in the side panel, px.
 PANEL_IMAGE_PX = 160
-
-_POSE_COLS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,81 +178,6 @@ def resolve_sources(path: str | Path) -> Sources:
 # ---------------------------------------------------------------------------------------------
 # Readers
 # ---------------------------------------------------------------------------------------------
-def read_poses_csv(path: str | Path) -> dict[str, np.ndarray | None]:
-    """Read ``poses.csv`` (``t, x, y, z, qx, qy, qz, qw`` and optional ``gt_*`` columns).
-
-    Returns ``{"t": (N,), "T_est": (N, 4, 4), "T_gt": (N, 4, 4) or None}`` sorted by time. Rows with a
-    non-finite or zero-norm estimate keep NaN matrices (a lost track), so callers can skip them.
-
-    Raises:
-        InputError: missing columns, no rows, or non-finite timestamps.
-    """
-    from vtrack.geometry.se3 import quat_to_matrix
-
-    path = Path(path)
-    try:
-        with open(path, newline="") as f:
-            reader = csv.reader(f)
-            header = [h.strip() for h in next(reader, [])]
-            rows = [r for r in reader if r and any(c.strip() for c in r)]
-    except OSError as e:
-        raise InputError(f"cannot read poses.csv ({e.strerror})", path=path) from None
-    need = ("t", *_POSE_COLS)
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise InputError(
-            "poses.csv lacks required columns",
-            path=path,
-            field=",".join(missing),
-            expected="header t,x,y,z,qx,qy,qz,qw[,gt_x,...,gt_qw]",
-            got=header,
-        )
-    if not rows:
-        raise InputError("poses.csv has no rows", path=path)
-    # Only the pose columns are numeric; others (e.g. the tracker's ``status``) are ignored.
-    names = [c for c in header if c in need or (c.startswith("gt_") and c[3:] in _POSE_COLS)]
-    idx = [header.index(c) for c in names]
-    A = np.full((len(rows), len(names)), np.nan)
-    for r, row in enumerate(rows):
-        if len(row) != len(header):
-            raise InputError(
-                f"poses.csv row {r + 2} has {len(row)} fields", path=path, expected=f"{len(header)} (as the header)"
-            )
-        for k, j in enumerate(idx):
-            cell = row[j].strip()
-            if cell:
-                try:
-                    A[r, k] = float(cell)
-                except ValueError:
-                    raise InputError(
-                        f"poses.csv row {r + 2} holds a non-numeric value {cell!r}",
-                        path=path,
-                        field=names[k],
-                        expected="a number or empty",
-                    ) from None
-    col = {h: i for i, h in enumerate(names)}
-    t = A[:, col["t"]]
-    if not np.all(np.isfinite(t)):
-        raise InputError("poses.csv has non-finite timestamps", path=path, field="t")
-    order = np.argsort(t, kind="stable")
-    A, t = A[order], t[order]
-
-    def mats(prefix: str) -> np.ndarray:
-        xyz = A[:, [col[prefix + c] for c in ("x", "y", "z")]]
-        q = A[:, [col[prefix + c] for c in ("qx", "qy", "qz", "qw")]]
-        nq = np.linalg.norm(q, axis=1)
-        ok = np.isfinite(xyz).all(1) & np.isfinite(q).all(1) & (nq > 1e-9)
-        T = np.full((len(A), 4, 4), np.nan)
-        if ok.any():
-            T[ok] = np.eye(4)
-            T[ok, :3, :3] = quat_to_matrix(q[ok] / nq[ok, None])
-            T[ok, :3, 3] = xyz[ok]
-        return T
-
-    T_gt = mats("gt_") if all("gt_" + c in col for c in _POSE_COLS) else None
-    return {"t": t, "T_est": mats(""), "T_gt": T_gt}
-
-
 def load_mesh(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     """(vertices (V, 3) float32 m, faces (F, 3) int32) of a mesh file for display; None if it has no faces.
 
@@ -527,7 +450,7 @@ class ViewData:
         # -- tracking ------------------------------------------------------------------------
         self.est: dict | None = None
         if src.tracking is not None:
-            self.est = read_poses_csv(src.tracking / "poses.csv")
+            self.est = read_pose_table(src.tracking / "poses.csv")
             valid = np.isfinite(self.est["T_est"]).all(axis=(1, 2))
             self._est_t, self._est_T = self.est["t"][valid], self.est["T_est"][valid]
             lost = int((~valid).sum())

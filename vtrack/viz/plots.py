@@ -118,9 +118,9 @@ def plot_pose_errors(poses_csv: str | Path, out: str | Path, title: str = "") ->
     Raises:
         InputError: the file has no ground-truth columns.
     """
-    from vtrack.viz.data import read_poses_csv
+    from vtrack.io.poses import read_pose_table
 
-    p = read_poses_csv(poses_csv)
+    p = read_pose_table(poses_csv)
     if p["T_gt"] is None:
         raise InputError(
             "poses.csv has no ground-truth columns to compare with",
