@@ -116,3 +116,23 @@ def test_batch_paths_choose_their_classes_through_the_registry(monkeypatch):
     # a swapped entry is what runs
     monkeypatch.setitem(registry.COMPONENTS, "tracking.slam", "builtins:list")
     assert type(build_tracker("slam", None, np.eye(4))) is list
+
+
+def test_registered_trackers_and_reconstructors_satisfy_the_protocols():
+    import inspect
+
+    from vtrack import registry
+    from vtrack.protocols import Reconstructor, Tracker
+
+    def methods(proto) -> set[str]:
+        return {n for n, v in vars(proto).items() if not n.startswith("_") and (callable(v) or isinstance(v, property))}
+
+    for key in [k for k in registry.COMPONENTS if k.startswith(("tracking.", "reconstruction."))]:
+        cls = registry.load(key)
+        proto = Tracker if key.startswith("tracking.") else Reconstructor
+        missing = [m for m in methods(proto) if not hasattr(cls, m)]
+        assert not missing, (key, missing)
+        if proto is Tracker:
+            assert cls.mode == key.split(".", 1)[1], (key, cls.mode)  # result files name the mode as the registry
+        for m in methods(proto) - {"last_info"}:
+            assert inspect.isfunction(getattr(cls, m)), (key, m)

@@ -50,6 +50,8 @@ _LAZY: dict[str, tuple[str, str]] = {
     "KnownShapeTracker": ("vtrack.tracking.tracker", "KnownShapeTracker"),
     "SLAMTracker": ("vtrack.tracking.slam", "SLAMTracker"),
     "ICPTracker": ("vtrack.tracking.icp", "ICPTracker"),
+    "Tracker": ("vtrack.protocols", "Tracker"),
+    "Reconstructor": ("vtrack.protocols", "Reconstructor"),
 }
 
 __all__ = ["InputError", "VtrackError", "__version__", *_LAZY]

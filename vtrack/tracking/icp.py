@@ -61,6 +61,12 @@ class ICPTracker:
         self.history: list[StepInfo] = []
         self._n = 0
 
+    def reset(self, T_world_object: np.ndarray) -> None:
+        """Restart from a given pose (constant-velocity prior cleared)."""
+        self.T = np.asarray(T_world_object, dtype=np.float64).copy()
+        self.velocity[:] = 0.0
+        self.t_last = None
+
     @property
     def last_info(self) -> StepInfo | None:
         return self.history[-1] if self.history else None
