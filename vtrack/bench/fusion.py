@@ -1,12 +1,12 @@
 """``vtrack bench fusion``: reconstruction ablation (vision / touch / visuo-tactile x TSDF / neural SDF).
 
-Full mode: simulator sessions (``vtrack.sim.fixtures.ycb_session``, cached; 5 s: 2 s ones cover too
+Full mode: simulator sessions (``vtrack.testing.sim.ycb_session``, cached; 5 s: 2 s ones cover too
 little of the object, oracle F@5 0.71) of the default scene holding each shared YCB object at
 occlusion none and medium, plus the soup can under heavy occlusion; BLIND by default (poses from SLAM,
 segmentation and touch from the raw streams), with GT-fed rows labelled ``[oracle]`` as an ablation.
 Extra operating points (TSDF voxel size, neural SDF iterations, online neural SDF at a 25 ms frame
 budget) on the unoccluded soup can.
-Quick mode (< 1 min): ray-cast observations (:mod:`vtrack.fusion.synthetic`, no simulator) of the
+Quick mode (< 1 min): ray-cast observations (:mod:`vtrack.testing.observations`, no simulator) of the
 soup can, full ring of views vs a 60 deg arc (occluded), touch on the unseen side.
 
 Columns: ``fscore_5mm`` (error column, higher is better), ``fscore_1mm/2mm/10mm``, ``precision``,
@@ -89,8 +89,8 @@ def _operating_points(run, voxels: tuple[float, ...], iters: tuple[int, ...], **
 
 
 def _quick(table: BenchTable) -> None:
-    from vtrack.fusion.synthetic import make_observations
     from vtrack.paths import shared_data_dir
+    from vtrack.testing.observations import make_observations
 
     mesh = shared_data_dir() / "objects" / "ycb" / "005_tomato_soup_can.ply"
     for occ, kw in (("none", dict(n_views=6, arc_deg=360.0)), ("heavy", dict(n_views=2, arc_deg=60.0))):
@@ -140,7 +140,7 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
 
 
 def _full(table: BenchTable, seconds: float) -> None:
-    from vtrack.sim.fixtures import DEFAULT_OBJECT, ycb_objects, ycb_session
+    from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
 
     # every shared YCB object at occlusion none / medium (the issue's targets), the default object also heavy
     cases = [(name, occ, None) for name in ycb_objects() for occ in ("none", "medium")]
@@ -182,7 +182,7 @@ def run(quick: bool = False) -> BenchTable:
     if quick:
         _quick(table)
         table.notes.append(
-            "quick mode: ray-cast observations (vtrack.fusion.synthetic), soup can; 'heavy' = two "
+            "quick mode: ray-cast observations (vtrack.testing.observations), soup can; 'heavy' = two "
             "views on a 60 deg arc, 30 touch patches on the unseen side."
         )
     else:

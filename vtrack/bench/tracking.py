@@ -30,7 +30,7 @@ MODES = {"vision": ("vision",), "touch": ("touch",), "visuo-tactile": ("vision",
 
 def _timed(tracker, seq, drop=()):
     """Run a synthetic sequence; (errors m, CPU ms per frame, wall ms per frame)."""
-    from vtrack.tracking.synth import run_sequence
+    from vtrack.testing.sequences import run_sequence
 
     c0, t0 = time.process_time(), time.perf_counter()
     _, err = run_sequence(tracker, seq, drop=drop)
@@ -56,9 +56,9 @@ def _add_synth_row(table: BenchTable, method: str, setting: str, mesh: Path, occ
 
 def _synth_rows(table: BenchTable, quick: bool) -> None:
     from vtrack.paths import shared_data_dir
+    from vtrack.testing.sequences import make_sequence
     from vtrack.tracking.icp import ICPTracker
     from vtrack.tracking.slam import SLAMTracker
-    from vtrack.tracking.synth import make_sequence
     from vtrack.tracking.tracker import KnownShapeTracker
 
     mesh = shared_data_dir() / "objects" / "ycb" / "006_mustard_bottle.ply"
@@ -90,7 +90,7 @@ def session_cases(quick: bool) -> list[tuple[str, str, str, float, Path]]:
     Every shared YCB object at occlusion none and medium (2 s sessions, the segmentation benchmark's),
     plus the default object under heavy occlusion (5 s) and heavy occlusion with 3x depth noise (2 s).
     """
-    from vtrack.sim.fixtures import DEFAULT_OBJECT, tiny_session_path, ycb_objects, ycb_session
+    from vtrack.testing.sim import DEFAULT_OBJECT, tiny_session_path, ycb_objects, ycb_session
 
     cases = [(o, occ, 1.0, ycb_session(o, occ, 2.0)) for o in ycb_objects() for occ in ("none", "medium")]
     cases.append((DEFAULT_OBJECT, "heavy", 1.0, tiny_session_path(occlusion="heavy", seconds=5.0)))
