@@ -7,7 +7,9 @@ scene never imports torch. :func:`required_components` says which components a s
 Component classes expose ``from_scene(scene, **options)``. The batch paths choose their classes here too:
 ``vtrack reconstruct`` / :func:`vtrack.fusion.reconstruct.reconstruct_session` load
 ``reconstruction.<method>``, ``vtrack track`` / :func:`vtrack.tracking.run.build_tracker` load
-``tracking.<mode>`` (and ``tracking.icp``), the live TSDF consumer loads ``reconstruction.tsdf``.
+``tracking.<mode>`` (and ``tracking.icp``), ``vtrack live`` loads ``live.<consumer>`` and the live TSDF
+consumer loads ``reconstruction.tsdf``. Live consumers are built with ``(session, **options)`` instead of
+``from_scene``.
 """
 
 from __future__ import annotations
@@ -28,6 +30,10 @@ COMPONENTS: dict[str, str] = {
     "tracking.known_shape": "vtrack.tracking.tracker:KnownShapeTracker",
     "tracking.slam": "vtrack.tracking.slam:SLAMTracker",
     "tracking.icp": "vtrack.tracking.icp:ICPTracker",  # baseline (vtrack track --method icp)
+    # live consumers (vtrack live --consumer <kind>): constructed with (session, **options)
+    "live.track": "vtrack.live.consumers:TrackConsumer",
+    "live.reconstruct": "vtrack.live.consumers:ReconstructConsumer",
+    "live.null": "vtrack.live.consumers:NullConsumer",
 }
 
 
