@@ -4,12 +4,13 @@ A component is named by a short key and points to ``"module:attribute"``. Nothin
 until :func:`load` is called, so a touch-only scene never imports the RGB-D stack and a TSDF
 scene never imports torch. :func:`required_components` says which components a scene needs.
 
-Component classes expose ``from_scene(scene, **options)``. The batch paths choose their classes here too:
-``vtrack reconstruct`` / :func:`vtrack.fusion.reconstruct.reconstruct_session` load
-``reconstruction.<method>``, ``vtrack track`` / :func:`vtrack.tracking.run.build_tracker` load
-``tracking.<mode>`` (and ``tracking.icp``), ``vtrack live`` loads ``live.<consumer>`` and the live TSDF
-consumer loads ``reconstruction.tsdf``. Live consumers are built with ``(session, **options)`` instead of
-``from_scene``.
+Component classes expose ``from_scene(scene, **options)``; their options are typed dataclasses holding the
+defaults (``TSDFConfig``, ``NeuralSDFConfig``, ``TrackerOptions``, ``TactileConfig``, ...). The real paths
+choose their classes here: ``vtrack reconstruct`` / :func:`vtrack.fusion.reconstruct.reconstruct_session`
+load ``reconstruction.<method>``, ``vtrack track`` / :func:`vtrack.tracking.run.build_tracker` load
+``tracking.<mode>`` (and ``tracking.icp``), the frames layer loads ``tactile`` and ``segmentation`` (one
+segmenter per camera, built with ``(kinematics, camera, T_world_camera)``), ``vtrack live`` loads
+``live.<consumer>`` (built with ``(session, **options)``) and the live TSDF consumer ``reconstruction.tsdf``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from vtrack.errors import VtrackError
 #: key -> "module:attribute". Modules are imported only when the component is loaded.
 COMPONENTS: dict[str, str] = {
     "kinematics": "vtrack.kinematics.hand:HandKinematics",
-    "tactile": "vtrack.tactile.pipeline:TactilePipeline",
+    "tactile": "vtrack.tactile.pipeline:TactilePipeline",  # options: TactileConfig
+    # per-camera object segmentation of the frames layer (options: SegmentationOptions)
+    "segmentation": "vtrack.frames.segmentation:HandAwareSegmenter",
     "dome": "vtrack.dome.reconstruct:DomeReconstructor",
     "rgbd": "vtrack.fusion.rgbd:RGBDFrontend",
     "reconstruction.tsdf": "vtrack.fusion.tsdf:TSDFReconstructor",
