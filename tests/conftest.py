@@ -33,7 +33,7 @@ def _isolated_cache(tmp_path_factory) -> None:
 @pytest.fixture(scope="session")
 def tiny_session(shared_data) -> Path:
     """A 1 s synthetic session of the default scene (occlusion none), generated once per test run."""
-    from vtrack.sim.fixtures import tiny_session_path
+    from vtrack.testing.sim import tiny_session_path
 
     return tiny_session_path(occlusion="none", seconds=1.0)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import fields
+from dataclasses import fields, replace
 from typing import Any, TypeVar
 
 from vtrack.errors import InputError
@@ -20,3 +20,11 @@ def checked_fields(cls: type[T], opts: dict[str, Any], what: str) -> dict[str, A
             f"unknown {what} option(s)", field=", ".join(sorted(unknown)), expected=f"some of {sorted(names)}"
         )
     return opts
+
+
+def build_config(cls: type[T], opts: dict[str, Any] | None, what: str, base: T | None = None) -> T:
+    """A ``cls`` (a dataclass holding a component's defaults) with ``opts`` applied over ``base`` (default:
+    the dataclass defaults). Unknown keys raise one :class:`InputError` naming them (see
+    :func:`checked_fields`); ``what`` names the component in that message."""
+    o = checked_fields(cls, dict(opts or {}), what)
+    return replace(base, **o) if base is not None else cls(**o)  # type: ignore[type-var]

@@ -30,7 +30,7 @@ class BatchCase:
 
 
 def _synthetic_sessions(root: Path, n: int, frames: int = 12) -> list[Path]:
-    from vtrack.batch.synthetic import write_synthetic_session
+    from vtrack.testing.sessions import write_synthetic_session
 
     return [
         write_synthetic_session(root / f"session_{i}", seed=i, frames=frames, width=96, height=72) for i in range(n)

@@ -55,7 +55,7 @@ def test_chunk_jobs_need_a_chunkable_task(synthetic_sessions, tmp_path):
 
 
 def test_fingerprint_tracks_content(tmp_path):
-    from vtrack.batch.synthetic import write_synthetic_session
+    from vtrack.testing.sessions import write_synthetic_session
 
     s = write_synthetic_session(tmp_path / "s", seed=3, frames=4, width=16, height=12)
     f1 = session_fingerprint(s)

@@ -214,7 +214,7 @@ def medium_frames(shared_data):
     """(segmenter, [(depth, q, gt, visible_fraction)]) of a 0.5 s session seen with medium occlusion."""
     from vtrack.bench.segmentation import gt_mask_field, segmenter_for_session
     from vtrack.io.session import open_session
-    from vtrack.sim.fixtures import tiny_session_path
+    from vtrack.testing.sim import tiny_session_path
 
     r = open_session(tiny_session_path(occlusion="medium", seconds=0.5))
     s = r["camera/cam0"]

@@ -7,10 +7,10 @@ import time
 
 import numpy as np
 import pytest
-from fixtures_io import tactile_image, write_feelsight, write_mcap, write_ros1_bag, write_ros2_bag
 
 from vtrack.errors import InputError
 from vtrack.io.session import open_session
+from vtrack.testing.recordings import tactile_image, write_feelsight, write_mcap, write_ros1_bag, write_ros2_bag
 
 
 def test_feelsight_import_round_trip(tmp_path):

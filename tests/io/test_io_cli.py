@@ -10,11 +10,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from fixtures_io import write_feelsight, write_live_session, write_mcap, write_tactile_video
 from typer.testing import CliRunner
 
 from vtrack.errors import InputError
 from vtrack.io.session import open_session
+from vtrack.testing.recordings import write_feelsight, write_mcap, write_tactile_video
+from vtrack.testing.sessions import write_live_session
 
 
 def invoke(*args):

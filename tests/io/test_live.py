@@ -6,11 +6,11 @@ import time
 
 import numpy as np
 import pytest
-from fixtures_io import write_live_session, write_sphere_session
 
 from vtrack.errors import InputError
 from vtrack.live.pipeline import Consumer, LivePipeline
 from vtrack.live.sources import SessionReplaySource
+from vtrack.testing.sessions import write_live_session, write_sphere_session
 
 
 @pytest.fixture(scope="module")

@@ -12,10 +12,10 @@ import time
 
 import numpy as np
 import pytest
-from fixtures_io import video_frame, write_tactile_video
 
 from vtrack.errors import InputError
 from vtrack.io.session import open_session
+from vtrack.testing.recordings import video_frame, write_tactile_video
 
 
 def test_oak_host_pipeline_records_synced_rgbd_imu_and_calibration(tmp_path):

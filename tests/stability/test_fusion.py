@@ -36,7 +36,7 @@ def _neural(**kw):
 def _mesh_obs(mesh: trimesh.Trimesh, n_views=4, n_touch=0, seed=0):
     import tempfile
 
-    from vtrack.fusion.synthetic import make_observations
+    from vtrack.testing.observations import make_observations
 
     with tempfile.TemporaryDirectory() as d:
         p = f"{d}/m.ply"

@@ -9,18 +9,14 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "io"))
-
-from fixtures_io import video_frame, write_feelsight, write_tactile_video  # noqa: E402
-
-from vtrack.errors import InputError  # noqa: E402
-from vtrack.io.session import open_session  # noqa: E402
+from vtrack.errors import InputError
+from vtrack.io.session import open_session
+from vtrack.testing.recordings import video_frame, write_feelsight, write_tactile_video
 
 pytestmark = pytest.mark.stability
 
@@ -143,10 +139,9 @@ def test_replay_of_single_frame_and_empty_streams(tmp_path):
 
 
 def test_process_reader_replays_the_same_frames(tmp_path):
-    from fixtures_io import write_live_session
-
     from vtrack.live.pipeline import LivePipeline
     from vtrack.live.sources import SessionReplaySource
+    from vtrack.testing.sessions import write_live_session
 
     live_session = write_live_session(tmp_path / "s", seconds=1.0, cam_hw=(48, 64), tac_hw=(32, 24))
     from vtrack.live.consumers import NullConsumer

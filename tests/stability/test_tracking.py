@@ -10,9 +10,9 @@ import pytest
 
 from vtrack.errors import InputError
 from vtrack.geometry import se3
+from vtrack.testing.sequences import make_sequence, run_sequence
 from vtrack.tracking.frame import TrackingFrame
 from vtrack.tracking.sdf_grid import SDFGrid
-from vtrack.tracking.synth import make_sequence, run_sequence
 from vtrack.tracking.window import WindowTracker
 
 pytestmark = pytest.mark.stability

@@ -24,13 +24,13 @@ def mustard_grid(mustard_mesh):
 
 @pytest.fixture(scope="session")
 def mustard_seq(mustard_mesh):
-    from vtrack.tracking.synth import make_sequence
+    from vtrack.testing.sequences import make_sequence
 
     return make_sequence(mustard_mesh, n_frames=40, width=120, height=90, seed=1)
 
 
 @pytest.fixture(scope="session")
 def mustard_seq_heavy(mustard_mesh):
-    from vtrack.tracking.synth import make_sequence
+    from vtrack.testing.sequences import make_sequence
 
     return make_sequence(mustard_mesh, n_frames=40, width=120, height=90, occlusion="heavy", seed=2)

@@ -48,8 +48,8 @@ def _grid_of(tr):
 
 def test_incremental_refresh_matches_a_full_rebuild(mustard_seq):
     """The incremental band update equals a rebuild from scratch up to the moved-surfel tolerance."""
+    from vtrack.testing.sequences import run_sequence
     from vtrack.tracking.slam import SLAMTracker
-    from vtrack.tracking.synth import run_sequence
 
     inc = SLAMTracker(mustard_seq.gt[0], refresh_every=2, full_refresh_every=1000)
     run_sequence(inc, mustard_seq)

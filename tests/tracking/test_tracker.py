@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from vtrack.errors import InputError
-from vtrack.tracking.synth import run_sequence
+from vtrack.testing.sequences import run_sequence
 from vtrack.tracking.window import TrackerOptions, WindowTracker
 
 

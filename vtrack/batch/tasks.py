@@ -26,15 +26,12 @@ from collections.abc import Callable
 from typing import Any
 
 from vtrack.errors import InputError, VtrackError
+from vtrack.registry import COMPONENTS, import_target
 
-#: Task name -> "module:function". ``reconstruct`` and ``track`` are the pipeline entry points;
-#: ``bench`` runs both and reports accuracy and time; ``stats`` is a cheap session QA summary.
-TASKS: dict[str, str] = {
-    "reconstruct": "vtrack.fusion.reconstruct:reconstruct_session",
-    "track": "vtrack.tracking.run:track_session",
-    "bench": "vtrack.batch.evaluate:bench_session",
-    "stats": "vtrack.batch.stats:session_stats",
-}
+#: Task name -> "module:function", the ``batch.<task>`` entries of :data:`vtrack.registry.COMPONENTS`.
+#: ``reconstruct`` and ``track`` are the pipeline entry points; ``bench`` runs both and reports accuracy and
+#: time; ``stats`` is a cheap session QA summary.
+TASKS: dict[str, str] = {k.split(".", 1)[1]: v for k, v in COMPONENTS.items() if k.startswith("batch.")}
 
 #: Parameter names through which a task accepts a chunk of a session.
 CHUNK_PARAMS = ("time_range", "frames")
@@ -69,13 +66,9 @@ def resolve(target: str) -> Callable[..., Any]:
     module, _, attr = target.partition(":")
     if not module or not attr:
         raise InputError("task target must look like 'module:function'", field="task", got=target)
-    try:
-        mod = importlib.import_module(module)
-    except ModuleNotFoundError as e:
-        raise VtrackError(f"batch task '{target}' is not available: cannot import {module} ({e})") from None
-    fn = getattr(mod, attr, None)
+    fn = import_target(target, f"batch task '{target}'")
     if not callable(fn):
-        raise VtrackError(f"batch task '{target}': {module} has no function '{attr}'")
+        raise VtrackError(f"batch task '{target}': {module}.{attr} is not a function")
     return fn
 
 

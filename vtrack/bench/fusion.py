@@ -1,12 +1,12 @@
 """``vtrack bench fusion``: reconstruction ablation (vision / touch / visuo-tactile x TSDF / neural SDF).
 
-Full mode: simulator sessions (``vtrack.sim.fixtures.ycb_session``, cached; 5 s: 2 s ones cover too
+Full mode: simulator sessions (``vtrack.testing.sim.ycb_session``, cached; 5 s: 2 s ones cover too
 little of the object, oracle F@5 0.71) of the default scene holding each shared YCB object at
 occlusion none and medium, plus the soup can under heavy occlusion; BLIND by default (poses from SLAM,
 segmentation and touch from the raw streams), with GT-fed rows labelled ``[oracle]`` as an ablation.
 Extra operating points (TSDF voxel size, neural SDF iterations, online neural SDF at a 25 ms frame
 budget) on the unoccluded soup can.
-Quick mode (< 1 min): ray-cast observations (:mod:`vtrack.fusion.synthetic`, no simulator) of the
+Quick mode (< 1 min): ray-cast observations (:mod:`vtrack.testing.observations`, no simulator) of the
 soup can, full ring of views vs a 60 deg arc (occluded), touch on the unseen side.
 
 Columns: ``fscore_5mm`` (error column, higher is better), ``fscore_1mm/2mm/10mm``, ``precision``,
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -78,73 +79,29 @@ def _run(
     )
 
 
+def _operating_points(run, voxels: tuple[float, ...], iters: tuple[int, ...], **neural_opts: Any) -> None:
+    """Visuo-tactile rows at other TSDF voxel sizes (m) and neural SDF iteration counts; ``run`` is
+    :func:`_run` bound to one case (table, observations, GT mesh, object, occlusion, load time)."""
+    for vs in voxels:
+        run(method="tsdf", mods="vision+touch", setting=f"voxel={vs * 1e3:g}mm", voxel_size=vs)
+    for it in iters:
+        run(method="neural_sdf", mods="vision+touch", setting=f"iters={it}", n_iters=it, **neural_opts)
+
+
 def _quick(table: BenchTable) -> None:
-    from vtrack.fusion.synthetic import make_observations
     from vtrack.paths import shared_data_dir
+    from vtrack.testing.observations import make_observations
 
     mesh = shared_data_dir() / "objects" / "ycb" / "005_tomato_soup_can.ply"
     for occ, kw in (("none", dict(n_views=6, arc_deg=360.0)), ("heavy", dict(n_views=2, arc_deg=60.0))):
         t0 = time.perf_counter()
         obs, V, F = make_observations(mesh, n_touch=30, touch_region="unseen", seed=0, **kw)
-        load_s = time.perf_counter() - t0
+        run = partial(_run, table, obs, V, F, object_name="soup_can", occlusion=occ, load_s=time.perf_counter() - t0)
         for mods in MODS:
-            _run(
-                table,
-                obs,
-                V,
-                F,
-                method="tsdf",
-                mods=mods,
-                setting="voxel=2mm",
-                object_name="soup_can",
-                occlusion=occ,
-                load_s=load_s,
-                voxel_size=0.002,
-            )
-            _run(
-                table,
-                obs,
-                V,
-                F,
-                method="neural_sdf",
-                mods=mods,
-                setting="iters=100",
-                object_name="soup_can",
-                occlusion=occ,
-                load_s=load_s,
-                n_iters=100,
-                mesh_cell_mm=2.5,
-            )
+            run(method="tsdf", mods=mods, setting="voxel=2mm", voxel_size=0.002)
+            run(method="neural_sdf", mods=mods, setting="iters=100", n_iters=100, mesh_cell_mm=2.5)
         if occ == "heavy":
-            for vs in (0.0015, 0.003):
-                _run(
-                    table,
-                    obs,
-                    V,
-                    F,
-                    method="tsdf",
-                    mods="vision+touch",
-                    setting=f"voxel={vs * 1e3:g}mm",
-                    object_name="soup_can",
-                    occlusion=occ,
-                    load_s=load_s,
-                    voxel_size=vs,
-                )
-            for it in (40, 200):
-                _run(
-                    table,
-                    obs,
-                    V,
-                    F,
-                    method="neural_sdf",
-                    mods="vision+touch",
-                    setting=f"iters={it}",
-                    object_name="soup_can",
-                    occlusion=occ,
-                    load_s=load_s,
-                    n_iters=it,
-                    mesh_cell_mm=2.5,
-                )
+            _operating_points(run, (0.0015, 0.003), (40, 200), mesh_cell_mm=2.5)
 
 
 def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np.ndarray, float, dict]:
@@ -183,7 +140,7 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
 
 
 def _full(table: BenchTable, seconds: float) -> None:
-    from vtrack.sim.fixtures import DEFAULT_OBJECT, ycb_objects, ycb_session
+    from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
 
     # every shared YCB object at occlusion none / medium (the issue's targets), the default object also heavy
     cases = [(name, occ, None) for name in ycb_objects() for occ in ("none", "medium")]
@@ -203,63 +160,13 @@ def _full(table: BenchTable, seconds: float) -> None:
             obs, Vg, Fg, load_s, info = _session_observations(path, blind)
             tag = "" if blind else " [oracle: GT poses, masks, height maps]"
             n0 = len(table.rows)
+            run = partial(_run, table, obs, Vg, Fg, object_name=short, occlusion=occ, load_s=load_s)
             for mods in MODS:
-                _run(
-                    table,
-                    obs,
-                    Vg,
-                    Fg,
-                    method="tsdf",
-                    mods=mods,
-                    setting="voxel=2mm" + tag,
-                    object_name=short,
-                    occlusion=occ,
-                    load_s=load_s,
-                    voxel_size=0.002,
-                )
+                run(method="tsdf", mods=mods, setting="voxel=2mm" + tag, voxel_size=0.002)
                 if (main or mods != "touch") and (blind or mods == "vision+touch"):
-                    _run(
-                        table,
-                        obs,
-                        Vg,
-                        Fg,
-                        method="neural_sdf",
-                        mods=mods,
-                        setting="iters=400" + tag,
-                        object_name=short,
-                        occlusion=occ,
-                        load_s=load_s,
-                        n_iters=400,
-                    )
+                    run(method="neural_sdf", mods=mods, setting="iters=400" + tag, n_iters=400)
             if blind and main and occ == "none":
-                for vs in (0.0015, 0.003):
-                    _run(
-                        table,
-                        obs,
-                        Vg,
-                        Fg,
-                        method="tsdf",
-                        mods="vision+touch",
-                        setting=f"voxel={vs * 1e3:g}mm",
-                        object_name=short,
-                        occlusion=occ,
-                        load_s=load_s,
-                        voxel_size=vs,
-                    )
-                for it in (300, 600):
-                    _run(
-                        table,
-                        obs,
-                        Vg,
-                        Fg,
-                        method="neural_sdf",
-                        mods="vision+touch",
-                        setting=f"iters={it}",
-                        object_name=short,
-                        occlusion=occ,
-                        load_s=load_s,
-                        n_iters=it,
-                    )
+                _operating_points(run, (0.0015, 0.003), (300, 600))
             for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
                 r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
 
@@ -275,7 +182,7 @@ def run(quick: bool = False) -> BenchTable:
     if quick:
         _quick(table)
         table.notes.append(
-            "quick mode: ray-cast observations (vtrack.fusion.synthetic), soup can; 'heavy' = two "
+            "quick mode: ray-cast observations (vtrack.testing.observations), soup can; 'heavy' = two "
             "views on a 60 deg arc, 30 touch patches on the unseen side."
         )
     else:

@@ -144,7 +144,7 @@ def _scores(m: dict[str, Any]) -> dict[str, Any]:
 def run(quick: bool = False) -> BenchTable:
     """Build the segmentation benchmark table (see module docstring)."""
     from vtrack.frames.segmentation import SegmentationOptions
-    from vtrack.sim.fixtures import DEFAULT_OBJECT, ycb_objects, ycb_session
+    from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
     from vtrack.threads import limit_threads
 
     limit_threads(1)

@@ -30,7 +30,7 @@ MODES = {"vision": ("vision",), "touch": ("touch",), "visuo-tactile": ("vision",
 
 def _timed(tracker, seq, drop=()):
     """Run a synthetic sequence; (errors m, CPU ms per frame, wall ms per frame)."""
-    from vtrack.tracking.synth import run_sequence
+    from vtrack.testing.sequences import run_sequence
 
     c0, t0 = time.process_time(), time.perf_counter()
     _, err = run_sequence(tracker, seq, drop=drop)
@@ -38,11 +38,27 @@ def _timed(tracker, seq, drop=()):
     return err, (time.process_time() - c0) * 1e3 / n, (time.perf_counter() - t0) * 1e3 / n
 
 
+def _add_synth_row(table: BenchTable, method: str, setting: str, mesh: Path, occ: str, err, ms: float, wall: float):
+    """One synthetic-sequence row: ``err`` = per-frame position errors (m), ``ms``/``wall`` per frame."""
+    table.add(
+        method=method,
+        setting=setting,
+        data="synthetic",
+        object=mesh.stem,
+        occlusion=occ,
+        noise=1.0,
+        ms=ms,
+        wall_ms=wall,
+        drift_mm=float(err.mean() * 1e3),
+        drift_max_mm=float(err.max() * 1e3),
+    )
+
+
 def _synth_rows(table: BenchTable, quick: bool) -> None:
     from vtrack.paths import shared_data_dir
+    from vtrack.testing.sequences import make_sequence
     from vtrack.tracking.icp import ICPTracker
     from vtrack.tracking.slam import SLAMTracker
-    from vtrack.tracking.synth import make_sequence
     from vtrack.tracking.tracker import KnownShapeTracker
 
     mesh = shared_data_dir() / "objects" / "ycb" / "006_mustard_bottle.ply"
@@ -54,34 +70,10 @@ def _synth_rows(table: BenchTable, quick: bool) -> None:
             points = OPERATING_POINTS if mode == "visuo-tactile" or not quick else {"default": {}}
             for op, opts in points.items():
                 tr = KnownShapeTracker(mesh, seq.gt[0], **opts)
-                err, ms, wall = _timed(tr, seq, drop)
-                table.add(
-                    method=f"known/{mode}",
-                    setting=f"synth {occ} {op}",
-                    data="synthetic",
-                    object=mesh.stem,
-                    occlusion=occ,
-                    noise=1.0,
-                    ms=ms,
-                    wall_ms=wall,
-                    drift_mm=float(err.mean() * 1e3),
-                    drift_max_mm=float(err.max() * 1e3),
-                )
+                _add_synth_row(table, f"known/{mode}", f"synth {occ} {op}", mesh, occ, *_timed(tr, seq, drop))
         for op, opts in {"icp20": {"iterations": 20}, "icp5": {"iterations": 5}, "icp50": {"iterations": 50}}.items():
             tr = ICPTracker(mesh, seq.gt[0], **opts)
-            err, ms, wall = _timed(tr, seq, ("touch",))
-            table.add(
-                method="icp/vision",
-                setting=f"synth {occ} {op}",
-                data="synthetic",
-                object=mesh.stem,
-                occlusion=occ,
-                noise=1.0,
-                ms=ms,
-                wall_ms=wall,
-                drift_mm=float(err.mean() * 1e3),
-                drift_max_mm=float(err.max() * 1e3),
-            )
+            _add_synth_row(table, "icp/vision", f"synth {occ} {op}", mesh, occ, *_timed(tr, seq, ("touch",)))
         if not quick or occ == "none":
             for op, opts in {
                 "refresh10": {"refresh_every": 10},
@@ -89,19 +81,7 @@ def _synth_rows(table: BenchTable, quick: bool) -> None:
                 "refresh2": {"refresh_every": 2},
             }.items():
                 tr = SLAMTracker(seq.gt[0], **opts)
-                err, ms, wall = _timed(tr, seq)
-                table.add(
-                    method="slam/visuo-tactile",
-                    setting=f"synth {occ} {op}",
-                    data="synthetic",
-                    object=mesh.stem,
-                    occlusion=occ,
-                    noise=1.0,
-                    ms=ms,
-                    wall_ms=wall,
-                    drift_mm=float(err.mean() * 1e3),
-                    drift_max_mm=float(err.max() * 1e3),
-                )
+                _add_synth_row(table, "slam/visuo-tactile", f"synth {occ} {op}", mesh, occ, *_timed(tr, seq))
 
 
 def session_cases(quick: bool) -> list[tuple[str, str, str, float, Path]]:
@@ -110,12 +90,29 @@ def session_cases(quick: bool) -> list[tuple[str, str, str, float, Path]]:
     Every shared YCB object at occlusion none and medium (2 s sessions, the segmentation benchmark's),
     plus the default object under heavy occlusion (5 s) and heavy occlusion with 3x depth noise (2 s).
     """
-    from vtrack.sim.fixtures import DEFAULT_OBJECT, tiny_session_path, ycb_objects, ycb_session
+    from vtrack.testing.sim import DEFAULT_OBJECT, tiny_session_path, ycb_objects, ycb_session
 
     cases = [(o, occ, 1.0, ycb_session(o, occ, 2.0)) for o in ycb_objects() for occ in ("none", "medium")]
     cases.append((DEFAULT_OBJECT, "heavy", 1.0, tiny_session_path(occlusion="heavy", seconds=5.0)))
     cases.append((DEFAULT_OBJECT, "heavy", 3.0, ycb_session(DEFAULT_OBJECT, "heavy", 2.0, depth_noise=3.0)))
     return [(o, occ, f"{o[4:]} {occ} n{nz:g}", nz, p) for o, occ, nz, p in cases]
+
+
+def _add_session_row(table: BenchTable, method: str, setting: str, obj: str, occ: str, noise: float, m: dict):
+    """One simulated-session row from the metrics ``m`` of :func:`vtrack.tracking.run.track_session`."""
+    table.add(
+        method=method,
+        setting=setting,
+        data="sim",
+        object=obj,
+        occlusion=occ,
+        noise=noise,
+        ms=m["cpu_ms_per_frame_mean"],
+        wall_ms=m["ms_per_frame_mean"],
+        **{k: m[k] for k in ("drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "drift_max_mm")},
+        frames=m["frames"],
+        poses_per_s=m["poses_per_s"],
+    )
 
 
 def _session_rows(table: BenchTable, quick: bool) -> None:
@@ -148,23 +145,7 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
             except InputError as e:  # e.g. global registration found nothing with touch only: a result too
                 table.notes.append(f"{name} {setting}: {e}")
                 continue
-            table.add(
-                method=name,
-                setting=setting,
-                data="sim",
-                object=obj,
-                occlusion=occ,
-                noise=noise,
-                ms=m["cpu_ms_per_frame_mean"],
-                wall_ms=m["ms_per_frame_mean"],
-                drift_mm=m["drift_mm"],
-                add_s_mm=m["add_s_mm"],
-                motion_err_mm=m["motion_err_mm"],
-                rot_drift_deg=m["rot_drift_deg"],
-                drift_max_mm=m["drift_max_mm"],
-                frames=m["frames"],
-                poses_per_s=m["poses_per_s"],
-            )
+            _add_session_row(table, name, setting, obj, occ, noise, m)
     # the issue's aggregate: every YCB object, occlusion none and medium (means over objects)
     table.add_group_means(
         by=("method", "occlusion"),
@@ -187,23 +168,7 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
         if op == "default":
             continue  # already in the table
         m = track_session(sess, "", write=False, shape="known_shape", mesh=mesh, **opts)
-        table.add(
-            method="known/visuo-tactile [blind]",
-            setting=f"{setting} {op}",
-            data="sim",
-            object=obj,
-            occlusion=occ,
-            noise=noise,
-            ms=m["cpu_ms_per_frame_mean"],
-            wall_ms=m["ms_per_frame_mean"],
-            drift_mm=m["drift_mm"],
-            add_s_mm=m["add_s_mm"],
-            motion_err_mm=m["motion_err_mm"],
-            rot_drift_deg=m["rot_drift_deg"],
-            drift_max_mm=m["drift_max_mm"],
-            frames=m["frames"],
-            poses_per_s=m["poses_per_s"],
-        )
+        _add_session_row(table, "known/visuo-tactile [blind]", f"{setting} {op}", obj, occ, noise, m)
 
 
 def run(quick: bool = False) -> BenchTable:

@@ -47,7 +47,7 @@ def evaluate(
 
     from vtrack.dome.bundle import load_bundle
     from vtrack.dome.bundle import weights_dir as wdir
-    from vtrack.dome.metrics import evaluate_predictions
+    from vtrack.dome.metrics import evaluate_predictions, set_ground_truth
     from vtrack.dome.model import DomeGeometry
     from vtrack.dome.simulate import make_dataset
     from vtrack.dome.train import Batcher, predict
@@ -65,13 +65,7 @@ def evaluate(
         te = data if data is not None else make_dataset(n_test, test_seed, cfg)
         bte = Batcher(m, te, geo, f"{len(te['image'])}-{test_seed}-{cfg.to_dict()}" if data is None else None)
         pred = predict(model, heads, bte)
-        gt = {
-            "coarse": te["coarse_mm"],
-            "dense": te["dense_mm"],
-            "contact": te["contact_coarse"],
-            "force": te["force_n"],
-            "dense_rest": geo.dense_rest,
-        }
+        gt = set_ground_truth(te, geo.dense_rest)
         r = evaluate_predictions(pred, gt)
         k = min(timing_frames, len(te["image"]))
         r["ms_per_frame"], r["cpu_ms_per_frame"] = time_end_to_end(m, path, te["image"][:k], te["pressure_kpa"][:k])
@@ -86,7 +80,7 @@ def template_baseline(te: dict, geo) -> dict[str, float]:
 
     The reference state is the rest template inflated by the reference pressure (what a net that sees no
     deformation would output)."""
-    from vtrack.dome.metrics import evaluate_predictions
+    from vtrack.dome.metrics import evaluate_predictions, set_ground_truth
 
     n = len(te["image"])
     infl = geo.reference_inflation_mm(np.asarray(te["pressure_kpa"], np.float64))[:, None, None]
@@ -96,13 +90,7 @@ def template_baseline(te: dict, geo) -> dict[str, float]:
         "contact": np.zeros((n, geo.cfg.n_coarse)),
         "force": np.zeros((n, 3)),
     }
-    gt = {
-        "coarse": te["coarse_mm"],
-        "dense": te["dense_mm"],
-        "contact": te["contact_coarse"],
-        "force": te["force_n"],
-        "dense_rest": geo.dense_rest,
-    }
+    gt = set_ground_truth(te, geo.dense_rest)
     return evaluate_predictions(pred, gt)
 
 

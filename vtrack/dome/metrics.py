@@ -23,6 +23,18 @@ def surface_metrics(pred: np.ndarray, gt: np.ndarray, tau_mm: float = 2.0) -> di
     return {"cd": m["chamfer_mm"], "hd95": m["hd95_mm"], "f": m["fscore"]["f"]}
 
 
+def set_ground_truth(data: dict[str, np.ndarray], dense_rest: np.ndarray) -> dict[str, np.ndarray]:
+    """The ``gt`` argument of :func:`evaluate_predictions` for a simulated set (``vtrack.dome.simulate``):
+    coarse / dense surfaces (mm, dome frame), coarse contact, force (N) and the dense rest template (mm)."""
+    return {
+        "coarse": data["coarse_mm"],
+        "dense": data["dense_mm"],
+        "contact": data["contact_coarse"],
+        "force": data["force_n"],
+        "dense_rest": dense_rest,
+    }
+
+
 def evaluate_predictions(pred: dict[str, np.ndarray], gt: dict[str, np.ndarray]) -> dict[str, float]:
     """Mean metrics over a set. ``pred``/``gt``: coarse (N, 256, 3), dense (N, Nd, 3) mm, contact (N, 256),
     force (N, 3) N (pred may also hold ``force_nop``)."""

@@ -148,15 +148,9 @@ class DomeReconstructor:
     @staticmethod
     def _read(image: np.ndarray | str | Path) -> np.ndarray:
         if isinstance(image, (str, Path)):
-            import cv2
+            from vtrack.io.images import read_image
 
-            p = Path(image)
-            if not p.exists():
-                raise InputError("image file not found", path=p)
-            a = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-            if a is None:
-                raise InputError("could not decode image", path=p, expected="PNG/JPG")
-            return a
+            return read_image(image, "gray")
         return np.asarray(image)
 
     def _check_size(self, img: np.ndarray, path=None) -> None:

@@ -348,7 +348,7 @@ def train_all(
     """The full reproducible training: simulate (cached), train GNN and CNN with the same budget, save, eval."""
     import torch
 
-    from vtrack.dome.metrics import evaluate_predictions
+    from vtrack.dome.metrics import evaluate_predictions, set_ground_truth
 
     tc = tc or TrainConfig()
     cfg = cfg or DomeConfig()
@@ -367,13 +367,7 @@ def train_all(
         model.decoder.contact_calib = fit_contact_calibration(model, btr, feats)
         secs = time.time() - t0
         pred = predict(model, heads, bte)
-        gt = {
-            "coarse": te["coarse_mm"],
-            "dense": te["dense_mm"],
-            "contact": te["contact_coarse"],
-            "force": te["force_n"],
-            "dense_rest": geo.dense_rest,
-        }
+        gt = set_ground_truth(te, geo.dense_rest)
         m = evaluate_predictions(pred, gt)
         m["train_seconds"] = secs
         log(f"[{kind}] test: " + " ".join(f"{k}={v:.4f}" for k, v in m.items()))

@@ -235,11 +235,11 @@ class SessionFrames:
 
                 c.gt_mask = gt_mask_stream(self.reader, c.name)
             elif self.segmentation == "pipeline":
-                from vtrack.frames.segmentation import HandAwareSegmenter
+                from vtrack import registry
 
                 k = self.depth_stride
                 h, w = -(-c.cam.height // k), -(-c.cam.width // k)
-                c.segmenter = HandAwareSegmenter(self.kin, c.strided(k, (h, w)), c.T_wc)
+                c.segmenter = registry.load("segmentation")(self.kin, c.strided(k, (h, w)), c.T_wc)
 
     def _joints_at(self, times: np.ndarray) -> np.ndarray | None:
         if self.kin is None:

@@ -96,8 +96,9 @@ class TouchSource:
 
             self.streams = gt_tactile_streams(reader, self.sensors)
             return
-        from vtrack.tactile.pipeline import TactilePipeline
+        from vtrack import registry
 
+        TactilePipeline = registry.load("tactile")
         for s in self.sensors:
             i, spec = specs[s]
             if spec.calibration is None:

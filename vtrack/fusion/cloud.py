@@ -228,15 +228,7 @@ def from_rgbd(
     Confidence is ``|cos|`` of the angle between the viewing ray and the normal (grazing
     measurements are the noisiest); points without a normal get confidence 0.25.
     """
-    z = camera.depth_to_meters(depth, depth_scale)
-    valid = np.isfinite(z) & (z > min_depth) & (z < max_depth)
-    if mask is not None:
-        m = np.asarray(mask)
-        if m.shape != z.shape:
-            raise InputError(
-                "mask size does not match the depth image", field="mask", expected=str(z.shape), got=m.shape
-            )
-        valid &= m.astype(bool)
+    z, valid = camera.valid_depth(depth, mask, depth_scale, min_depth, max_depth)
     if not valid.any():
         out = UnifiedCloud.empty()
         out.sensor_names = list(sensor_names or [])

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -103,6 +104,43 @@ class _SDFNet:
         return {"tables": [t.detach().clone() for t in self.tables], "mlp": self.mlp.state_dict()}
 
 
+@dataclass
+class NeuralSDFConfig:
+    """Options of :class:`NeuralSDFReconstructor` and their defaults (the one place they are set; the offline
+    iteration count is :data:`OFFLINE_ITERS`).
+
+    extent: half-size (m) of the online default box. cell_mm: target finest grid cell (mm); the finest
+    resolution is clipped to ``max_res``. levels: number of grid levels (resolutions geometric from 8 to the
+    finest). features, hidden: feature channels per level, MLP width. lr: Adam learning rate. batch: surface
+    samples per iteration (other terms scale with it). touch_weight: per-point weight of touch relative to
+    vision; touch_fraction: share of the surface batch drawn from touch points when there are any. trunc:
+    truncation band (m) for the ray samples. normal_offset: max along-normal offset (m). sdf_scale (m),
+    eikonal_weight, normal_weight, free_weight: loss terms. mesh_cell_mm: marching-cubes cell (mm).
+    max_points: replay-buffer capacity (points). keep_largest: keep the mesh's largest component. seed: RNG.
+    """
+
+    extent: float = 0.12
+    cell_mm: float = 2.5
+    levels: int = 4
+    max_res: int = 64
+    features: int = 2
+    hidden: int = 64
+    lr: float = 4e-3
+    batch: int = 512
+    touch_weight: float = 3.0
+    touch_fraction: float = 0.35
+    trunc: float = 0.01
+    normal_offset: float = 0.004
+    sdf_scale: float = 0.005
+    eikonal_weight: float = 0.05
+    normal_weight: float = 0.1
+    free_weight: float = 0.5
+    mesh_cell_mm: float = 1.5
+    max_points: int = 300_000
+    keep_largest: bool = True
+    seed: int = 0
+
+
 class NeuralSDFReconstructor:
     """Neural SDF mapper in the object frame (metres); see the module docstring.
 
@@ -110,67 +148,19 @@ class NeuralSDFReconstructor:
         bounds: ((xmin, ymin, zmin), (xmax, ymax, zmax)) object-frame box, m. If None it is taken from
             the data: all observations in :meth:`fit`, or the first integrated frame's centroid +-
             ``extent`` online.
-        extent: half-size (m) of the online default box.
-        cell_mm: target finest grid cell (mm); the finest resolution is clipped to ``max_res``.
-        levels: number of grid levels (resolutions geometric from 8 to the finest).
-        features, hidden: feature channels per level, MLP width.
-        lr: Adam learning rate. batch: surface samples per iteration (other terms scale with it).
-        touch_weight: per-point weight of touch relative to vision; touch_fraction: share of the
-            surface batch drawn from touch points when there are any.
-        trunc: truncation band (m) for the ray samples. normal_offset: max along-normal offset (m).
-        mesh_cell_mm: marching-cubes cell (mm).
-        max_points: replay-buffer capacity (points).
+        config: options (:class:`NeuralSDFConfig`); ``opts`` override single fields of it by name
+            (``NeuralSDFReconstructor(batch=256)``); an unknown name raises :class:`InputError`.
         threads: torch threads (None = leave as is).
     """
 
     def __init__(
-        self,
-        bounds: Any = None,
-        *,
-        extent: float = 0.12,
-        cell_mm: float = 2.5,
-        levels: int = 4,
-        max_res: int = 64,
-        features: int = 2,
-        hidden: int = 64,
-        lr: float = 4e-3,
-        batch: int = 512,
-        touch_weight: float = 3.0,
-        touch_fraction: float = 0.35,
-        trunc: float = 0.01,
-        normal_offset: float = 0.004,
-        sdf_scale: float = 0.005,
-        eikonal_weight: float = 0.05,
-        normal_weight: float = 0.1,
-        free_weight: float = 0.5,
-        mesh_cell_mm: float = 1.5,
-        max_points: int = 300_000,
-        keep_largest: bool = True,
-        seed: int = 0,
-        threads: int | None = None,
+        self, bounds: Any = None, *, config: NeuralSDFConfig | None = None, threads: int | None = None, **opts: Any
     ) -> None:
-        self.opts = dict(
-            extent=extent,
-            cell_mm=cell_mm,
-            levels=levels,
-            max_res=max_res,
-            features=features,
-            hidden=hidden,
-            lr=lr,
-            batch=batch,
-            touch_weight=touch_weight,
-            touch_fraction=touch_fraction,
-            trunc=trunc,
-            normal_offset=normal_offset,
-            sdf_scale=sdf_scale,
-            eikonal_weight=eikonal_weight,
-            normal_weight=normal_weight,
-            free_weight=free_weight,
-            mesh_cell_mm=mesh_cell_mm,
-            max_points=max_points,
-            keep_largest=keep_largest,
-            seed=seed,
-        )
+        from vtrack.config import build_config
+
+        self.config = build_config(NeuralSDFConfig, opts, "neural SDF", base=config)
+        self.opts = asdict(self.config)
+        seed = self.config.seed
         if threads:
             _torch().set_num_threads(int(threads))
         self.net: _SDFNet | None = None

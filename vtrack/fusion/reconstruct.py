@@ -22,9 +22,6 @@ from vtrack.io.jsonio import write_json
 
 METHODS = ("neural_sdf", "tsdf")
 
-#: per-method default options (overridable through ``**opts``); the iteration count is the neural SDF's own
-NEURAL_DEFAULTS: dict[str, Any] = {"n_iters": None}
-
 
 def _parse_modalities(modalities: Any) -> tuple[str, ...]:
     if isinstance(modalities, str):
@@ -67,9 +64,9 @@ def reconstruct_observations(
             mesh_seconds=time.perf_counter() - t_int,
         )
     else:
-        o2 = {**NEURAL_DEFAULTS, **opts}
-        n_iters = o2.pop("n_iters")
-        if n_iters is None:
+        o2 = dict(opts)
+        n_iters = o2.pop("n_iters", None)
+        if n_iters is None:  # the offline default lives with the reconstructor
             from vtrack.fusion.neural_sdf import OFFLINE_ITERS
 
             n_iters = OFFLINE_ITERS

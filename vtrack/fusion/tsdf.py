@@ -11,6 +11,7 @@ so touch counts as high-confidence surface that vision cannot erase. Mesh by Ope
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -19,51 +20,60 @@ from vtrack.fusion.cloud import TOUCH
 from vtrack.geometry import se3
 
 
+@dataclass
+class TSDFConfig:
+    """Options of :class:`TSDFReconstructor` and their defaults (the one place they are set).
+
+    voxel_size: m (default 2 mm). block_resolution: voxels per block edge. block_count: initial hash-map
+    capacity (grows as needed). trunc_voxels: vision truncation in voxels (``trunc_voxel_multiplier``).
+    touch_trunc_voxels: truncation for touch splats (narrow: touch is exact). touch_weight: TSDF weight of
+    one touch frame (one camera frame weighs 1 per voxel). depth_max: m, beyond which depth is ignored.
+    max_patch_m: touch points farther than this from their frame's median point are outliers.
+    weight_threshold: min weight for meshing.
+    """
+
+    voxel_size: float = 0.002
+    block_resolution: int = 8
+    block_count: int = 20000
+    trunc_voxels: float = 4.0
+    touch_trunc_voxels: float = 2.0
+    touch_weight: float = 3.0
+    depth_max: float = 3.0
+    max_patch_m: float = 0.05
+    weight_threshold: float = 1.0
+
+
 class TSDFReconstructor:
     """Tensor TSDF (``o3d.t.geometry.VoxelBlockGrid``) fed with object-frame observations.
 
     Args:
-        voxel_size: m (default 2 mm). block_resolution: voxels per block edge.
-        block_count: initial hash-map capacity (grows as needed).
-        trunc_voxels: vision truncation in voxels (``trunc_voxel_multiplier``).
-        touch_trunc_voxels: truncation for touch splats (narrow: touch is exact).
-        touch_weight: TSDF weight of one touch frame (one camera frame weighs 1 per voxel).
-        depth_max: m, beyond which depth is ignored. weight_threshold: min weight for meshing.
-        max_patch_m: touch points farther than this from their frame's median point are outliers.
+        config: options (:class:`TSDFConfig`); ``opts`` override single fields of it by name
+            (``TSDFReconstructor(voxel_size=0.004)``); an unknown name raises :class:`InputError`.
     """
 
-    def __init__(
-        self,
-        voxel_size: float = 0.002,
-        *,
-        block_resolution: int = 8,
-        block_count: int = 20000,
-        trunc_voxels: float = 4.0,
-        touch_trunc_voxels: float = 2.0,
-        touch_weight: float = 3.0,
-        depth_max: float = 3.0,
-        max_patch_m: float = 0.05,
-        weight_threshold: float = 1.0,
-    ) -> None:
+    def __init__(self, config: TSDFConfig | None = None, **opts: Any) -> None:
         import open3d as o3d
 
+        from vtrack.config import build_config
+
+        self.config = c = build_config(TSDFConfig, opts, "TSDF", base=config)
         self.o3d = o3d
-        self.voxel_size = float(voxel_size)
-        self.trunc_voxels = float(trunc_voxels)
-        self.touch_trunc_voxels = float(touch_trunc_voxels)
-        self.touch_weight = float(touch_weight)
-        self.block_resolution = int(block_resolution)
-        self.max_patch_m = float(max_patch_m)
-        self.depth_max = float(depth_max)
-        self.weight_threshold = float(weight_threshold)
+        self.voxel_size = float(c.voxel_size)
+        self.trunc_voxels = float(c.trunc_voxels)
+        self.touch_trunc_voxels = float(c.touch_trunc_voxels)
+        self.touch_weight = float(c.touch_weight)
+        self.block_resolution = int(c.block_resolution)
+        self.max_patch_m = float(c.max_patch_m)
+        self.depth_max = float(c.depth_max)
+        self.weight_threshold = float(c.weight_threshold)
         self.device = o3d.core.Device("CPU:0")
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight"),
             attr_dtypes=(o3d.core.float32, o3d.core.float32),
             attr_channels=((1,), (1,)),
             voxel_size=self.voxel_size,
-            block_resolution=int(block_resolution),
-            block_count=int(block_count),
+            block_resolution=int(c.block_resolution),
+            block_count=int(c.block_count),
             device=self.device,
         )
         self.frames = {"vision": 0, "touch": 0, "skipped": 0}

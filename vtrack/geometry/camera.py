@@ -67,6 +67,31 @@ class PinholeCamera:
             return d.astype(np.float64)
         raise InputError("unsupported depth dtype", field="depth", expected="uint16 or float", got=str(d.dtype))
 
+    def valid_depth(
+        self,
+        depth: np.ndarray,
+        mask: np.ndarray | None,
+        depth_scale: float,
+        min_depth: float,
+        max_depth: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(z metres (H, W), valid (H, W) bool): finite depth inside ``(min_depth, max_depth)`` m and, when a
+        ``mask`` is given, inside it (non-zero = keep).
+
+        Raises:
+            InputError: the mask's size differs from the depth image's.
+        """
+        z = self.depth_to_meters(depth, depth_scale)
+        valid = np.isfinite(z) & (z > min_depth) & (z < max_depth)
+        if mask is not None:
+            m = np.asarray(mask)
+            if m.shape != z.shape:
+                raise InputError(
+                    "mask size does not match the depth image", field="mask", expected=str(z.shape), got=m.shape
+                )
+            valid &= m.astype(bool)
+        return z, valid
+
     def unproject(
         self,
         depth: np.ndarray,
@@ -87,15 +112,7 @@ class PinholeCamera:
         Returns:
             points (N, 3) float64 in metres (camera frame) and pixel indices (N, 2) as (row, col).
         """
-        z = self.depth_to_meters(depth, depth_scale)
-        valid = np.isfinite(z) & (z > min_depth) & (z < max_depth)
-        if mask is not None:
-            m = np.asarray(mask)
-            if m.shape != z.shape:
-                raise InputError(
-                    "mask size does not match the depth image", field="mask", expected=str(z.shape), got=m.shape
-                )
-            valid &= m.astype(bool)
+        z, valid = self.valid_depth(depth, mask, depth_scale, min_depth, max_depth)
         if stride > 1:
             sub = np.zeros_like(valid)
             sub[::stride, ::stride] = True

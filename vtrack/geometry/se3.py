@@ -95,13 +95,18 @@ def rotate_vectors(T_or_R: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...nj->...ni", M, np.asarray(vectors, dtype=np.float64))
 
 
-def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3) (Rodrigues)."""
+def _rotation_angle_terms(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Shared start of the SO(3) series: (phi as float64 (..., 3), theta^2 (..., 1, 1), small = theta^2 below
+    the series threshold, safe = theta with 1 where small (no division by zero in the closed forms))."""
     phi = _as_f64(phi, "phi", (3,))
     theta2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
     small = theta2 < _EPS
-    safe = np.where(small, 1.0, theta)
+    return phi, theta2, small, np.where(small, 1.0, np.sqrt(theta2))
+
+
+def so3_exp(phi: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3) (Rodrigues)."""
+    phi, theta2, small, safe = _rotation_angle_terms(phi)
     A = np.where(small, 1.0 - theta2 / 6.0 + theta2**2 / 120.0, np.sin(safe) / safe)
     B = np.where(small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0, (1.0 - np.cos(safe)) / (safe * safe))
     K = hat(phi)
@@ -144,11 +149,7 @@ def so3_log(R: np.ndarray) -> np.ndarray:
 
 def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
     """Left Jacobian J(phi) of SO(3), (..., 3, 3)."""
-    phi = _as_f64(phi, "phi", (3,))
-    theta2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
-    small = theta2 < _EPS
-    safe = np.where(small, 1.0, theta)
+    phi, theta2, small, safe = _rotation_angle_terms(phi)
     B = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
     C = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (safe - np.sin(safe)) / (safe**3))
     K = hat(phi)
@@ -157,11 +158,7 @@ def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
 
 def so3_left_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     """Inverse of the SO(3) left Jacobian, (..., 3, 3); valid for |phi| < 2 pi."""
-    phi = _as_f64(phi, "phi", (3,))
-    theta2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
-    small = theta2 < _EPS
-    safe = np.where(small, 1.0, theta)
+    phi, theta2, small, safe = _rotation_angle_terms(phi)
     D = np.where(
         small,
         1.0 / 12.0 + theta2 / 720.0,

@@ -5,10 +5,14 @@ layer), ``reconstruct`` (TSDF integration per camera frame).
 (:meth:`vtrack.tracking.tracker.KnownShapeTracker.step`,
 :meth:`vtrack.fusion.tsdf.TSDFReconstructor.integrate_depth`) on the newest data: joints and
 tactile frames update state; each camera frame triggers one step.
+
+Consumers are registry components (``live.<kind>``, :func:`make_consumer`); their options are typed
+(:class:`LiveTrackConfig`, :class:`LiveReconstructConfig`) with the defaults set there.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,12 +23,31 @@ from vtrack.live.pipeline import Consumer
 from vtrack.live.sources import FrameEvent
 
 
+@dataclass
+class LiveTrackConfig:
+    """Options of :class:`TrackConsumer`: depth_stride = keep every k-th depth pixel (rows and columns);
+    the tracker's own options are :class:`vtrack.tracking.window.TrackerOptions` (passed through)."""
+
+    depth_stride: int = 4
+
+
+@dataclass
+class LiveReconstructConfig:
+    """Options of :class:`ReconstructConsumer`: the live TSDF is coarser than the offline one
+    (:class:`vtrack.fusion.tsdf.TSDFConfig`, 2 mm) to keep up with the camera. voxel_size m; block_count =
+    initial TSDF hash-map capacity; depth_stride = keep every k-th depth pixel for segmentation."""
+
+    voxel_size: float = 0.004
+    block_count: int = 4000
+    depth_stride: int = 4
+
+
 class NullConsumer(Consumer):
     """Touches every field of every frame (a checksum) so the replay + transport cost is measured."""
 
     name = "null"
 
-    def __init__(self) -> None:
+    def __init__(self, session: str | Path | None = None) -> None:
         self.checksum = 0
 
     def process(self, event: FrameEvent) -> None:
@@ -49,14 +72,20 @@ class TrackConsumer(Consumer):
     def __init__(
         self,
         session: str | Path,
-        depth_stride: int = 4,
         mesh: str | Path | None = None,
         init_pose: np.ndarray | None = None,
+        *,
+        config: LiveTrackConfig | None = None,
+        depth_stride: int | None = None,
         **tracker_opts: Any,
     ) -> None:
         from vtrack.frames.session import SessionFrames
         from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
 
+        self.config = config or LiveTrackConfig()
+        if depth_stride is not None:
+            self.config = LiveTrackConfig(depth_stride=depth_stride)
+        depth_stride = self.config.depth_stride
         self.session = Path(session)
         try:
             self.sf = SessionFrames(
@@ -158,13 +187,20 @@ class ReconstructConsumer(Consumer):
     name = "reconstruct"
 
     def __init__(
-        self, session: str | Path, voxel_size: float = 0.004, poses: str | Path | None = None, depth_stride: int = 4
+        self,
+        session: str | Path,
+        poses: str | Path | None = None,
+        *,
+        config: LiveReconstructConfig | None = None,
+        **opts: Any,
     ) -> None:
         from vtrack import registry
+        from vtrack.config import build_config
         from vtrack.frames.session import SessionFrames
 
-        self.sf = SessionFrames(session, modalities=("vision",), depth_stride=depth_stride)
-        self.tsdf = registry.load("reconstruction.tsdf")(voxel_size=voxel_size, block_count=4000)
+        self.config = c = build_config(LiveReconstructConfig, opts, "live reconstruction", base=config)
+        self.sf = SessionFrames(session, modalities=("vision",), depth_stride=c.depth_stride)
+        self.tsdf = registry.load("reconstruction.tsdf")(voxel_size=c.voxel_size, block_count=c.block_count)
         self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
         if not self.cams:
             raise InputError("live reconstruction needs a camera stream", path=self.sf.path)
@@ -205,13 +241,14 @@ class ReconstructConsumer(Consumer):
 
 
 def make_consumer(kind: str, session: str | Path, **opts: Any) -> Consumer:
-    if kind == "null":
-        return NullConsumer()
-    if kind == "track":
-        return TrackConsumer(session, **opts)
-    if kind == "reconstruct":
-        return ReconstructConsumer(session, **opts)
-    raise InputError("unknown live consumer", field="--consumer", expected="track|reconstruct|null", got=kind)
+    """The live consumer ``kind`` (``track`` | ``reconstruct`` | ``null``, registry key ``live.<kind>``) on
+    ``session`` with its options (see the consumer's config)."""
+    from vtrack import registry
+
+    kinds = [k.split(".", 1)[1] for k in registry.COMPONENTS if k.startswith("live.")]
+    if kind not in kinds:
+        raise InputError("unknown live consumer", field="--consumer", expected="|".join(kinds), got=kind)
+    return registry.load(f"live.{kind}")(session, **opts)
 
 
 def replay_streams(session: str | Path, consumers: list[Consumer]) -> list[str]:

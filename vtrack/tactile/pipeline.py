@@ -86,14 +86,11 @@ def auto_downsample(shape_hw: tuple[int, int]) -> int:
     return 1
 
 
-class TactilePipeline:
-    """Image -> height -> contact -> points for one vision-based tactile sensor.
+@dataclass
+class TactileConfig:
+    """Tuning of :class:`TactilePipeline` and its defaults (the one place they are set).
 
-    Args:
-        calib: a :class:`Calibration` (or path to its ``.npz``); None -> Lambertian model (matches
-            :func:`vtrack.tactile.render.render_tactile_image` without calibration).
-        mm_per_px: pixel pitch (default: the calibration's).
-        background: no-contact BGR frame (default: the calibration's; with neither, the first frame).
+    Attributes:
         solver: ``dct`` (default), ``fft`` or ``lsq`` (masked sparse LSQ on the colour-change region).
         downsample: working-resolution factor for slopes + Poisson (1 = full resolution); outputs are
             resized back to full resolution. ``"auto"`` (default) picks the operating point on the Pareto
@@ -103,7 +100,7 @@ class TactilePipeline:
         contact_threshold_mm: minimum indentation counted as contact (noise-aware floor, see contact.py).
         contact_rel: also require ``h > contact_rel * max(h)`` (rejects the deformed skirt around a contact).
         point_stride: keep every n-th contact pixel (in working pixels) as a point.
-        markers / slip / force_model: optional extra stages.
+        markers / slip: optional extra stages (marker tracking, slip detection).
         drift_compensation: remove a global per-channel colour offset (illumination/background drift),
             estimated as the median colour change over the frame (contact covers a minority of pixels); only
             applied when the median absolute deviation of the change is <= ``drift_max_spread`` grey levels.
@@ -113,6 +110,34 @@ class TactilePipeline:
             reported with ``quality`` "saturated"/"dark" and no contact instead of a meaningless height map.
     """
 
+    solver: str = "dct"
+    downsample: int | str = "auto"
+    contact_threshold_mm: float = 0.05
+    contact_rel: float = 0.15
+    point_stride: int = 1
+    markers: bool = False
+    slip: bool = False
+    drift_compensation: bool = True
+    drift_max_spread: float = 6.0
+    gate_k: float = 2.0
+    bad_fraction: float = 0.5
+
+
+class TactilePipeline:
+    """Image -> height -> contact -> points for one vision-based tactile sensor.
+
+    Args:
+        calib: a :class:`Calibration` (or path to its ``.npz``); None -> Lambertian model (matches
+            :func:`vtrack.tactile.render.render_tactile_image` without calibration).
+        mm_per_px: pixel pitch (default: the calibration's).
+        background: no-contact BGR frame (default: the calibration's; with neither, the first frame).
+        image_shape: (H, W) px of the images when there is no calibration.
+        force_model: optional force estimator (:mod:`vtrack.tactile.force`).
+        sensor_name: the scene's name of the sensor.
+        config: tuning (:class:`TactileConfig`); ``opts`` override single fields of it by name
+            (``TactilePipeline(calib, downsample=2)``); an unknown name raises :class:`InputError`.
+    """
+
     def __init__(
         self,
         calib: Calibration | str | Path | None = None,
@@ -120,24 +145,19 @@ class TactilePipeline:
         mm_per_px: float | None = None,
         background: np.ndarray | None = None,
         image_shape: tuple[int, int] | None = None,
-        solver: str = "dct",
-        downsample: int | str = "auto",
-        contact_threshold_mm: float = 0.05,
-        contact_rel: float = 0.15,
-        point_stride: int = 1,
-        markers: bool = False,
-        slip: bool = False,
         force_model: Any = None,
-        drift_compensation: bool = True,
-        drift_max_spread: float = 6.0,
-        gate_k: float = 2.0,
-        bad_fraction: float = 0.5,
         sensor_name: str = "tactile",
+        config: TactileConfig | None = None,
+        **opts: Any,
     ) -> None:
+        from vtrack.config import build_config
+
+        self.config = c = build_config(TactileConfig, opts, "tactile pipeline", base=config)
         if isinstance(calib, (str, Path)):
             calib = Calibration.load(calib)
-        if solver not in ("dct", "fft", "lsq"):
-            raise InputError("unknown Poisson solver", field="solver", expected="dct | fft | lsq", got=solver)
+        if c.solver not in ("dct", "fft", "lsq"):
+            raise InputError("unknown Poisson solver", field="solver", expected="dct | fft | lsq", got=c.solver)
+        downsample = c.downsample
         self._auto_downsample = downsample == "auto"
         if self._auto_downsample:
             downsample = 1  # resolved from the image size in set_background
@@ -148,15 +168,15 @@ class TactilePipeline:
         self.mm_per_px = float(mm_per_px if mm_per_px is not None else (calib.mm_per_px if calib else 0.0))
         if not self.mm_per_px > 0:
             raise InputError("mm_per_px is required without a calibration", field="mm_per_px", expected="> 0")
-        self.solver = solver
+        self.solver = c.solver
         self.downsample = int(downsample)
-        self.contact_threshold_mm = float(contact_threshold_mm)
-        self.contact_rel = float(contact_rel)
-        self.point_stride = max(1, int(point_stride))
-        self.drift_compensation = bool(drift_compensation)
-        self.drift_max_spread = float(drift_max_spread)
-        self.gate_k = float(gate_k)
-        self.bad_fraction = float(bad_fraction)
+        self.contact_threshold_mm = float(c.contact_threshold_mm)
+        self.contact_rel = float(c.contact_rel)
+        self.point_stride = max(1, int(c.point_stride))
+        self.drift_compensation = bool(c.drift_compensation)
+        self.drift_max_spread = float(c.drift_max_spread)
+        self.gate_k = float(c.gate_k)
+        self.bad_fraction = float(c.bad_fraction)
         self.image_shape = image_shape if calib is None else calib.shape
         self._bg_full: np.ndarray | None = None
         self._bg_work: np.ndarray | None = None
@@ -168,12 +188,12 @@ class TactilePipeline:
         if bg is not None:
             self.set_background(bg)
         self.markers = None
-        if markers:
+        if c.markers:
             from vtrack.tactile.markers import MarkerTracker
 
             self.markers = MarkerTracker(mm_per_px=self.mm_per_px)
         self.slip = None
-        if slip:
+        if c.slip:
             from vtrack.tactile.slip import SlipDetector
 
             self.slip = SlipDetector()

@@ -20,6 +20,7 @@ import csv
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -56,6 +57,13 @@ class PressSet:
     detections: list = field(default_factory=list, repr=False)  # autolabel Detections (auto sets only)
     _cache: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
+    @classmethod
+    def from_meta(cls, root: Path, presses: list[Press], meta: dict, **kw: Any) -> PressSet:
+        """A press set whose sensor, pitch (and its source) and ball radius come from a checked ``meta.json``
+        dict (:func:`load_press_set`)."""
+        keys = ("sensor", "mm_per_px", "ball_radius_mm", "mm_per_px_source")
+        return cls(root, presses, **{k: meta[k] for k in keys}, **kw)
+
     @property
     def ball_radius_px(self) -> float:
         return self.ball_radius_mm / self.mm_per_px
@@ -69,15 +77,12 @@ class PressSet:
         return self._cache[name]
 
     def background(self) -> np.ndarray:
-        bg = self.read(self.background_file)
-        if float(bg.std()) < 2.0:
-            raise InputError(
-                "background image is blank (constant colour)",
-                path=self.root / self.background_file,
-                expected="the sensor's no-contact tactile image",
-                got=f"std {float(bg.std()):.2f}",
-            )
-        return bg
+        return _not_blank(
+            self.read(self.background_file),
+            self.root / self.background_file,
+            "background image",
+            "the sensor's no-contact tactile image",
+        )
 
     def image(self, press: Press) -> np.ndarray:
         img = self.read(press.file)
@@ -89,16 +94,7 @@ class PressSet:
                 expected=str(bg.shape),
                 got=img.shape,
             )
-        # A blank (all-black, all-white, constant) frame carries no press; calibrating on it gives a
-        # calibration that looks fine but is ~40 degrees off (issue #22).
-        if float(img.std()) < 2.0:
-            raise InputError(
-                "press image is blank (constant colour)",
-                path=self.root / press.file,
-                expected="a tactile image of a ball press",
-                got=f"std {float(img.std()):.2f}",
-            )
-        return img
+        return _not_blank(img, self.root / press.file, "press image", "a tactile image of a ball press")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -112,16 +108,22 @@ class PressSet:
         return train, test
 
 
+def _not_blank(img: np.ndarray, path: Path, what: str, expected: str) -> np.ndarray:
+    """``img`` unless it is blank (all-black, all-white, constant: colour std < 2 levels). A blank frame carries
+    no press; calibrating on it gives a calibration that looks fine but is ~40 degrees off (issue #22)."""
+    if float(img.std()) < 2.0:
+        raise InputError(
+            f"{what} is blank (constant colour)", path=path, expected=expected, got=f"std {float(img.std()):.2f}"
+        )
+    return img
+
+
 def read_bgr(path: str | Path) -> np.ndarray:
     """Read an 8-bit 3-channel image (BGR) with a clear error when it is missing or unreadable."""
-    import cv2
+    from vtrack.io.images import read_image
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError("image file not found", path=path)
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError("cannot decode image", path=path, expected="PNG/JPEG readable by OpenCV")
+    img = read_image(path)
     # Tactile calibration maps colour to surface slope: a grey image has lost that information and
     # would give a confidently wrong contact, so it is refused rather than silently expanded to BGR.
     if img.ndim == 2 or img.shape[2] == 1:
@@ -285,14 +287,7 @@ def load_press_set(
     if not csv_path.is_file():
         raise InputError("labels.csv not found in the press set", path=csv_path)
     presses = read_labels(csv_path)
-    return PressSet(
-        root,
-        presses,
-        meta["sensor"],
-        meta["mm_per_px"],
-        meta["ball_radius_mm"],
-        mm_per_px_source=meta["mm_per_px_source"],
-    )
+    return PressSet.from_meta(root, presses, meta)
 
 
 def read_labels(labels: Path) -> list[Press]:
@@ -338,17 +333,7 @@ def _auto_press_set(root: Path, meta: dict, opts) -> PressSet:
             path=root,
             expected=f">= {MIN_PRESSES} ball presses with a clear contact",
         )
-    ps = PressSet(
-        root,
-        presses,
-        meta["sensor"],
-        meta["mm_per_px"],
-        meta["ball_radius_mm"],
-        mm_per_px_source=meta["mm_per_px_source"],
-    )
-    ps.labels_source = "auto"
-    ps.detections = dets
-    return ps
+    return PressSet.from_meta(root, presses, meta, labels_source="auto", detections=dets)
 
 
 def sphere_truth(

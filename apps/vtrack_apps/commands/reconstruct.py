@@ -26,8 +26,8 @@ def register(app: typer.Typer) -> None:
             "pipeline", "--segmentation", help="pipeline (no GT) | gt (ORACLE masks) | none"
         ),
         online: bool = typer.Option(False, "--online", help="neural SDF: frame-by-frame with a time budget"),
-        iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = default)"),
-        voxel_mm: float = typer.Option(0.0, "--voxel-mm", help="TSDF voxel size in mm (0 = default 2)"),
+        iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = OFFLINE_ITERS)"),
+        voxel_mm: float = typer.Option(0.0, "--voxel-mm", help="TSDF voxel size in mm (0 = TSDFConfig default)"),
         no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
     ) -> None:

@@ -46,9 +46,9 @@ def register(app: typer.Typer) -> None:
         sensor: str = typer.Option(None, "--sensor", help="override meta: sensor name"),
         mm_per_px: float = typer.Option(None, "--mm-per-px", help="override meta: pixel pitch, mm"),
         ball_radius_mm: float = typer.Option(None, "--ball-radius-mm", help="override meta: ball radius, mm"),
-        lut_bins: int = typer.Option(32, "--lut-bins", help="LUT bins per colour channel"),
-        mlp_hidden: int = typer.Option(32, "--mlp-hidden", help="MLP hidden width"),
-        mlp_epochs: int = typer.Option(12, "--mlp-epochs", help="MLP training epochs"),
+        lut_bins: int = typer.Option(None, "--lut-bins", help="LUT bins per colour channel (default: TrainOptions)"),
+        mlp_hidden: int = typer.Option(None, "--mlp-hidden", help="MLP hidden width (default: TrainOptions)"),
+        mlp_epochs: int = typer.Option(None, "--mlp-epochs", help="MLP training epochs (default: TrainOptions)"),
         downsample: int = typer.Option(1, "--downsample", help="working-resolution factor for the evaluation"),
         labels: str = typer.Option(
             "hand_or_auto", "--labels", help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"
@@ -71,7 +71,9 @@ def register(app: typer.Typer) -> None:
             raise InputError(
                 "unknown calibration method", field="--method", expected=" | ".join(METHODS + ("auto",)), got=method
             )
-        opts = TrainOptions(lut_bins=lut_bins, mlp_hidden=mlp_hidden, mlp_epochs=mlp_epochs)
+        # defaults live in TrainOptions only (the CLI used to train a 32-wide MLP while the library's is 64)
+        given = {"lut_bins": lut_bins, "mlp_hidden": mlp_hidden, "mlp_epochs": mlp_epochs}
+        opts = TrainOptions(**{k: v for k, v in given.items() if v is not None})
         run = calibrate_press_set(
             pressset,
             method=method,

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.io.images import read_image
 from vtrack.io.importers.report import ImportReport
 from vtrack.io.streams import encode_depth
 
@@ -54,15 +55,6 @@ def _numbered_images(folder: Path) -> list[Path]:
         return (int(m[-1]) if m else -1, p.name)
 
     return sorted(files, key=key)
-
-
-def _imread(path: Path, flags: int) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise InputError("cannot decode image (truncated, corrupt or not an image)", path=path)
-    return img
 
 
 #: The only globals a ``data.pkl`` may reference unless the user trusts it: numpy arrays, dtypes and
@@ -400,7 +392,7 @@ def import_feelsight(
         check_count(f"realsense/{cname}/image", len(c["image"]))
         if len(depth) < frames[-1] + 1:
             raise InputError(f"depth archive has {len(depth)} frames, need {frames[-1] + 1}", path=c["depth_path"])
-        first = _imread(c["image"][frames[0]], 1)
+        first = read_image(c["image"][frames[0]], "color")
         h, w = first.shape[:2]
         if tuple(depth.shape[1:]) != (h, w):
             raise InputError(
@@ -430,7 +422,7 @@ def import_feelsight(
         scene.setdefault("cameras", []).append(camera_entry(cname, K, w, h, T, depth_scale=store_scale, rate_hz=rate))
     tac_names = {}
     for fname, f in fingers.items():
-        first = _imread(f["image"][frames[0]], 1)
+        first = read_image(f["image"][frames[0]], "color")
         h, w = first.shape[:2]
         name = f"digit_{fname}"
         tac_names[fname] = (name, h, w)
@@ -511,25 +503,25 @@ def import_feelsight(
             ti = float(t[i])
             for cname, (depth, scale, with_mask) in cam_specs.items():
                 c = cams[cname]
-                rgb = cv2.cvtColor(_imread(c["image"][i], 1), cv2.COLOR_BGR2RGB)
+                rgb = cv2.cvtColor(read_image(c["image"][i], "color"), cv2.COLOR_BGR2RGB)
                 d = encode_depth(depth[i], scale)
                 vals = {"rgb": rgb, "depth": d}
                 if with_mask:
-                    vals["mask"] = (_imread(c["seg"][i], 0) > 127).astype(np.uint8)
+                    vals["mask"] = (read_image(c["seg"][i], "gray") > 127).astype(np.uint8)
                 _check_shape(vals["rgb"], (d.shape[0], d.shape[1], 3), c["image"][i])
                 w.append(f"camera/{cname}", ti, **vals)
             for fname, (name, h, wd) in tac_names.items():
                 f = fingers[fname]
-                img = _imread(f["image"][i], 1)
+                img = read_image(f["image"][i], "color")
                 _check_shape(img, (h, wd, 3), f["image"][i])
                 w.append(f"tactile/{name}", ti, image=img)
                 if f["depth"] or f["mask"]:
                     vals = {}
                     if f["depth"]:
-                        vals["depth_u8"] = _imread(f["depth"][i], 0)
+                        vals["depth_u8"] = read_image(f["depth"][i], "gray")
                         _check_shape(vals["depth_u8"], (h, wd), f["depth"][i])
                     if f["mask"]:
-                        m = _imread(f["mask"][i], 0)
+                        m = read_image(f["mask"][i], "gray")
                         _check_shape(m, (h, wd), f["mask"][i])
                         vals["contact"] = (m > 127).astype(np.uint8)
                     w.append(f"gt/tactile_raw/{name}", ti, **vals)

@@ -5,29 +5,19 @@ Channels with other encodings (JSON, protobuf, ...) are skipped and reported.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
+from typing import Any
 
 from vtrack.errors import InputError
 from vtrack.io.importers.report import ImportReport
-from vtrack.io.importers.ros_messages import INFO_TYPES, TF_TYPES, RosSessionBuilder, norm_type
+from vtrack.io.importers.ros_messages import INFO_TYPES, TF_TYPES, RosSessionBuilder, norm_type, run_ros_import
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def import_mcap(
-    src: str | Path,
-    out: str | Path,
-    *,
-    topic_map: dict[str, str] | None = None,
-    overwrite: bool = False,
-    flush_every: int = 256,
-    pair_tolerance_s: float = 0.02,
-    world_frame: str = "world",
-    object_frame: str = "object",
-    tactile_type: str | None = None,
-) -> ImportReport:
-    """Convert an MCAP file into a session at ``out``.
+def import_mcap(src: str | Path, out: str | Path, **options: Any) -> ImportReport:
+    """Convert an MCAP file into a session at ``out``; ``options`` as for
+    :func:`vtrack.io.importers.ros_messages.run_ros_import` (topic_map, overwrite, pair_tolerance_s, ...).
 
     Raises:
         InputError: missing / truncated / corrupt / mislabelled file (the message names it).
@@ -35,7 +25,6 @@ def import_mcap(
     from mcap.reader import make_reader
     from rosbags.typesys import Stores, get_typestore
 
-    t0 = time.perf_counter()
     src = Path(src)
     if not src.is_file():
         raise InputError("MCAP file does not exist", path=src)
@@ -46,19 +35,6 @@ def import_mcap(
         raise InputError(f"file is {what}", path=src, expected="MCAP magic bytes", got=head)
     store2 = get_typestore(Stores.ROS2_HUMBLE)
     store1 = get_typestore(Stores.ROS1_NOETIC)
-    report = ImportReport(source=src, session=Path(out))
-    b = RosSessionBuilder(
-        out,
-        report,
-        topic_map=topic_map,
-        overwrite=overwrite,
-        flush_every=flush_every,
-        pair_tolerance_s=pair_tolerance_s,
-        world_frame=world_frame,
-        object_frame=object_frame,
-        source=src,
-        tactile_type=tactile_type,
-    )
 
     def decode(schema, data: bytes):
         name = norm_type(schema.name)
@@ -68,7 +44,7 @@ def import_mcap(
             return name, store1.deserialize_ros1(data, name)
         return name, None
 
-    try:
+    def read(b: RosSessionBuilder) -> None:
         with open(src, "rb") as f:
             reader = make_reader(f)
             # First pass: calibration and static transforms only.
@@ -82,23 +58,16 @@ def import_mcap(
             reader = make_reader(f)
             for schema, channel, message in reader.iter_messages():
                 if schema is None:
-                    report.skip(f"topic {channel.topic}: no schema")
+                    b.report.skip(f"topic {channel.topic}: no schema")
                     continue
                 try:
                     name, msg = decode(schema, message.data)
                 except Exception as e:
-                    report.skip(f"topic {channel.topic}: undecodable {schema.name} ({type(e).__name__})")
+                    b.report.skip(f"topic {channel.topic}: undecodable {schema.name} ({type(e).__name__})")
                     continue
                 if msg is None:
-                    report.skip(f"topic {channel.topic}: unsupported encoding '{schema.encoding}'")
+                    b.report.skip(f"topic {channel.topic}: unsupported encoding '{schema.encoding}'")
                     continue
                 b.add(channel.topic, name, msg, message.log_time * 1e-9)
-    except InputError:
-        raise
-    except Exception as e:  # mcap raises its own errors, EndOfFile, struct errors for truncated files
-        if b.writer is not None:
-            b.writer.flush()
-        raise InputError(f"cannot read MCAP ({type(e).__name__}: {e})", path=src) from None
-    report = b.finish()
-    report.seconds = time.perf_counter() - t0
-    return report
+
+    return run_ros_import(src, out, "MCAP", read, **options)

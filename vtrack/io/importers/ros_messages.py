@@ -20,7 +20,9 @@ Topic roles (automatic, overridable with ``topic_map``):
 
 from __future__ import annotations
 
+import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -430,3 +432,27 @@ class RosSessionBuilder:
         self.writer.close()
         self.report.frames = {k: v["n"] for k, v in self.writer._streams.items()}
         return self.report
+
+
+def run_ros_import(
+    src: Path, out: str | Path, what: str, read: Callable[[RosSessionBuilder], None], **options: Any
+) -> ImportReport:
+    """The frame every ROS importer shares: a :class:`RosSessionBuilder` for ``out`` (``options`` = its
+    keyword options: topic_map, overwrite, flush_every, pair_tolerance_s, world_frame, object_frame,
+    tactile_type), ``read(builder)`` feeds it the file's messages, a reader's own exception (truncated or
+    corrupt file) becomes one :class:`InputError` naming ``src`` (what was written so far is flushed),
+    then the session is finished and the import timed (``report.seconds``)."""
+    t0 = time.perf_counter()
+    report = ImportReport(source=src, session=Path(out))
+    b = RosSessionBuilder(out, report, source=src, **options)
+    try:
+        read(b)
+    except InputError:
+        raise
+    except Exception as e:  # readers raise their own errors, EndOfFile, struct / sqlite errors for bad files
+        if b.writer is not None:
+            b.writer.flush()
+        raise InputError(f"cannot read {what} ({type(e).__name__}: {e})", path=src) from None
+    report = b.finish()
+    report.seconds = time.perf_counter() - t0
+    return report

@@ -6,12 +6,12 @@ Message handling (topics -> streams, colour/depth pairing, tf) is in
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
+from typing import Any
 
 from vtrack.errors import InputError
 from vtrack.io.importers.report import ImportReport
-from vtrack.io.importers.ros_messages import INFO_TYPES, TF_TYPES, RosSessionBuilder, norm_type
+from vtrack.io.importers.ros_messages import INFO_TYPES, TF_TYPES, RosSessionBuilder, norm_type, run_ros_import
 
 
 def _check_bag_path(src: Path) -> None:
@@ -31,19 +31,9 @@ def _check_bag_path(src: Path) -> None:
         raise InputError("ROS 2 bag folder has no metadata.yaml", path=src)
 
 
-def import_rosbag(
-    src: str | Path,
-    out: str | Path,
-    *,
-    topic_map: dict[str, str] | None = None,
-    overwrite: bool = False,
-    flush_every: int = 256,
-    pair_tolerance_s: float = 0.02,
-    world_frame: str = "world",
-    object_frame: str = "object",
-    tactile_type: str | None = None,
-) -> ImportReport:
-    """Convert a ROS 1 ``.bag`` or a ROS 2 bag folder into a session at ``out``.
+def import_rosbag(src: str | Path, out: str | Path, **options: Any) -> ImportReport:
+    """Convert a ROS 1 ``.bag`` or a ROS 2 bag folder into a session at ``out``; ``options`` as for
+    :func:`vtrack.io.importers.ros_messages.run_ros_import` (topic_map, overwrite, pair_tolerance_s, ...).
 
     Raises:
         InputError: missing / truncated / corrupt / mislabelled bag (the message names the file),
@@ -52,23 +42,10 @@ def import_rosbag(
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    t0 = time.perf_counter()
     src = Path(src)
     _check_bag_path(src)
-    report = ImportReport(source=src, session=Path(out))
-    b = RosSessionBuilder(
-        out,
-        report,
-        topic_map=topic_map,
-        overwrite=overwrite,
-        flush_every=flush_every,
-        pair_tolerance_s=pair_tolerance_s,
-        world_frame=world_frame,
-        object_frame=object_frame,
-        source=src,
-        tactile_type=tactile_type,
-    )
-    try:
+
+    def read(b: RosSessionBuilder) -> None:
         with AnyReader([src], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             first = [
                 c for c in reader.connections if norm_type(c.msgtype) in INFO_TYPES or norm_type(c.msgtype) in TF_TYPES
@@ -79,15 +56,8 @@ def import_rosbag(
                 try:
                     msg = reader.deserialize(raw, conn.msgtype)
                 except Exception as e:
-                    report.skip(f"topic {conn.topic}: undecodable message ({type(e).__name__})")
+                    b.report.skip(f"topic {conn.topic}: undecodable message ({type(e).__name__})")
                     continue
                 b.add(conn.topic, conn.msgtype, msg, ts * 1e-9)
-    except InputError:
-        raise
-    except Exception as e:  # rosbags raises ReaderError / struct errors / sqlite errors for bad files
-        if b.writer is not None:
-            b.writer.flush()
-        raise InputError(f"cannot read bag ({type(e).__name__}: {e})", path=src) from None
-    report = b.finish()
-    report.seconds = time.perf_counter() - t0
-    return report
+
+    return run_ros_import(src, out, "bag", read, **options)

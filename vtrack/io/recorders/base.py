@@ -1,4 +1,5 @@
-"""Shared recorder machinery: a stop flag driven by Ctrl-C, and a one-line status display."""
+"""Shared recorder machinery: a stop flag driven by Ctrl-C, a one-line status display, and the session
+writer every recorder opens."""
 
 from __future__ import annotations
 
@@ -6,7 +7,10 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TextIO
 
 
@@ -121,3 +125,18 @@ class StatusLine:
         if self.enabled and self.tty:
             self.out.write("\n")
             self.out.flush()
+
+
+@contextmanager
+def recording_writer(
+    out: str | Path, scene: dict[str, Any], *, overwrite: bool, flush_every: int, info: dict[str, Any], status: bool
+) -> Iterator[tuple[Any, StatusLine]]:
+    """The session a recorder writes (``scene`` as manifest and as ``scene.yaml``; ``flush_every`` frames per
+    commit = the crash-safety granularity) and its status line: ``(SessionWriter, StatusLine)``."""
+    from vtrack.io.importers.scene_build import write_scene_yaml
+    from vtrack.io.session import SessionWriter
+
+    line = StatusLine(enabled=status)
+    with SessionWriter(out, scene, overwrite=overwrite, flush_every=flush_every, info=info) as w:
+        write_scene_yaml(w, scene)
+        yield w, line

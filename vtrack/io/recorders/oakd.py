@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
-from vtrack.io.recorders.base import RecordingStats, StatusLine, StopFlag
+from vtrack.io.recorders.base import RecordingStats, StatusLine, StopFlag, recording_writer
 
 
 @dataclass
@@ -388,9 +388,6 @@ def record_oak_simulated(
     as :func:`record_oak`."""
     import depthai as dai
 
-    from vtrack.io.importers.scene_build import write_scene_yaml
-    from vtrack.io.session import SessionWriter
-
     cfg = cfg or OakConfig()
     pipeline = dai.Pipeline(False)
     src = make_synthetic_source(pipeline, cfg, n_frames, realtime=realtime)
@@ -400,30 +397,49 @@ def record_oak_simulated(
     calib_h = synthetic_calibration(cfg.width, cfg.height)
     calib = calibration_attrs(calib_h, cfg.width, cfg.height)
     scene_dict = oak_scene(cfg, calib, scene)
-    line = StatusLine(enabled=status)
-    with SessionWriter(
-        out, scene_dict, overwrite=overwrite, flush_every=flush_every, info={"recorder": "oakd", "device": "simulated"}
-    ) as w:
-        write_scene_yaml(w, scene_dict)
+    info = {"recorder": "oakd", "device": "simulated"}
+    with recording_writer(out, scene_dict, overwrite=overwrite, flush_every=flush_every, info=info, status=status) as (
+        w,
+        line,
+    ):
         declare_streams(w, cfg, calib)
-        pipeline.start()
-        try:
-            with StopFlag() as stop:
-                stats = record_from_queues(
-                    queues,
-                    w,
-                    cfg,
-                    stop=stop,
-                    is_running=pipeline.isRunning,
-                    max_frames=n_frames,
-                    status=line,
-                    on_frame=on_frame,
-                )
-        finally:
-            pipeline.stop()
+        return _record_pipeline(pipeline, queues, w, cfg, line, None, n_frames, on_frame, "source finished", wait=True)
+
+
+def _record_pipeline(
+    pipeline: Any,
+    queues: dict[str, Any],
+    w: Any,
+    cfg: OakConfig,
+    line: StatusLine,
+    seconds: float | None,
+    max_frames: int | None,
+    on_frame: Any,
+    end_reason: str,
+    wait: bool = False,
+) -> RecordingStats:
+    """Start ``pipeline``, record its ``queues`` into the session writer ``w`` until Ctrl-C, ``seconds``,
+    ``max_frames`` or the pipeline ends (``end_reason``), stop it (and ``wait`` for a host-only one to
+    finish) and note why it stopped in the session info."""
+    pipeline.start()
+    try:
+        with StopFlag(seconds) as stop:
+            stats = record_from_queues(
+                queues,
+                w,
+                cfg,
+                stop=stop,
+                is_running=pipeline.isRunning,
+                max_frames=max_frames,
+                status=line,
+                on_frame=on_frame,
+            )
+    finally:
+        pipeline.stop()
+        if wait:
             pipeline.wait()
-        line.close()
-        w.set_info(stop_reason=stop.reason or "source finished", stats=stats.to_dict())
+    line.close()
+    w.set_info(stop_reason=stop.reason or end_reason, stats=stats.to_dict())
     return stats
 
 
@@ -446,9 +462,6 @@ def record_oak(
     """
     import depthai as dai
 
-    from vtrack.io.importers.scene_build import write_scene_yaml
-    from vtrack.io.session import SessionWriter
-
     cfg = cfg or OakConfig()
     try:
         device = dai.Device(cfg.device) if cfg.device else dai.Device()
@@ -464,30 +477,10 @@ def record_oak(
         calib = calibration_attrs(calib_h, cfg.width, cfg.height)
         queues = build_device_pipeline(pipeline, cfg)
         scene_dict = oak_scene(cfg, calib, scene)
-        line = StatusLine(enabled=status)
-        with SessionWriter(
-            out,
-            scene_dict,
-            overwrite=overwrite,
-            flush_every=flush_every,
-            info={"recorder": "oakd", "device": device.getDeviceId()},
-        ) as w:
-            write_scene_yaml(w, scene_dict)
+        info = {"recorder": "oakd", "device": device.getDeviceId()}
+        with recording_writer(
+            out, scene_dict, overwrite=overwrite, flush_every=flush_every, info=info, status=status
+        ) as (w, line):
             (w.path / "assets" / "oak_calibration.json").write_text(json.dumps(calib_h.eepromToJson(), indent=1))
             declare_streams(w, cfg, calib)
-            pipeline.start()
-            with StopFlag(seconds) as stop:
-                stats = record_from_queues(
-                    queues,
-                    w,
-                    cfg,
-                    stop=stop,
-                    is_running=pipeline.isRunning,
-                    max_frames=max_frames,
-                    status=line,
-                    on_frame=on_frame,
-                )
-            line.close()
-            w.set_info(stop_reason=stop.reason or "device stopped", stats=stats.to_dict())
-        pipeline.stop()
-    return stats
+            return _record_pipeline(pipeline, queues, w, cfg, line, seconds, max_frames, on_frame, "device stopped")

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
-from vtrack.io.recorders.base import RecordingStats, StatusLine, StopFlag
+from vtrack.io.recorders.base import RecordingStats, StopFlag, recording_writer
 from vtrack.io.recorders.joints import JointSource
 from vtrack.tactile.sensors import SENSOR_PRESETS
 
@@ -244,8 +244,6 @@ def record_tactile(
         realtime: pace video-file sources at their frame rate (devices are always real time).
         on_frame: ``on_frame(stream, t, fields)`` after each written frame (feeds a live pipeline).
     """
-    from vtrack.io.importers.scene_build import write_scene_yaml
-    from vtrack.io.session import SessionWriter
     from vtrack.io.streams import joints_stream, tactile_stream
     from vtrack.scene.load import scene_from_dict
 
@@ -258,15 +256,11 @@ def record_tactile(
     scene_dict = tactile_scene(cams, shapes, scene)
     sc = scene_from_dict(scene_dict, check_files=False)
     stats = RecordingStats()
-    line = StatusLine(enabled=status)
-    with SessionWriter(
-        out,
-        scene_dict,
-        overwrite=overwrite,
-        flush_every=flush_every,
-        info={"recorder": "tactile", "sources": {c.name: str(c.source) for c in cams}},
-    ) as w:
-        write_scene_yaml(w, scene_dict)
+    info = {"recorder": "tactile", "sources": {c.name: str(c.source) for c in cams}}
+    with recording_writer(out, scene_dict, overwrite=overwrite, flush_every=flush_every, info=info, status=status) as (
+        w,
+        line,
+    ):
         for c in cams:
             w.add_stream(f"tactile/{c.name}", tactile_stream(sc.tactile_by_name(c.name)))
         if joints is not None:

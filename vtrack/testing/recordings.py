@@ -1,5 +1,5 @@
-"""Writers of small fixtures in other tools' exact on-disk layouts (FeelSight, ROS bags, MCAP),
-plus a tiny vtrack session, for the importer / recorder / live tests."""
+"""Writers of small recordings in other tools' exact on-disk layouts (FeelSight log folders, ROS 1/2 bags,
+MCAP) and tactile videos, for the importer / recorder tests (needs ``rosbags``, ``mcap``, ``cv2``)."""
 
 from __future__ import annotations
 
@@ -280,54 +280,6 @@ def write_mcap(path: Path, n: int = 10, **kw) -> Path:
     return path
 
 
-# --- vtrack session -----------------------------------------------------------------------
-def write_live_session(
-    path: Path,
-    seconds: float = 1.0,
-    cam_hw=(480, 640),
-    tac_hw=(320, 240),
-    n_tactile: int = 4,
-    cam_hz: float = 30.0,
-    tac_hz: float = 60.0,
-) -> Path:
-    """A session with one RGB-D camera (cam_hz), ``n_tactile`` DIGIT streams and joints (tac_hz);
-    frame content is cheap, slowly varying synthetic data (so compression behaves like real data)."""
-    from vtrack.io.importers.scene_build import camera_entry, finalize_scene, tactile_entry
-    from vtrack.io.session import SessionWriter
-    from vtrack.io.streams import camera_stream, joints_stream, tactile_stream
-    from vtrack.scene.load import scene_from_dict
-
-    H, W = cam_hw
-    th, tw = tac_hw
-    names = ["digit_index", "digit_middle", "digit_ring", "digit_thumb"][:n_tactile]
-    K = np.array([[500.0, 0, W / 2], [0, 500.0, H / 2], [0, 0, 1]])
-    scene = {
-        "name": "live_test",
-        "object": {"name": "object"},
-        "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, cam_hz)],
-        "tactile": [tactile_entry(n, "digit", tw, th, tac_hz) for n in names],
-    }
-    sd = finalize_scene(scene)
-    sc = scene_from_dict(sd, check_files=False)
-    yy, xx = np.mgrid[0:H, 0:W]
-    base_rgb = np.stack([xx % 256, yy % 256, (xx + yy) % 256], -1).astype(np.uint8)
-    with SessionWriter(path, sd, overwrite=True, flush_every=32) as w:
-        w.add_stream("camera/cam0", camera_stream(sc.camera_by_name("cam0"), with_mask=False))
-        for n in names:
-            w.add_stream(f"tactile/{n}", tactile_stream(sc.tactile_by_name(n)))
-        w.add_stream("joints", joints_stream([f"joint_{j}.0" for j in range(16)], tac_hz))
-        n_cam = int(round(seconds * cam_hz))
-        n_tac = int(round(seconds * tac_hz))
-        for i in range(n_cam):
-            depth = (400 + (xx // 8 + i) % 200).astype(np.uint16)
-            w.append("camera/cam0", i / cam_hz, rgb=np.roll(base_rgb, i, axis=1), depth=depth)
-        for i in range(n_tac):
-            for n in names:
-                w.append(f"tactile/{n}", i / tac_hz, image=tactile_image(i, th, tw))
-            w.append("joints", i / tac_hz, q=np.full(16, 0.01 * i))
-    return path
-
-
 def write_tactile_video(path: Path, n: int = 30, fps: float = 60.0, size=(320, 240)) -> Path:
     """A lossless (FFV1) video whose frame i is ``tactile_image(i)`` resized to ``size`` (w, h):
     stands in for a DIGIT's UVC stream (320x240 landscape)."""
@@ -346,50 +298,3 @@ def video_frame(i: int, size=(320, 240)) -> np.ndarray:
     import cv2
 
     return cv2.resize(tactile_image(i % 200, 40, 30), size, interpolation=cv2.INTER_NEAREST)
-
-
-def write_sphere_session(
-    path: Path, seconds: float = 1.0, hw=(60, 80), radius: float = 0.03, speed: float = 0.01, hz: float = 30.0
-) -> Path:
-    """A session of a sphere (``assets/object.ply``) moving along world x at ``speed`` m/s, seen by
-    one camera at the world origin looking along +z (depth rendered exactly, with mask), plus the
-    ground-truth ``gt/object_pose``."""
-    import trimesh
-
-    from vtrack.io.importers.scene_build import camera_entry, finalize_scene
-    from vtrack.io.session import SessionWriter
-    from vtrack.io.streams import camera_stream, pose_stream
-    from vtrack.scene.load import scene_from_dict
-
-    H, W = hw
-    K = np.array([[60.0, 0, (W - 1) / 2], [0, 60.0, (H - 1) / 2], [0, 0, 1]])
-    sd = finalize_scene(
-        {
-            "name": "sphere",
-            "object": {"name": "sphere"},
-            "cameras": [camera_entry("cam0", K, W, H, np.eye(4), 0.001, hz)],
-        }
-    )
-    sc = scene_from_dict(sd, check_files=False)
-    v, u = np.mgrid[0:H, 0:W]
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, dtype=float)], -1)
-    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
-    mesh_file = path.parent / f"{path.name}_sphere.ply"
-    trimesh.creation.icosphere(subdivisions=3, radius=radius).export(mesh_file)
-    with SessionWriter(path, sd, overwrite=True, flush_every=16) as w:
-        w.add_asset(mesh_file, "object.ply", role="object_mesh")
-        w.add_stream("camera/cam0", camera_stream(sc.camera_by_name("cam0"), with_mask=True))
-        w.add_stream("gt/object_pose", pose_stream(rate_hz=hz))
-        for i in range(int(round(seconds * hz))):
-            t = i / hz
-            c = np.array([-0.01 + speed * t, 0.0, 0.3])
-            b = rays @ c
-            disc = b**2 - (c @ c - radius**2)
-            hit = disc > 0
-            z = np.where(hit, (b - np.sqrt(np.maximum(disc, 0))) * rays[..., 2], 0.0)
-            depth = np.rint(z * 1000).astype(np.uint16)
-            T = np.eye(4)
-            T[:3, 3] = c
-            w.append("camera/cam0", t, rgb=np.zeros((H, W, 3), np.uint8), depth=depth, mask=hit.astype(np.uint8))
-            w.append("gt/object_pose", t, T_world_object=T)
-    return path
