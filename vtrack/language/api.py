@@ -265,7 +265,19 @@ def evaluate_all(
             expected="'vtrack language train' output",
         )
     base, st = res["designs"]["none"], res["designs"]["A-N"]
-    for k in ("r1", "r5", "bleu1", "silhouette", "instance_r1", "inter_intra", "attr_f1", "select_2way", "select_3way"):
+    for k in (
+        "r1",
+        "r5",
+        "bleu1",
+        "silhouette",
+        "instance_r1",
+        "inter_intra",
+        "attr_f1",
+        "select_2way",
+        "select_3way",
+        "silhouette_family",
+        "instance_r5",
+    ):
         res[k] = base[k]
         res[k + "_steered"] = st[k]
     res["ood_r1"], res["ood_r1_steered"] = base["ood_r1"], st["ood_r1"]
@@ -273,6 +285,13 @@ def evaluate_all(
     res["ood_chance_r1"] = base["ood_chance_r1"]
     res["query_ms"] = query_latency_ms(models=models)
     if sweep:
+        # steering injected at inference only into the unsteered model, position and strength chosen on the
+        # validation contacts (never on the test split), then scored on ``split``
         m, _ = load(models, "none")
-        res["sweep_val"] = E.sweep(m, data, split="val")
+        full = generate(seed)
+        res["sweep_val"] = E.sweep(m, full, split="val")
+        chosen = E.select_on_val(res["sweep_val"])
+        res["inference_steering"] = {"chosen_on_val": chosen} | E.evaluate_inference_steering(
+            m, full, chosen, split=split
+        )
     return res

@@ -78,6 +78,8 @@ def retrieval(model, data: TactileSet, *, p1: float | None = None, p2: float | N
         "instance_r1": 0.5 * (ins_t2i[1] + ins_i2t[1]),
         "instance_r5": 0.5 * (ins_t2i[5] + ins_i2t[5]),
         "silhouette": silhouette(simvec, data.material),
+        # the paper's Fig. 6 clusters 20 object categories; our coarse analogue is the texture family
+        "silhouette_family": silhouette(simvec, np.array([data.materials[int(m)].family for m in data.material])),
         "inter_intra": inter_intra_ratio(simvec, data.material),
         "chance_r1": 1.0 / len(mats),
         "n_queries": len(V),
@@ -157,3 +159,37 @@ def sweep(
                 }
             )
     return rows
+
+
+def select_on_val(rows: list[dict]) -> dict:
+    """From a :func:`sweep` on the validation split: the retrieval position/strength (P1 or P2) with the best
+    object R@1 and the generation one (P3 or P4) with the best BLEU-1 (ties: the weaker strength)."""
+    ret = max((r for r in rows if r["position"] in ("P1", "P2")), key=lambda r: (r["r1"], -r["alpha"]))
+    gen = max((r for r in rows if r["position"] in ("P3", "P4")), key=lambda r: (r["bleu1"], -r["alpha"]))
+    return {"retrieval": (ret["position"].lower(), ret["alpha"]), "generation": (gen["position"].lower(), gen["alpha"])}
+
+
+def evaluate_inference_steering(model, data: TactileSet, chosen: dict, *, split: str = "test") -> dict:
+    """Scores of an unsteered-trained ``model`` with steering injected at inference only, at the positions and
+    strengths ``chosen`` on the validation split, for the A-N vector and the A-only vector (Table V rows)."""
+    from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector
+
+    torch = __import__("torch")
+    sub = data.subset(data.split == split)
+    (rp, ra), (gp, ga) = chosen["retrieval"], chosen["generation"]
+    saved = model.net.s_hat.clone()
+    out = {}
+    try:
+        for name, neg in (("A-N", LEXICON_N), ("A", None)):
+            model.net.s_hat.copy_(torch.as_tensor(steering_vector(LEXICON_A, neg)))
+            kw = {"p1": 0.0, "p2": 0.0}
+            kw[rp] = ra
+            g = {"p3": 0.0, "p4": 0.0}
+            g[gp] = ga
+            r = retrieval(model, sub, **kw)
+            b = generation(model, sub, **g)
+            out[name] = {k: r[k] for k in ("r1", "r5", "instance_r1", "silhouette", "silhouette_family", "inter_intra")}
+            out[name] |= {"bleu1": b["bleu1"], "attr_f1": b["attr_f1"]}
+    finally:
+        model.net.s_hat.copy_(saved)
+    return out

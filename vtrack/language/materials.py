@@ -240,7 +240,8 @@ def description(
         mode: 2 = anchor + additional attributes (paper Mode 2); 3 = Mode 2 with the material name in front.
         distractor: append a non-tactile clause ("it looks red and square"); needs ``rng``.
         rng: draws the distractor words and, with ``augment``, the synonyms and attribute order.
-        augment: synonym replacement (p = 0.3) and attribute shuffling, as the paper's text augmentation.
+        augment: synonym replacement (p = 0.3) and attribute shuffling, as the paper's text augmentation, and
+            dropping the contact clause (p = 0.25).
     """
     p = 0.3 if augment else 0.0
     r = rng if augment else None
@@ -257,6 +258,8 @@ def description(
         rng.shuffle(present)
         rng.shuffle(absent)
     txt = "feels " + ", ".join(present[:-1]) + " and " + present[-1] + "; " + ", ".join(f"not {w}" for w in absent)
+    if c is not None and augment and rng is not None and rng.random() < 0.25:
+        c = None  # sometimes the material-level text alone (what object-level touch -> text ranks)
     if c is not None:
         extra = ["pressed " + ("firmly" if c.force == "firm" else "lightly")]
         if c.orientation != "-":

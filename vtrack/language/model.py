@@ -181,7 +181,10 @@ class TouchSteer:
         out = []
         with torch.no_grad():
             for i in range(0, len(images), batch):
-                out.append(self.net.image_embed(torch.as_tensor(images[i : i + batch]), a).numpy())
+                x = torch.as_tensor(images[i : i + batch])
+                # average with the 180-degree rotation (a training augmentation that keeps every attribute)
+                v = self.net.image_embed(x, a) + self.net.image_embed(x.flip(2, 3), a)
+                out.append((v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)).numpy())
         return np.concatenate(out) if out else np.zeros((0, D_SHARED), np.float32)
 
     def describe(self, images: np.ndarray, p3: float | None = None, p4: float | None = None) -> list[str]:
