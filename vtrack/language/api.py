@@ -18,8 +18,9 @@ import numpy as np
 from vtrack.errors import InputError
 
 DESIGNS = ("none", "A", "A-N")
-#: the design query / describe use
-DEFAULT_DESIGN = "A-N"
+#: the design query / describe use: chosen on the validation contacts (object R@1 0.562 for "none" against
+#: 0.471 for "A-N" with the paper's training-time P1 0.02 + P4 0.5; docs/language.md)
+DEFAULT_DESIGN = "none"
 
 
 def shipped_dir() -> Path:
@@ -251,6 +252,8 @@ def evaluate_all(
     data = generate(seed, quick=quick)
     res: dict = {"split": split, "quick": quick, "designs": {}}
     for d in DESIGNS:
+        if quick and d == "A":
+            continue  # the smoke run compares the two designs the top-level keys need
         f = _model_file(Path(models) if models is not None else shipped_dir(), d)
         if not f.exists():
             continue
