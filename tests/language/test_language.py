@@ -169,6 +169,24 @@ def test_no_contact_and_empty_query_are_input_errors() -> None:
         query("zzqx vvbnm")
 
 
+@needs_extra
+def test_foreign_or_newer_model_file_is_input_error(tmp_path: Path) -> None:
+    import torch
+
+    from vtrack.language.model import TouchSteer
+
+    p = tmp_path / "m.pt"
+    p.write_text("garbage")
+    with pytest.raises(InputError, match="cannot read"):
+        TouchSteer.load(p)
+    torch.save({"x": 1}, p)
+    with pytest.raises(InputError, match="not a vtrack language model"):
+        TouchSteer.load(p)
+    torch.save({"version": 99, "state": {"s_hat": torch.zeros(50)}, "vocab": [], "steering": {}}, p)
+    with pytest.raises(InputError, match="newer"):
+        TouchSteer.load(p)
+
+
 # ------------------------------------------------------------------------------------------ CLI
 VTRACK = [sys.executable, "-m", "vtrack_apps.cli"]
 

@@ -27,6 +27,8 @@ import numpy as np
 
 from vtrack.errors import InputError
 
+#: on-disk version of a saved model (``.pt`` key ``"version"``); a newer file is refused
+MODEL_VERSION = 1
 D_FEAT = 96
 D_SHARED = 64
 D_HIDDEN = 128
@@ -206,7 +208,8 @@ class TouchSteer:
         }
         state.pop("word_emb")  # rebuilt from the GloVe wheel on load (the wheel is a dependency, not shipped)
         tmp = path.with_suffix(".tmp")
-        torch.save({"state": state, "vocab": self.vocab, "steering": self.steering.__dict__, "meta": self.meta}, tmp)
+        blob = {"version": MODEL_VERSION, "state": state, "vocab": self.vocab}
+        torch.save(blob | {"steering": self.steering.__dict__, "meta": self.meta}, tmp)
         tmp.replace(path)
         return path
 
@@ -222,6 +225,16 @@ class TouchSteer:
             blob = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as e:  # a truncated / foreign file
             raise InputError("cannot read the language model", path=path, got=type(e).__name__) from None
+        keys = ("state", "vocab", "steering")
+        if not isinstance(blob, dict) or any(k not in blob for k in keys) or "s_hat" not in blob["state"]:
+            raise InputError("not a vtrack language model", path=path, expected="keys state, vocab, steering")
+        if int(blob.get("version", 1)) > MODEL_VERSION:
+            raise InputError(
+                "language model from a newer vtrack",
+                path=path,
+                expected=f"version <= {MODEL_VERSION}",
+                got=blob.get("version"),
+            )
         vocab = list(blob["vocab"])
         net = build(vocab, vocab_vectors(vocab, word_vectors), blob["state"]["s_hat"].float().numpy())
         state = {k: v.float() if v.is_floating_point() else v for k, v in blob["state"].items()}
