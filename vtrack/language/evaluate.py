@@ -15,6 +15,8 @@ training draws.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from vtrack.eval.language_metrics import attribute_f1, bleu1, inter_intra_ratio, recall_at_k, silhouette
@@ -23,30 +25,22 @@ from vtrack.language.materials import ATTRIBUTE_WORDS, TactileSet, description
 EVAL_SEED = 12345
 
 #: preference-style queries: (query, positive material predicate, negative material predicate)
-QUERIES: list[tuple[str, str, str]] = [
-    ("something soft to wipe a lens with", "softness == 'soft'", "softness == 'hard'"),
-    ("a squishy cushion to sit on", "softness == 'soft'", "softness == 'hard'"),
-    ("a rigid surface to press against firmly", "softness == 'hard'", "softness == 'soft'"),
-    ("a stiff board for a workbench", "softness == 'hard'", "softness == 'soft'"),
-    ("a ridged grip so my fingers do not slip", "family == 'ridges'", "family != 'ridges'"),
-    ("a bumpy mat to massage my feet", "family == 'bumps'", "family != 'bumps'"),
-    ("a woven fabric for a warm sweater", "family == 'woven'", "family != 'woven'"),
-    ("a gritty surface to sand down wood", "family == 'grain'", "family != 'grain'"),
-    ("a fine net to strain tea", "family == 'mesh'", "family != 'mesh'"),
-    ("a perfectly smooth sheet to write on", "family == 'smooth'", "family != 'smooth'"),
-    ("a coarse texture you can clearly feel", "wavelength == 'coarse'", "wavelength == 'fine'"),
-    ("a delicate, finely textured surface", "wavelength == 'fine'", "wavelength == 'coarse'"),
-    ("a surface with deep, pronounced relief", "amplitude == 'deep'", "amplitude == 'shallow'"),
-    ("barely textured, with faint shallow relief", "amplitude == 'shallow'", "amplitude == 'deep'"),
+QUERIES: list[tuple[str, Callable, Callable]] = [
+    ("something soft to wipe a lens with", lambda m: m.softness == "soft", lambda m: m.softness == "hard"),
+    ("a squishy cushion to sit on", lambda m: m.softness == "soft", lambda m: m.softness == "hard"),
+    ("a rigid surface to press against firmly", lambda m: m.softness == "hard", lambda m: m.softness == "soft"),
+    ("a stiff board for a workbench", lambda m: m.softness == "hard", lambda m: m.softness == "soft"),
+    ("a ridged grip so my fingers do not slip", lambda m: m.family == "ridges", lambda m: m.family != "ridges"),
+    ("a bumpy mat to massage my feet", lambda m: m.family == "bumps", lambda m: m.family != "bumps"),
+    ("a woven fabric for a warm sweater", lambda m: m.family == "woven", lambda m: m.family != "woven"),
+    ("a gritty surface to sand down wood", lambda m: m.family == "grain", lambda m: m.family != "grain"),
+    ("a fine net to strain tea", lambda m: m.family == "mesh", lambda m: m.family != "mesh"),
+    ("a perfectly smooth sheet to write on", lambda m: m.family == "smooth", lambda m: m.family != "smooth"),
+    ("a coarse texture you can clearly feel", lambda m: m.wavelength == "coarse", lambda m: m.wavelength == "fine"),
+    ("a delicate, finely textured surface", lambda m: m.wavelength == "fine", lambda m: m.wavelength == "coarse"),
+    ("a surface with deep, pronounced relief", lambda m: m.amplitude == "deep", lambda m: m.amplitude == "shallow"),
+    ("barely textured, with faint shallow relief", lambda m: m.amplitude == "shallow", lambda m: m.amplitude == "deep"),
 ]
-
-
-def _pred(m, expr: str) -> bool:
-    return bool(
-        eval(
-            expr, {}, {"family": m.family, "wavelength": m.wavelength, "amplitude": m.amplitude, "softness": m.softness}
-        )
-    )  # noqa: S307 - fixed expressions above
 
 
 def class_texts(data: TactileSet, mats: np.ndarray, mode: int = 2) -> list[str]:
@@ -105,8 +99,8 @@ def selection(model, data: TactileSet, *, p1: float | None = None, runs: int = 3
     for way in (2, 3):
         hits = []
         for qi, (_, pos, neg) in enumerate(QUERIES):
-            P = [m.index for m in mats if _pred(m, pos)]
-            N = [m.index for m in mats if _pred(m, neg)]
+            P = [m.index for m in mats if pos(m)]
+            N = [m.index for m in mats if neg(m)]
             if not P or len(N) < way - 1:
                 continue
             for _ in range(runs):
