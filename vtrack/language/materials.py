@@ -1,0 +1,391 @@
+"""Procedural tactile materials, their simulated contacts and structured descriptions (the data we can make here).
+
+A material is a surface texture family (ridges, bumps, woven, grain, mesh, smooth) with a wavelength
+(fine 1.0 / medium 1.7 / coarse 2.8 mm), a relief amplitude (shallow 0.07 / deep 0.18 mm) and a softness
+(soft / hard). A contact presses a gently curved patch of the material into the gel: the object surface is a
+cap of radius ``R`` (50-150 mm) plus the texture, pushed ``depth`` mm in; the gel's indentation is what rises above the
+plane ``max - depth``. Softness is the indentation depth: a soft material yields, so it indents the gel less
+(about 0.45x), flattens (2x radius) and its relief is halved. Every contact draws a press force (light / firm),
+a texture orientation, a position on the gel and one of four sensor units (optical jitter); the height map is
+rendered by the independent optical model :mod:`vtrack.sim.tactile_optics` onto the DIGIT no-contact frame.
+
+Descriptions follow the paper's Mode 2 (anchor attributes of the material + additional attributes of the
+contact, present and absent) with a non-tactile distractor clause (colour, shape; and in Mode 3 the material
+name in front), e.g. ``"feels soft, finely ridged and shallow; not hard, not smooth. pressed firmly, vertical,
+centred. it looks red and square."``. Descriptions come from the true attributes: the model never reads
+the height map.
+
+Splits: 10 materials are held out entirely (OOD: each family's (medium, deep, soft) and (coarse, shallow,
+hard) combination, so every attribute value is still seen in other families); of the others, contacts 0-15
+train, 16-17 validate (choose the steering strength) and 18-23 test.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+FAMILIES = ("ridges", "bumps", "woven", "grain", "mesh", "smooth")
+WAVELENGTH_MM = {"fine": 1.0, "medium": 1.7, "coarse": 2.8}
+AMPLITUDE_MM = {"shallow": 0.07, "deep": 0.18}
+SOFTNESS = ("soft", "hard")
+#: image size (W, H) px and pitch (mm/px) of the generated frames: a 20 x 15 mm gel patch
+IMAGE_W, IMAGE_H, MM_PER_PX = 80, 60, 0.25
+CONTACTS_PER_MATERIAL = 24
+TRAIN_CONTACTS, VAL_CONTACTS = range(0, 16), range(16, 18)
+TEST_CONTACTS = range(18, 24)
+SENSOR_UNITS = 4
+DATA_VERSION = 1
+
+FAMILY_WORD = {
+    "ridges": "ridged",
+    "bumps": "bumpy",
+    "woven": "woven",
+    "grain": "grainy",
+    "mesh": "meshed",
+    "smooth": "smooth",
+}
+FAMILY_SYNONYMS = {
+    "ridged": ["corrugated", "grooved"],
+    "bumpy": ["knobbly", "dotted"],
+    "woven": ["knitted", "latticed"],
+    "grainy": ["gritty", "sandy"],
+    "meshed": ["netted", "gridded"],
+    "smooth": ["flat", "featureless"],
+}
+WAVE_ADVERB = {"fine": "finely", "medium": "moderately", "coarse": "coarsely"}
+AMP_WORD = {"shallow": "shallow", "deep": "deep"}
+AMP_SYNONYMS = {"shallow": ["faint", "subtle"], "deep": ["pronounced", "strong"]}
+SOFT_SYNONYMS = {"soft": ["squishy", "yielding"], "hard": ["rigid", "stiff"]}
+NAMES = {
+    ("ridges", "soft"): "corduroy",
+    ("ridges", "hard"): "grating",
+    ("bumps", "soft"): "foam",
+    ("bumps", "hard"): "lego",
+    ("woven", "soft"): "wool",
+    ("woven", "hard"): "wicker",
+    ("grain", "soft"): "suede",
+    ("grain", "hard"): "sandpaper",
+    ("mesh", "soft"): "tulle",
+    ("mesh", "hard"): "sieve",
+    ("smooth", "soft"): "silicone",
+    ("smooth", "hard"): "glass",
+}
+COLOURS = ("red", "blue", "green", "yellow", "purple", "orange", "white", "black", "grey", "pink")
+SHAPES = ("square", "round", "rectangular", "triangular", "oval", "circular")
+#: attribute words a description can carry (for attribute F1 of generated descriptions)
+ATTRIBUTE_WORDS = frozenset(
+    list(FAMILY_WORD.values())
+    + list(WAVE_ADVERB.values())
+    + list(AMP_WORD.values())
+    + list(SOFTNESS)
+    + ["lightly", "firmly", "horizontal", "vertical", "diagonal", "aligned", "centred", "edge"]
+)
+#: OOD materials: (family, wavelength, amplitude, softness)
+OOD_COMBOS = {("medium", "deep", "soft"), ("coarse", "shallow", "hard")}
+
+
+@dataclass(frozen=True)
+class Material:
+    """One procedural material (its true attributes)."""
+
+    index: int
+    family: str
+    wavelength: str  # fine | medium | coarse ("-" for smooth)
+    amplitude: str  # shallow | deep ("-" for smooth)
+    softness: str  # soft | hard
+    ood: bool
+
+    @property
+    def name(self) -> str:
+        return NAMES[(self.family, self.softness)]
+
+    @property
+    def key(self) -> str:
+        return f"{self.family}-{self.wavelength}-{self.amplitude}-{self.softness}"
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Per-contact draws (the additional attributes)."""
+
+    force: str  # light | firm
+    depth_mm: float
+    angle_deg: float
+    orientation: str  # horizontal | vertical | diagonal | aligned
+    centre_px: tuple[float, float]
+    position: str  # centred | edge
+    radius_mm: float
+    unit: int
+
+
+def materials() -> list[Material]:
+    """The material library: 5 textured families x 3 wavelengths x 2 amplitudes x 2 softnesses + 2 smooth."""
+    out: list[Material] = []
+    for fam in FAMILIES:
+        if fam == "smooth":
+            for s in SOFTNESS:
+                out.append(Material(len(out), fam, "-", "-", s, False))
+            continue
+        for w in WAVELENGTH_MM:
+            for a in AMPLITUDE_MM:
+                for s in SOFTNESS:
+                    out.append(Material(len(out), fam, w, a, s, (w, a, s) in OOD_COMBOS))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- height maps
+def _texture(m: Material, u: np.ndarray, v: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Relief in [0, 1] of the material at texture coordinates (u, v) in mm (already rotated)."""
+    if m.family == "smooth":
+        return np.zeros_like(u)
+    lam = WAVELENGTH_MM[m.wavelength]
+    k = 2 * np.pi / lam
+    if m.family == "ridges":
+        return (0.5 + 0.5 * np.cos(k * u)) ** 2
+    if m.family == "bumps":
+        return np.clip(np.cos(k * u) * np.cos(k * v), 0.0, None) ** 1.5
+    if m.family == "woven":
+        # basket weave: alternating blocks of threads running along u and along v
+        cell = (np.floor(u / lam) + np.floor(v / lam)) % 2
+        return cell * (0.5 + 0.5 * np.cos(2 * k * v)) + (1 - cell) * (0.5 + 0.5 * np.cos(2 * k * u))
+    if m.family == "mesh":
+        du = np.abs(((u / lam) % 1.0) - 0.5) * lam
+        dv = np.abs(((v / lam) % 1.0) - 0.5) * lam
+        w = lam / 7.0
+        return np.maximum(np.exp(-((du / w) ** 2)), np.exp(-((dv / w) ** 2)))
+    if m.family == "grain":
+        import cv2
+
+        H, W = u.shape
+        n = rng.standard_normal((H, W)).astype(np.float32)
+        g = cv2.GaussianBlur(n, (0, 0), max(0.5, lam / 4.0 / MM_PER_PX))
+        g = (g - g.min()) / max(1e-6, float(g.max() - g.min()))
+        return g**2
+    raise InputError("unknown material family", field="family", expected=" | ".join(FAMILIES), got=m.family)
+
+
+def draw_contact(m: Material, rng: np.random.Generator) -> Contact:
+    """Draw one contact's press force, orientation, position, curvature and sensor unit."""
+    force = "firm" if rng.random() < 0.5 else "light"
+    base = {"light": 0.35, "firm": 0.65}[force] * (0.45 if m.softness == "soft" else 1.0)
+    depth = base * float(rng.uniform(0.85, 1.15))
+    k = int(rng.integers(0, 4))
+    angle = 45.0 * k + float(rng.uniform(-8, 8))
+    if m.family == "ridges":
+        orientation = ("vertical", "diagonal", "horizontal", "diagonal")[k]  # ridges run across u
+    elif m.family in ("bumps", "woven", "mesh"):
+        orientation = ("aligned", "diagonal")[k % 2]
+    else:
+        orientation = "-"
+    edge = rng.random() < 0.4
+    if edge:
+        ang = rng.uniform(0, 2 * np.pi)
+        cx = IMAGE_W / 2 + np.cos(ang) * IMAGE_W * 0.3
+        cy = IMAGE_H / 2 + np.sin(ang) * IMAGE_H * 0.3
+    else:
+        cx = IMAGE_W / 2 + rng.uniform(-4, 4)
+        cy = IMAGE_H / 2 + rng.uniform(-4, 4)
+    radius = float(rng.uniform(50.0, 150.0)) * (2.0 if m.softness == "soft" else 1.0)
+    return Contact(
+        force,
+        depth,
+        angle,
+        orientation,
+        (float(cx), float(cy)),
+        "edge" if edge else "centred",
+        radius,
+        int(rng.integers(0, SENSOR_UNITS)),
+    )
+
+
+def contact_height(m: Material, c: Contact, rng: np.random.Generator) -> np.ndarray:
+    """Gel indentation (mm, (IMAGE_H, IMAGE_W) float32) of contact ``c`` on material ``m``."""
+    yy, xx = np.mgrid[0:IMAGE_H, 0:IMAGE_W].astype(np.float32)
+    x = (xx - c.centre_px[0]) * MM_PER_PX
+    y = (yy - c.centre_px[1]) * MM_PER_PX
+    a = np.deg2rad(c.angle_deg)
+    u = np.cos(a) * x + np.sin(a) * y + rng.uniform(0, 10)
+    v = -np.sin(a) * x + np.cos(a) * y + rng.uniform(0, 10)
+    amp = 0.0 if m.family == "smooth" else AMPLITUDE_MM[m.amplitude] * (0.5 if m.softness == "soft" else 1.0)
+    z = -(x * x + y * y) / (2.0 * c.radius_mm) + amp * _texture(m, u, v, rng)
+    h = z - (float(z.max()) - c.depth_mm)
+    return np.clip(h, 0.0, None).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------------------------- descriptions
+def _pick(word: str, synonyms: dict[str, list[str]], rng: np.random.Generator | None, p: float) -> str:
+    if rng is not None and word in synonyms and rng.random() < p:
+        return str(rng.choice(synonyms[word]))
+    return word
+
+
+def description(
+    m: Material,
+    c: Contact | None,
+    *,
+    mode: int = 2,
+    distractor: bool = True,
+    rng: np.random.Generator | None = None,
+    augment: bool = False,
+) -> str:
+    """Structured description of material ``m`` (and contact ``c``; None = the material-level anchor text).
+
+    Args:
+        mode: 2 = anchor + additional attributes (paper Mode 2); 3 = Mode 2 with the material name in front.
+        distractor: append a non-tactile clause ("it looks red and square"); needs ``rng``.
+        rng: draws the distractor words and, with ``augment``, the synonyms and attribute order.
+        augment: synonym replacement (p = 0.3) and attribute shuffling, as the paper's text augmentation, and
+            dropping the contact clause (p = 0.25).
+    """
+    p = 0.3 if augment else 0.0
+    r = rng if augment else None
+    soft = _pick(m.softness, SOFT_SYNONYMS, r, p)
+    fam = _pick(FAMILY_WORD[m.family], FAMILY_SYNONYMS, r, p)
+    if m.family == "smooth":
+        present = [soft, fam]
+        absent = ["rough", "bumpy", "ridged"]
+    else:
+        present = [soft, f"{WAVE_ADVERB[m.wavelength]} {fam}", _pick(AMP_WORD[m.amplitude], AMP_SYNONYMS, r, p)]
+        absent = ["smooth"]
+    absent.insert(0, "hard" if m.softness == "soft" else "soft")
+    if augment and rng is not None:
+        rng.shuffle(present)
+        rng.shuffle(absent)
+    txt = "feels " + ", ".join(present[:-1]) + " and " + present[-1] + "; " + ", ".join(f"not {w}" for w in absent)
+    if c is not None and augment and rng is not None and rng.random() < 0.25:
+        c = None  # sometimes the material-level text alone (what object-level touch -> text ranks)
+    if c is not None:
+        extra = ["pressed " + ("firmly" if c.force == "firm" else "lightly")]
+        if c.orientation != "-":
+            extra.append(c.orientation)
+        extra.append(c.position)
+        if augment and rng is not None:
+            rng.shuffle(extra)
+        txt += ". " + ", ".join(extra)
+    if mode == 3:
+        txt = f"{m.name}: {txt}"
+    if distractor:
+        if rng is None:
+            raise InputError("a distractor clause needs a random generator", field="rng")
+        txt += f". it looks {rng.choice(COLOURS)} and {rng.choice(SHAPES)}"
+    return txt + "."
+
+
+# ----------------------------------------------------------------------------------------------- dataset
+@dataclass
+class TactileSet:
+    """Rendered contacts: ``images`` (N, 3, H, W) float32 (frame minus no-contact background, /64 so a
+    strong contact is about 1), ``material`` (N,) int, ``contact`` (N,) int index within the material,
+    ``split`` (N,) str (train | val | test | ood), ``contacts`` the draws, plus the material list."""
+
+    images: np.ndarray
+    material: np.ndarray
+    contact: np.ndarray
+    split: np.ndarray
+    contacts: list[Contact]
+    materials: list[Material]
+
+    def subset(self, mask: np.ndarray) -> TactileSet:
+        idx = np.flatnonzero(mask)
+        return TactileSet(
+            self.images[idx],
+            self.material[idx],
+            self.contact[idx],
+            self.split[idx],
+            [self.contacts[i] for i in idx],
+            self.materials,
+        )
+
+    def texts(self, *, mode: int = 2, seed: int = 0, augment: bool = False, distractor: bool = True) -> list[str]:
+        """One description per contact (a fixed seed gives the evaluation's canonical texts)."""
+        rng = np.random.default_rng(seed)
+        return [
+            description(self.materials[m], c, mode=mode, distractor=distractor, rng=rng, augment=augment)
+            for m, c in zip(self.material, self.contacts, strict=True)
+        ]
+
+
+def background() -> np.ndarray:
+    """The no-contact DIGIT frame the contacts are rendered onto (uint8 BGR, (IMAGE_H, IMAGE_W, 3))."""
+    from vtrack.tactile.sensors import default_background
+
+    return np.asarray(default_background("digit", IMAGE_W, IMAGE_H))
+
+
+def to_input(frame_bgr: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """Network input (3, H, W) float32 of a uint8 BGR frame: (frame - background) / 64."""
+    d = (np.asarray(frame_bgr, np.float32) - np.asarray(bg, np.float32)) / 64.0
+    return np.ascontiguousarray(d.transpose(2, 0, 1))
+
+
+def render_contact(m: Material, c: Contact, rng: np.random.Generator, models=None, bg=None) -> np.ndarray:
+    """Tactile frame (uint8 BGR, (IMAGE_H, IMAGE_W, 3)) of one contact, by the independent optical model."""
+    from vtrack.sim.tactile_optics import OpticalModel
+
+    bg = background() if bg is None else bg
+    model = (models or {}).get(c.unit) or OpticalModel.for_sensor("digit", seed=1000 + c.unit)
+    return model.render(contact_height(m, c, rng), MM_PER_PX, bg, rng, 1.0)
+
+
+def _cache_path() -> Path:
+    from vtrack.paths import cache_dir
+    from vtrack.sim.tactile_optics import optics_fingerprint
+
+    src = hashlib.sha1(Path(__file__).read_bytes()).hexdigest()[:10]
+    return cache_dir() / "language" / f"materials_v{DATA_VERSION}_{src}_{optics_fingerprint()}.npz"
+
+
+def generate(seed: int = 0, *, use_cache: bool = True, quick: bool = False) -> TactileSet:
+    """Render every material's contacts (1488 frames, about 30 s on one core); cached in ``cache_dir()``.
+
+    ``quick`` renders only the first 2 test contacts of each training material and the first 2 contacts of
+    each OOD material (124 frames, a few seconds, not cached): the same draws, for smoke tests."""
+    from vtrack.sim.tactile_optics import OpticalModel
+
+    mats = materials()
+    path = _cache_path().with_name(_cache_path().stem + f"_s{seed}.npz")
+    rng = np.random.default_rng(seed)
+    contacts: list[Contact] = []
+    material, index, split = [], [], []
+    for m in mats:
+        for i in range(CONTACTS_PER_MATERIAL):
+            contacts.append(draw_contact(m, rng))
+            material.append(m.index)
+            index.append(i)
+            split.append("ood" if m.ood else "train" if i in TRAIN_CONTACTS else "val" if i in VAL_CONTACTS else "test")
+    if quick:
+        keep = [
+            i
+            for i, (sp, ci) in enumerate(zip(split, index, strict=True))
+            if (sp == "test" and ci < TEST_CONTACTS.start + 2) or (sp == "ood" and ci < 2)
+        ]
+        contacts = [contacts[i] for i in keep]
+        material = [material[i] for i in keep]
+        index = [index[i] for i in keep]
+        split = [split[i] for i in keep]
+        use_cache = False
+    if use_cache and path.exists():
+        with np.load(path) as z:
+            images = z["images"]
+    else:
+        bg = background()
+        models = {u: OpticalModel.for_sensor("digit", seed=1000 + u) for u in range(SENSOR_UNITS)}
+        frames = [render_contact(mats[mi], c, rng, models, bg) for mi, c in zip(material, contacts, strict=True)]
+        images = np.stack([to_input(f, bg) for f in frames]).astype(np.float32)
+        if use_cache:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez_compressed(tmp, images=images)
+            tmp.replace(path)
+    return TactileSet(images, np.asarray(material), np.asarray(index), np.asarray(split), contacts, mats)
+
+
+def material_table() -> list[dict]:
+    """The material library as rows (for docs and the CLI)."""
+    return [asdict(m) | {"name": m.name} for m in materials()]

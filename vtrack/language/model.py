@@ -1,0 +1,386 @@
+"""The TouchSteer-style model on CPU: a small CNN over tactile images, a trainable projection of the frozen
+GloVe sentence vector, symmetric InfoNCE with a learnable temperature, and a GRU describer; steering vector
+``s_hat`` injected at P1-P4 (paper Sec. III, Fig. 2 / Fig. 4).
+
+Spaces: ``g(T)`` and ``s_hat`` live in the 50-d GloVe space; the CNN gives ``f(I)`` (96-d); both are
+projected into the shared, unit-norm retrieval space (``D_SHARED`` = 64). Steering positions:
+
+- P1: ``t~ = normalize(W_text g(T) + a * s_proj)``, ``s_proj = normalize(W_text s_hat)`` (paper eq. for P1);
+- P2: ``v~ = normalize(v + a * s_proj)`` (the tactile embedding, same space);
+- P3: the describer's input word vectors (frozen GloVe, so ``s_hat`` itself) get ``+ a * s_hat``;
+- P4: the describer's conditioning input. The paper's decoder cross-attends to the ViT features; ours is a
+  GRU whose initial state and every step see the tactile embedding ``v`` (shared space), so P4 adds
+  ``a * s_proj`` to that conditioning vector.
+
+Training (``train``) keeps the chosen injection active during training and inference, as the paper does.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+#: on-disk version of a saved model (``.pt`` key ``"version"``); a newer file is refused
+MODEL_VERSION = 1
+D_FEAT = 96
+D_SHARED = 64
+D_HIDDEN = 128
+MAX_LEN = 24
+_WORDS = re.compile(r"[a-z]+|[.;,]")
+
+
+def _torch():
+    import torch
+
+    return torch
+
+
+def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray):
+    """The torch module (created lazily so importing this file does not import torch)."""
+    torch = _torch()
+    nn = torch.nn
+
+    class TactileEncoder(nn.Module):
+        """4 strided conv blocks + global average and max pooling -> f(I) (D_FEAT)."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            ch = [3, 24, 48, 64, 96]
+            layers: list[nn.Module] = []
+            for i in range(4):
+                k = 5 if i == 0 else 3
+                layers += [nn.Conv2d(ch[i], ch[i + 1], k, 2, k // 2), nn.BatchNorm2d(ch[i + 1]), nn.ReLU()]
+            self.conv = nn.Sequential(*layers)
+            self.head = nn.Linear(2 * ch[-1], D_FEAT)
+
+        def forward(self, x):
+            y = self.conv(x)
+            return self.head(torch.cat([y.mean((2, 3)), y.amax((2, 3))], 1))
+
+    class TouchSteerNet(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.enc = TactileEncoder()
+            self.w_img = nn.Linear(D_FEAT, D_SHARED, bias=False)
+            # trainable text side: attention pooling over the frozen word vectors (a learned per-word weight, so
+            # words that say nothing about touch can be down-weighted) + the projection W_text
+            self.att = nn.Linear(word_vecs.shape[1], 1)
+            self.w_text = nn.Linear(word_vecs.shape[1], D_SHARED, bias=False)
+            self.logit_scale = nn.Parameter(torch.tensor(float(np.log(1 / 0.07))))
+            self.register_buffer("s_hat", torch.as_tensor(s_hat, dtype=torch.float32))
+            # describer: frozen GloVe input embeddings (so P3 lives in the steering vector's own space)
+            self.register_buffer("word_emb", torch.as_tensor(word_vecs, dtype=torch.float32))
+            self.cond = nn.Linear(D_SHARED, D_HIDDEN)
+            self.gru = nn.GRU(word_vecs.shape[1] + D_SHARED, D_HIDDEN, batch_first=True)
+            self.out = nn.Linear(D_HIDDEN, len(vocab))
+
+        # ---- retrieval
+        def s_proj(self):
+            p = self.w_text(self.s_hat[None])[0]
+            return p / p.norm().clamp_min(1e-9)
+
+        def image_embed(self, x, alpha_p2: float = 0.0):
+            f = self.enc(x)
+            v = self.w_img(f)
+            v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)
+            if alpha_p2:
+                v = v + alpha_p2 * self.s_proj()[None]
+                v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)
+            return v
+
+        def pool(self, tok, mask):
+            """g(T): attention-weighted mean of the (signed) word vectors (B, L, 50) -> (B, 50)."""
+            a = self.att(tok)[..., 0].masked_fill(mask <= 0, -1e4)
+            w = torch.softmax(a, 1)
+            return (w[..., None] * tok).sum(1)
+
+        def text_embed(self, tok, mask, alpha_p1: float = 0.0):
+            t = self.w_text(self.pool(tok, mask))
+            # the paper adds a * s_proj to the projected (unnormalised) text embedding; ours is normalised
+            # first so a means the same for every text (a fraction of the unit length)
+            t = t / t.norm(dim=1, keepdim=True).clamp_min(1e-9)
+            if alpha_p1:
+                t = t + alpha_p1 * self.s_proj()[None]
+            return t / t.norm(dim=1, keepdim=True).clamp_min(1e-9)
+
+        # ---- description
+        def decode_logits(self, v, tokens, alpha_p3: float = 0.0, alpha_p4: float = 0.0):
+            c = v + alpha_p4 * self.s_proj()[None] if alpha_p4 else v
+            e = self.word_emb[tokens]
+            if alpha_p3:
+                e = e + alpha_p3 * self.s_hat[None, None]
+            inp = torch.cat([e, c[:, None].expand(-1, e.shape[1], -1)], 2)
+            h0 = torch.tanh(self.cond(c))[None]
+            y, _ = self.gru(inp, h0.contiguous())
+            return self.out(y)
+
+        @torch.no_grad()
+        def generate(self, v, alpha_p3: float = 0.0, alpha_p4: float = 0.0, max_len: int = MAX_LEN):
+            """Greedy decoding; returns (B, <= max_len) token ids (stops at the end token, id 1)."""
+            B = v.shape[0]
+            c = v + alpha_p4 * self.s_proj()[None] if alpha_p4 else v
+            h = torch.tanh(self.cond(c))[None].contiguous()
+            tok = torch.zeros(B, dtype=torch.long)  # <bos> = 0
+            outs = []
+            for _ in range(max_len):
+                e = self.word_emb[tok]
+                if alpha_p3:
+                    e = e + alpha_p3 * self.s_hat[None]
+                y, h = self.gru(torch.cat([e, c], 1)[:, None], h)
+                tok = self.out(y[:, 0]).argmax(1)
+                outs.append(tok)
+            return torch.stack(outs, 1)
+
+    return TouchSteerNet()
+
+
+@dataclass
+class Steering:
+    """Which steering is active (during training and inference) and how strong."""
+
+    design: str = "A-N"  # none | A | A-N
+    p1: float = 0.02
+    p2: float = 0.0
+    p3: float = 0.0
+    p4: float = 0.5
+
+    def off(self) -> Steering:
+        return Steering("none", 0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass
+class TouchSteer:
+    """A trained model with its vocabulary, steering and the gallery of embedded tactile samples."""
+
+    net: Any
+    vocab: list[str]
+    steering: Steering
+    meta: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ helpers
+    def encode_text(self, texts: list[str], alpha: float | None = None) -> np.ndarray:
+        """(N, D_SHARED) unit text embeddings (P1 steering at ``alpha``; default the model's own)."""
+        from vtrack.language.text import token_arrays
+
+        torch = _torch()
+        a = self.steering.p1 if alpha is None else alpha
+        tok, mask = token_arrays(texts)
+        with torch.no_grad():
+            return self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a).numpy()
+
+    def encode_images(self, images: np.ndarray, alpha: float | None = None, batch: int = 256) -> np.ndarray:
+        """(N, D_SHARED) unit tactile embeddings of network inputs (N, 3, H, W) (P2 at ``alpha``)."""
+        torch = _torch()
+        a = self.steering.p2 if alpha is None else alpha
+        self.net.eval()
+        out = []
+        with torch.no_grad():
+            for i in range(0, len(images), batch):
+                x = torch.as_tensor(images[i : i + batch])
+                # average with the 180-degree rotation (a training augmentation that keeps every attribute)
+                v = self.net.image_embed(x, a) + self.net.image_embed(x.flip(2, 3), a)
+                out.append((v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)).numpy())
+        return np.concatenate(out) if out else np.zeros((0, D_SHARED), np.float32)
+
+    def describe(self, images: np.ndarray, p3: float | None = None, p4: float | None = None) -> list[str]:
+        """Generated description of each image (network inputs (N, 3, H, W))."""
+        torch = _torch()
+        v = torch.as_tensor(self.encode_images(images))
+        a3 = self.steering.p3 if p3 is None else p3
+        a4 = self.steering.p4 if p4 is None else p4
+        ids = self.net.generate(v, a3, a4).numpy()
+        return [detokenize(row, self.vocab) for row in ids]
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: str | Path) -> Path:
+        torch = _torch()
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        state = {
+            k: v.half() if v.is_floating_point() and k != "word_emb" else v for k, v in self.net.state_dict().items()
+        }
+        state.pop("word_emb")  # rebuilt from the GloVe wheel on load (the wheel is a dependency, not shipped)
+        tmp = path.with_suffix(".tmp")
+        blob = {"version": MODEL_VERSION, "state": state, "vocab": self.vocab}
+        torch.save(blob | {"steering": self.steering.__dict__, "meta": self.meta}, tmp)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> TouchSteer:
+        from vtrack.language.text import word_vectors
+
+        torch = _torch()
+        path = Path(path)
+        if not path.exists():
+            raise InputError("no language model here", path=path, expected="a file written by 'vtrack language train'")
+        try:
+            blob = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # a truncated / foreign file
+            raise InputError("cannot read the language model", path=path, got=type(e).__name__) from None
+        keys = ("state", "vocab", "steering")
+        if not isinstance(blob, dict) or any(k not in blob for k in keys) or "s_hat" not in blob["state"]:
+            raise InputError("not a vtrack language model", path=path, expected="keys state, vocab, steering")
+        if int(blob.get("version", 1)) > MODEL_VERSION:
+            raise InputError(
+                "language model from a newer vtrack",
+                path=path,
+                expected=f"version <= {MODEL_VERSION}",
+                got=blob.get("version"),
+            )
+        vocab = list(blob["vocab"])
+        net = build(vocab, vocab_vectors(vocab, word_vectors), blob["state"]["s_hat"].float().numpy())
+        state = {k: v.float() if v.is_floating_point() else v for k, v in blob["state"].items()}
+        state["word_emb"] = net.word_emb
+        net.load_state_dict(state)
+        net.eval()
+        return cls(net, vocab, Steering(**blob["steering"]), dict(blob.get("meta", {})))
+
+
+# ---------------------------------------------------------------------------------------- vocabulary
+SPECIAL = ["<bos>", "<eos>", ",", ";", "."]
+
+
+def words_of(text: str) -> list[str]:
+    """Decoder tokens of a description: words and , ; . punctuation."""
+    return _WORDS.findall(text.lower())
+
+
+def make_vocab(texts: list[str]) -> list[str]:
+    seen = dict.fromkeys(SPECIAL)
+    for t in texts:
+        for w in words_of(t):
+            seen.setdefault(w)
+    return list(seen)
+
+
+def vocab_vectors(vocab: list[str], word_vectors) -> np.ndarray:
+    """Frozen input vectors of the decoder's vocabulary: GloVe for words, fixed small random for specials."""
+    rng = np.random.default_rng(7)
+    out = np.zeros((len(vocab), 50), np.float32)
+    words = [i for i, w in enumerate(vocab) if w not in SPECIAL]
+    out[words] = word_vectors([vocab[i] for i in words])
+    for i, w in enumerate(vocab):
+        if w in SPECIAL:
+            out[i] = rng.normal(0, 0.5, 50)
+    return out
+
+
+def encode_tokens(texts: list[str], vocab: list[str]) -> np.ndarray:
+    """(N, MAX_LEN + 1) ids: <bos> w1 .. wn <eos> padded with <eos>."""
+    idx = {w: i for i, w in enumerate(vocab)}
+    out = np.ones((len(texts), MAX_LEN + 1), np.int64)
+    out[:, 0] = 0
+    for r, t in enumerate(texts):
+        ids = [idx[w] for w in words_of(t)][:MAX_LEN]
+        out[r, 1 : 1 + len(ids)] = ids
+    return out
+
+
+def detokenize(ids, vocab: list[str]) -> str:
+    words = []
+    for i in ids:
+        if int(i) == 1:
+            break
+        if int(i) > 0:
+            words.append(vocab[int(i)])
+    s = " ".join(words)
+    return re.sub(r" ([,;.])", r"\1", s)
+
+
+# ---------------------------------------------------------------------------------------- training
+def train(
+    data,
+    *,
+    steering: Steering | None = None,
+    epochs: int = 60,
+    batch: int = 64,
+    lr: float = 2e-3,
+    lm_weight: float = 0.5,
+    mode: int = 2,
+    seed: int = 0,
+    log=None,
+) -> TouchSteer:
+    """Train on the ``train`` split of a :class:`~vtrack.language.materials.TactileSet`.
+
+    The retrieval texts are the Mode ``mode`` descriptions with distractors, re-drawn with augmentation
+    (synonyms p = 0.3, shuffled attributes, new distractor words) from 8 pre-drawn variants per sample; the
+    describer learns the tactile-only canonical description. Images are randomly rotated by 180 degrees
+    (which keeps every attribute, orientation included).
+    """
+    from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector, token_arrays, word_vectors
+
+    torch = _torch()
+    steering = steering or Steering()
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    tr = data.subset(data.split == "train")
+    n = len(tr.images)
+    if n < 8:
+        raise InputError("too few training contacts", field="data", expected=">= 8", got=n)
+    variants = [token_arrays(tr.texts(mode=mode, seed=seed * 100 + k + 1, augment=True)) for k in range(8)]
+    # describer targets: the canonical tactile-only description (all splits share the vocabulary)
+    canon = data.texts(mode=2, distractor=False)
+    vocab = make_vocab(canon)
+    tgt = torch.as_tensor(encode_tokens(tr.texts(mode=2, distractor=False), vocab))
+    if steering.design == "none":
+        s_hat = steering_vector(LEXICON_A, LEXICON_N)  # stored for inference sweeps; not injected
+        steering = steering.off()
+    else:
+        s_hat = steering_vector(LEXICON_A, LEXICON_N if steering.design == "A-N" else None)
+    net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat)
+    opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=lr, weight_decay=1e-4)
+    steps = epochs * int(np.ceil(n / batch))
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
+    x_all = torch.as_tensor(tr.images)
+    mat_all = torch.as_tensor(tr.material)
+    t0 = time.perf_counter()
+    for ep in range(epochs):
+        net.train()
+        perm = rng.permutation(n)
+        tok_all, mask_all = (torch.as_tensor(a) for a in variants[ep % len(variants)])
+        tot = 0.0
+        for i in range(0, n, batch):
+            b = perm[i : i + batch]
+            if len(b) < 4:
+                continue
+            x = x_all[b]
+            flip = torch.as_tensor(rng.random(len(b)) < 0.5)
+            x = torch.where(flip[:, None, None, None], x.flip(2, 3), x)
+            x = x + 0.03 * torch.randn_like(x)  # camera-noise augmentation
+            v = net.image_embed(x, steering.p2)
+            t = net.text_embed(tok_all[b], mask_all[b], steering.p1)
+            logits = net.logit_scale.exp().clamp(max=100) * v @ t.T
+            # InfoNCE targets: half on the own pair, half spread over the batch's other contacts of the same
+            # material (they are not negatives: the object-level task counts them as matches)
+            same = mat_all[b][:, None] == mat_all[b][None]
+            target = 0.5 * torch.eye(len(b)) + 0.5 * same.float() / same.sum(1, keepdim=True)
+            loss = 0.5 * (
+                torch.nn.functional.cross_entropy(logits, target) + torch.nn.functional.cross_entropy(logits.T, target)
+            )
+            tok = tgt[b]
+            lm = net.decode_logits(v, tok[:, :-1], steering.p3, steering.p4)
+            loss = loss + lm_weight * torch.nn.functional.cross_entropy(
+                lm.reshape(-1, lm.shape[-1]), tok[:, 1:].reshape(-1)
+            )
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            opt.step()
+            sched.step()
+            tot += float(loss.detach()) * len(b)
+        if log is not None and (ep % 10 == 0 or ep == epochs - 1):
+            log(
+                f"epoch {ep + 1}/{epochs} loss {tot / n:.3f} tau {1 / float(net.logit_scale.detach().exp()):.3f} "
+                f"({time.perf_counter() - t0:.0f} s)"
+            )
+    net.eval()
+    meta = {"epochs": epochs, "mode": mode, "seed": seed, "train_s": round(time.perf_counter() - t0, 1), "n_train": n}
+    return TouchSteer(net, vocab, steering, meta)
