@@ -164,7 +164,27 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                 drift_max_mm=m["drift_max_mm"],
                 frames=m["frames"],
                 poses_per_s=m["poses_per_s"],
+                backend_s=m.get("backend_s", float("nan")),
             )
+            if "frontend" in m:  # ablation from the same run: the SLAM front end before the keyframe pose graph
+                table.add(
+                    method=name.replace("slam/", "slam (no refinement)/"),
+                    setting=setting,
+                    data="sim",
+                    object=obj,
+                    occlusion=occ,
+                    noise=noise,
+                    ms=m["cpu_ms_per_frame_mean"],
+                    wall_ms=m["ms_per_frame_mean"],
+                    drift_mm=m["frontend"]["drift_mm"],
+                    add_s_mm=m["frontend"]["add_s_mm"],
+                    motion_err_mm=m["frontend"]["motion_err_mm"],
+                    rot_drift_deg=float("nan"),
+                    drift_max_mm=float("nan"),
+                    frames=m["frames"],
+                    poses_per_s=m["poses_per_s"],
+                    backend_s=float("nan"),
+                )
     # the aggregate: every YCB object, occlusion none and medium (means over objects)
     table.add_group_means(
         by=("method", "occlusion"),

@@ -226,7 +226,8 @@ def track_session(
         max_frames: track only the first frames (0 = all).
         return_poses: return ``(metrics, (times, T_world_object))`` instead of the metrics alone.
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
-            ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing.
+            ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing;
+            for SLAM also ``poses_frontend`` (the poses before the back end's refinement, an ablation).
         depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
             working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
             4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
@@ -329,6 +330,8 @@ def track_session(
         c0, t0 = time.process_time(), time.perf_counter()
         est_front = est
         est = tracker.refine_poses(frames.times, est)
+        if keep_frames is not None:
+            keep_frames["poses_frontend"] = est_front
         rep = tracker.backend_report
         backend = {
             "refined": bool(rep.get("refined", False)),
