@@ -227,7 +227,8 @@ def track_session(
         return_poses: return ``(metrics, (times, T_world_object))`` instead of the metrics alone.
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
             ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing;
-            for SLAM also ``poses_frontend`` (the poses before the back end's refinement, an ablation).
+            for SLAM also ``poses_frontend`` (the poses before the back end's refinement, an ablation); and
+            ``tracker`` (the tracker after the last frame, e.g. its keyframes).
         depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
             working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
             4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
@@ -297,7 +298,7 @@ def track_session(
     cpu_ms = np.zeros(n)
     status: list[str] = []
     if keep_frames is not None:
-        keep_frames.update(frames=frames, built=[])
+        keep_frames.update(frames=frames, built=[], tracker=tracker)
     reloc = (
         _Relocalisation(tracker, mesh_path, bool(frames.scene.object.symmetric))
         if (shape == "known_shape" and method == "ours")
