@@ -114,3 +114,27 @@ def test_loop_closure_removes_most_of_a_spin_drift(mustard_loop):
     assert add_mm(X_no) > 0.8 * front  # registration alone: the map is consistently drifted
     assert add_mm(X_lc) < 0.5 * front
     assert np.isfinite(X_lc).all()
+
+
+def test_slam_options_are_typed_and_keyframes_feed_the_back_end(mustard_seq):
+    from vtrack.errors import InputError
+    from vtrack.tracking.slam import SLAMOptions, SLAMTracker
+    from vtrack.tracking.synth import run_sequence
+
+    with pytest.raises(InputError) as e:
+        SLAMTracker(mustard_seq.gt[0], refresh_evry=3)
+    assert "refresh_evry" in str(e.value.field)
+    tr = SLAMTracker(mustard_seq.gt[0], trunc=0.01, kf_max_gap_s=0.2)
+    assert tr.slam_opts.trunc == 0.01 and tr.slam_opts.map_voxel == SLAMOptions().map_voxel
+    assert tr.opts.gate == pytest.approx(0.008)  # SLAM's tracker default follows the band
+    frames = mustard_seq.frames[:20]
+    E, _ = run_sequence(tr, mustard_seq, frames=frames)
+    assert len(tr.kf_graph) >= 3  # 0.67 s of turning: motion and time both promote keyframes
+    times = np.array([f.t for f in frames])
+    out = tr.refine_poses(times, E)
+    assert tr.backend_report["refined"] and np.isfinite(out).all()
+    assert np.allclose(out[0], E[0], atol=1e-6)  # the first keyframe is the gauge: SLAM's frame stays put
+    assert np.abs(out[:, :3, 3] - E[:, :3, 3]).max() < 0.01  # a refinement, not a jump
+    off = SLAMTracker(mustard_seq.gt[0], refine=False)
+    run_sequence(off, mustard_seq, frames=frames[:6])
+    assert off.kf_graph == [] and np.array_equal(off.refine_poses(times, E), E)
