@@ -48,7 +48,8 @@ class BackendOptions:
     icp_iters: int = 10  #: point-to-plane ICP iterations per pair and round
     icp_dist: float = 0.005  #: correspondence distance, m
     sigma_point: float = 0.002  #: point-to-plane noise, m
-    point_correlation: float = 20.0  #: ICP information divided by this (neighbouring points are correlated)
+    point_correlation: float = 100.0  #: registration-edge ICP information divided by this (correlated points)
+    loop_point_correlation: float = 20.0  #: the same for loop edges (stronger: they carry the drift correction)
     min_overlap: float = 0.4  #: fraction of a cloud within icp_dist of the other (after ICP) for an edge
     max_rmse: float = 0.0025  #: inlier point-to-plane RMSE gate, m
     registration: bool = True  #: add keyframe-to-local-map registration edges
@@ -312,7 +313,8 @@ def _edge(i: int, j: int, C: np.ndarray, H: np.ndarray, X: np.ndarray, o: Backen
     information of a left perturbation of ``C``, carried to the error ``Log(Z^-1 X_i^-1 X_j)``."""
     Z = _observable(C, H, o) @ _relative(X[i], X[j])
     AdZ = _adjoint(Z)
-    info = AdZ.T @ (H / max(o.point_correlation, 1.0)) @ AdZ
+    corr = o.loop_point_correlation if kind == "loop" else o.point_correlation
+    info = AdZ.T @ (H / max(corr, 1.0)) @ AdZ
     return Edge(i, j, Z, info, kind=kind, robust_k=o.robust_k, stats=st)
 
 
