@@ -44,6 +44,7 @@ class BackendOptions:
     kf_rot: float = 0.07  #: ... or rotation, rad ...
     kf_max_gap_s: float = 0.3  #: ... or this much time, s
     kf_points: int = 500  #: depth points (with normals) a keyframe keeps
+    kf_max: int = 2000  #: keyframes kept at most (~24 kB each; a long live run must not grow without bound)
     rounds: int = 3  #: register / solve rounds
     icp_iters: int = 10  #: point-to-plane ICP iterations per pair and round
     icp_dist: float = 0.005  #: correspondence distance, m

@@ -299,7 +299,7 @@ class SLAMTracker(WindowTracker):
     def _maybe_keyframe(self, t: float, T: np.ndarray, V: np.ndarray, Nw: np.ndarray, rng) -> None:
         """Keep this frame for the back end after enough motion or time since the last keyframe."""
         b = self.backend_opts
-        if not b.refine or len(V) < 30:
+        if not b.refine or len(V) < 30 or len(self.kf_graph) >= b.kf_max:
             return
         if self.kf_graph:
             last = self.kf_graph[-1]
