@@ -107,8 +107,10 @@ def _quick(table: BenchTable) -> None:
 def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np.ndarray, float, dict]:
     """Observations of a simulator session and the GT mesh in the frame of their poses.
 
-    Blind (default): SLAM poses, segmentation and touch from the raw streams; the GT mesh is moved into the
-    SLAM object frame by the first-frame alignment (scoring only). Oracle: GT poses, GT masks, GT height maps.
+    Blind (default): SLAM poses (refined by the keyframe pose graph), segmentation and touch from the raw
+    streams; the GT mesh is moved into the SLAM object frame by the first-frame alignment (scoring only);
+    ``info["observations_frontend"]`` holds the same observations placed with the front end's poses (the
+    ``slam (no refinement)`` ablation). Oracle: GT poses, GT masks, GT height maps.
     """
     from vtrack.eval.session_gt import SessionGroundTruth
     from vtrack.frames.session import SessionFrames
@@ -127,10 +129,17 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
         m, (times, est) = track_session(
             path, "", shape="slam", write=False, return_poses=True, keep_frames=kept, keep_step=2
         )
-        info = {"motion_err_mm": m.get("motion_err_mm")}
+        info = {
+            "motion_err_mm": m.get("motion_err_mm"),
+            "motion_err_mm_frontend": m.get("frontend", {}).get("motion_err_mm", float("nan")),
+            "backend_s": m.get("backend_s", float("nan")),
+        }
         frames, built, track = kept["frames"], kept["built"], PoseTrack(times, est)
         T_est_gt = se3.invert(est[0]) @ gt.poses_at(times[:1])[0]  # GT object frame in the SLAM frame
         Vg = se3.transform_points(T_est_gt, np.asarray(Vg, np.float64))
+        if "poses_frontend" in kept:  # the refinement keeps the first pose, so the same GT alignment holds
+            front = observations_from_frames(frames, built, PoseTrack(times, kept["poses_frontend"]))
+            info["observations_frontend"] = front.observations
     else:
         frames = SessionFrames(path, ("vision", "touch"), tactile_source="gt", segmentation="gt")
         built = [(i, frames.frame(i)[0]) for i in range(0, len(frames), 2)]
@@ -165,10 +174,27 @@ def _full(table: BenchTable, seconds: float) -> None:
                 run(method="tsdf", mods=mods, setting="voxel=2mm" + tag, voxel_size=0.002)
                 if (main or mods != "touch") and (blind or mods == "vision+touch"):
                     run(method="neural_sdf", mods=mods, setting="iters=400" + tag, n_iters=400)
+            if blind and "observations_frontend" in info:
+                # ablation: the same fusion with the SLAM front end's poses (before the keyframe pose graph)
+                _run(
+                    table,
+                    info["observations_frontend"],
+                    Vg,
+                    Fg,
+                    method="neural_sdf",
+                    mods="vision+touch",
+                    setting="iters=400 slam (no refinement)",
+                    object_name=short,
+                    occlusion=occ,
+                    load_s=load_s,
+                    n_iters=400,
+                )
             if blind and main and occ == "none":
                 _operating_points(run, (0.0015, 0.003), (300, 600))
             for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
                 r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
+                r["slam_motion_err_mm_frontend"] = info.get("motion_err_mm_frontend", float("nan"))
+                r["slam_backend_s"] = info.get("backend_s", float("nan"))
 
 
 def run(quick: bool = False) -> BenchTable:

@@ -112,6 +112,7 @@ def _add_session_row(table: BenchTable, method: str, setting: str, obj: str, occ
         **{k: m[k] for k in ("drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "drift_max_mm")},
         frames=m["frames"],
         poses_per_s=m["poses_per_s"],
+        backend_s=m.get("backend_s", float("nan")),
     )
 
 
@@ -146,6 +147,10 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                 table.notes.append(f"{name} {setting}: {e}")
                 continue
             _add_session_row(table, name, setting, obj, occ, noise, m)
+            if "frontend" in m:  # ablation from the same run: the SLAM front end before the keyframe pose graph
+                fe = {**m, **m["frontend"], "rot_drift_deg": float("nan"), "drift_max_mm": float("nan")}
+                fe["backend_s"] = float("nan")
+                _add_session_row(table, name.replace("slam/", "slam (no refinement)/"), setting, obj, occ, noise, fe)
     # the aggregate: every YCB object, occlusion none and medium (means over objects)
     table.add_group_means(
         by=("method", "occlusion"),

@@ -226,7 +226,9 @@ def track_session(
         max_frames: track only the first frames (0 = all).
         return_poses: return ``(metrics, (times, T_world_object))`` instead of the metrics alone.
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
-            ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing.
+            ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing;
+            for SLAM also ``poses_frontend`` (the poses before the back end's refinement, an ablation); and
+            ``tracker`` (the tracker after the last frame, e.g. its keyframes).
         depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
             working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
             4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
@@ -296,7 +298,7 @@ def track_session(
     cpu_ms = np.zeros(n)
     status: list[str] = []
     if keep_frames is not None:
-        keep_frames.update(frames=frames, built=[])
+        keep_frames.update(frames=frames, built=[], tracker=tracker)
     reloc = (
         _Relocalisation(tracker, mesh_path, bool(frames.scene.object.symmetric))
         if (shape == "known_shape" and method == "ours")
@@ -321,6 +323,26 @@ def track_session(
             keep_frames["built"].append((i, fr))
     if not np.all(np.isfinite(est)):
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
+    est_front = None
+    backend: dict[str, Any] = {}
+    if hasattr(tracker, "refine_poses"):
+        # SLAM back end: keyframe pose graph (registration + loop edges), after the last frame; its cost is
+        # reported apart from the per-frame tracking cost
+        c0, t0 = time.process_time(), time.perf_counter()
+        est_front = est
+        est = tracker.refine_poses(frames.times, est)
+        if keep_frames is not None:
+            keep_frames["poses_frontend"] = est_front
+        rep = tracker.backend_report
+        backend = {
+            "refined": bool(rep.get("refined", False)),
+            "backend_s": time.perf_counter() - t0,
+            "backend_cpu_s": time.process_time() - c0,
+            "keyframes": int(rep.get("keyframes", 0)),
+            "registration_edges": int(rep.get("registration_edges", 0)),
+            "loop_edges": int(rep.get("loop_edges", 0)),
+            "loop_rejected": int(rep.get("loop_rejected", 0)),
+        }
     metrics: dict[str, Any] = {
         "mode": "icp" if method == "icp" else shape,
         "method": method,
@@ -342,6 +364,7 @@ def track_session(
         "poses_per_s": float(1e3 / max(ms.mean(), 1e-9)),
         "status_counts": {s: status.count(s) for s in sorted(set(status))},
         "session": str(Path(session_dir)),
+        **backend,
     }
     errors = None
     if gt_data is not None:
@@ -349,6 +372,10 @@ def track_session(
 
         m, errors = score_trajectory(gt_data, frames.times, est, mesh=mesh_path)
         metrics.update(m)
+        if est_front is not None and backend.get("refined"):
+            # ablation: the front end's poses before the back end (scoring only)
+            mf, _ = score_trajectory(gt_data, frames.times, est_front, mesh=mesh_path)
+            metrics["frontend"] = {k: mf[k] for k in ("motion_err_mm", "drift_mm", "add_s_mm") if k in mf}
     if hasattr(tracker, "map_metrics"):
         metrics.update(tracker.map_metrics())
     if write:

@@ -22,6 +22,7 @@ sensors' (outward object normals).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.geometry import se3
 from vtrack.tracking.frame import TrackingFrame
+from vtrack.tracking.posegraph import BackendOptions, Keyframe, interpolate_corrections, refine_keyframes
 from vtrack.tracking.sdf_grid import SDFGrid
 from vtrack.tracking.window import TrackerOptions, WindowTracker
 
@@ -110,78 +112,88 @@ def estimate_normals(
     return N
 
 
+@dataclass
+class SLAMOptions:
+    """Map of the SLAM tracker (metres, frames); defaults in one place. Tracker options
+    (:class:`~vtrack.tracking.window.TrackerOptions`) and back-end options
+    (:class:`~vtrack.tracking.posegraph.BackendOptions`) are passed beside these, flat."""
+
+    mapper: str = "surfel"  #: surfel (numpy TSDF-like) | neural (fusion NeuralSDFReconstructor)
+    extent: float = 0.06  #: minimum half-size of the map cube, m (see SLAMTracker._ensure_box)
+    map_voxel: float = 0.002  #: surfel voxel, m
+    grid_voxel: float = 0.004  #: SDF grid spacing, m
+    trunc: float = 0.012  #: band of the SDF around the surfels, m
+    refresh_every: int = 5  #: update the grid at most every this many frames (every frame during the first 5) ...
+    refresh_growth: float = 0.01  #: ... and only once the map grew by this fraction of its surfels ...
+    refresh_max_every: int = 20  #: ... or this many frames have passed
+    refresh_move: float = 0.0003  #: surfels that moved less than this (m) since the last update keep their band
+    full_refresh_every: int = 8  #: every this many updates the whole band is recomputed
+    map_points: int = 1200  #: vision points fused per frame
+    train_ms: float = 40.0  #: neural mapper training budget per frame, ms
+    touch_map_weight: float = 1.0  #: weight of a contact point in the map (a depth point weighs 1)
+    box_margin: float = 0.03  #: room around the points when the map box is sized or grown, m
+
+    @staticmethod
+    def split(opts: dict) -> tuple[SLAMOptions, BackendOptions, TrackerOptions]:
+        """Flat options -> (map, back end, tracker); an unknown key is an InputError naming it."""
+        names = {f.name for f in fields(SLAMOptions)}
+        bnames = {f.name for f in fields(BackendOptions)}
+        so = SLAMOptions(**{k: v for k, v in opts.items() if k in names})
+        if so.mapper not in ("surfel", "neural"):
+            raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=so.mapper)
+        bo = BackendOptions.from_dict({k: v for k, v in opts.items() if k in bnames})
+        rest = {k: v for k, v in opts.items() if k not in names and k not in bnames}
+        # SLAM's own tracker defaults (a map is noisier than a mesh):
+        rest.setdefault("gate", 0.8 * so.trunc)
+        rest.setdefault("sigma_vision", 0.0025)
+        # Contacts from tactile images lie too shallow (large contacts at the gel's edge read at ~0.4 of their
+        # depth): they may sit inside the map's surface at no cost, never outside it, and weakly. Measured on
+        # the 5 s YCB sessions (occlusion none, motion error): mustard 6.6 -> 1.0 mm, potted meat 2.9 -> 0.5.
+        rest.setdefault("sigma_touch", 0.005)
+        rest.setdefault("sigma_touch_inside", float("inf"))
+        return so, bo, TrackerOptions.from_dict(rest)
+
+
 class SLAMTracker(WindowTracker):
     """Track + map with an unknown shape; ``step(frame) -> T_world_object``.
 
     Args:
         T_init: initial ``T_world_object``; it defines the object frame of the map.
-        mapper: ``surfel`` (numpy TSDF-like, default) or ``neural`` (fusion NeuralSDFReconstructor).
-        extent: minimum half-size of the map cube, m (centred on the first frame's points; grows to hold
-            them turned any way plus box_margin, and later points; see :meth:`_ensure_box`).
-        map_voxel: surfel voxel, m; grid_voxel: SDF grid spacing, m; trunc: band, m.
-        refresh_every: update the grid at most every this many frames (every frame during the first 5) ...
-        refresh_growth: ... and only once the map has this many new surfels (fraction of the map) ...
-        refresh_max_every: ... or this many frames have passed.
-        refresh_move: surfels that moved less than this (m) since the last update keep their band.
-        full_refresh_every: every this many updates the whole band is recomputed.
-        map_points: vision points fused per frame.
-        touch_map_weight: weight of a contact point in the map (a depth point weighs 1).
-        box_margin: room around the points when the map box is sized or grown, m.
-        train_ms: neural mapper training budget per frame, ms.
-        **opts: :class:`~vtrack.tracking.window.TrackerOptions` overrides.
+        **opts: flat overrides of :class:`SLAMOptions` (map), :class:`~vtrack.tracking.posegraph.BackendOptions`
+            (keyframes and pose-graph refinement) and :class:`~vtrack.tracking.window.TrackerOptions`.
+
+    Keyframes (:class:`~vtrack.tracking.posegraph.Keyframe`) are kept while tracking; :meth:`refine_poses`
+    re-optimises them in a pose graph and corrects a trajectory (``track_session`` does it after the last frame).
     """
 
     mode = "slam"
 
-    def __init__(
-        self,
-        T_init: np.ndarray,
-        mapper: str = "surfel",
-        extent: float = 0.06,
-        map_voxel: float = 0.002,
-        grid_voxel: float = 0.004,
-        trunc: float = 0.012,
-        refresh_every: int = 5,
-        map_points: int = 1200,
-        train_ms: float = 40.0,
-        refresh_move: float = 0.0003,
-        full_refresh_every: int = 8,
-        refresh_growth: float = 0.01,
-        refresh_max_every: int = 20,
-        touch_map_weight: float = 1.0,
-        box_margin: float = 0.03,
-        **opts: Any,
-    ) -> None:
-        if mapper not in ("surfel", "neural"):
-            raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=mapper)
-        opts.setdefault("gate", 0.8 * trunc)
-        opts.setdefault("sigma_vision", 0.0025)
-        # Contacts from tactile images lie too shallow (large contacts at the gel's edge read at ~0.4 of their
-        # depth): they may sit inside the map's surface at no cost, never outside it, and weakly. Measured on
-        # the 5 s YCB sessions (occlusion none, motion error): mustard 6.6 -> 1.0 mm, potted meat 2.9 -> 0.5.
-        opts.setdefault("sigma_touch", 0.005)
-        opts.setdefault("sigma_touch_inside", float("inf"))
-        self.trunc, self.extent, self.grid_voxel = float(trunc), float(extent), float(grid_voxel)
-        self.refresh_every, self.map_points, self.train_ms = int(refresh_every), int(map_points), float(train_ms)
-        self.mapper = mapper
-        self.touch_map_weight = float(touch_map_weight)
-        self.box_margin = float(box_margin)
+    def __init__(self, T_init: np.ndarray, **opts: Any) -> None:
+        so, bo, to = SLAMOptions.split(opts)
+        self.slam_opts, self.backend_opts = so, bo
+        self.trunc, self.extent, self.grid_voxel = float(so.trunc), float(so.extent), float(so.grid_voxel)
+        self.refresh_every, self.map_points, self.train_ms = int(so.refresh_every), int(so.map_points), so.train_ms
+        self.mapper = so.mapper
+        self.touch_map_weight = float(so.touch_map_weight)
+        self.box_margin = float(so.box_margin)
         self._box_grew = False
         import open3d  # noqa: F401  (normal estimation; imported now so the first frame is not charged for it)
 
-        self.map = SurfelMap(map_voxel)
+        self.map = SurfelMap(so.map_voxel)
         self.neural = None
-        grid = SDFGrid(np.full((2, 2, 2), trunc, np.float32), np.zeros(3), 1.0)
-        super().__init__(grid, T_init, TrackerOptions.from_dict(opts))
+        grid = SDFGrid(np.full((2, 2, 2), so.trunc, np.float32), np.zeros(3), 1.0)
+        super().__init__(grid, T_init, to)
         self._box: tuple[np.ndarray, np.ndarray] | None = None
         self._n_map_frames = 0
         self.ms_map: list[float] = []
-        self.refresh_move, self.full_refresh_every = float(refresh_move), int(full_refresh_every)
-        self.refresh_growth, self.refresh_max_every = float(refresh_growth), int(refresh_max_every)
+        self.refresh_move, self.full_refresh_every = float(so.refresh_move), int(so.full_refresh_every)
+        self.refresh_growth, self.refresh_max_every = float(so.refresh_growth), int(so.refresh_max_every)
         self._n_refresh = 0
         self._last_refresh = 0
         self._ref_keys = np.zeros(0, np.int64)
         self._ref_P = self._ref_N = np.zeros((0, 3))
+        self.kf_graph: list[Keyframe] = []  #: back-end keyframes (world points + normals, front-end pose)
+        self.backend_report: dict[str, Any] = {}
 
     @classmethod
     def from_scene(cls, scene: Any, T_init: np.ndarray | None = None, **opts: Any) -> SLAMTracker:
@@ -266,6 +278,7 @@ class SLAMTracker(WindowTracker):
             )
             Vo = se3.transform_points(Tinv, V)
             No = se3.rotate_vectors(Tinv, Nw)
+            self._maybe_keyframe(frame.t, T, V, Nw, rng)
             self._ensure_box(Vo)
             self.map.integrate(Vo, No, 1.0)
             if self.neural is not None or self.mapper == "neural":
@@ -282,6 +295,37 @@ class SLAMTracker(WindowTracker):
             self.map.integrate(Po, No, self.touch_map_weight)
             if self.mapper == "neural":
                 self._neural_integrate(Po, No, 1, None)
+
+    def _maybe_keyframe(self, t: float, T: np.ndarray, V: np.ndarray, Nw: np.ndarray, rng) -> None:
+        """Keep this frame for the back end after enough motion or time since the last keyframe."""
+        b = self.backend_opts
+        if not b.refine or len(V) < 30 or len(self.kf_graph) >= b.kf_max:
+            return
+        if self.kf_graph:
+            last = self.kf_graph[-1]
+            rel = se3.invert(last.T) @ T
+            ang = float(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+            if np.linalg.norm(rel[:3, 3]) < b.kf_trans and ang < b.kf_rot and t - last.t < b.kf_max_gap_s:
+                return
+        ok = np.linalg.norm(Nw, axis=1) > 0.5
+        V, Nw = V[ok], Nw[ok]
+        if len(V) > b.kf_points:
+            sel = rng.choice(len(V), b.kf_points, replace=False)
+            V, Nw = V[sel], Nw[sel]
+        self.kf_graph.append(Keyframe(t=float(t), T=T.copy(), points=V.copy(), normals=Nw.copy()))
+
+    def refine_poses(self, times: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """The trajectory ``poses`` (N, 4, 4) at ``times`` corrected by the keyframe pose graph
+        (:func:`~vtrack.tracking.posegraph.refine_keyframes`); the report is in ``backend_report``."""
+        if not self.backend_opts.refine or len(self.kf_graph) < self.backend_opts.min_keyframes:
+            self.backend_report = {"keyframes": len(self.kf_graph), "refined": False}
+            return np.asarray(poses, np.float64).copy()
+        X_new, rep = refine_keyframes(self.kf_graph, self.backend_opts)
+        X_old = np.stack([kf.T for kf in self.kf_graph])
+        out = interpolate_corrections(np.array([kf.t for kf in self.kf_graph]), X_old, X_new, times, poses)
+        rep["refined"] = True
+        self.backend_report = rep
+        return out
 
     def _ensure_box(self, P: np.ndarray) -> None:
         """Map bounds (object frame) that hold every fused point with a ``box_margin`` to spare.
@@ -396,6 +440,7 @@ class SLAMTracker(WindowTracker):
             "map_surfels": float(len(self.map)),
             "ms_map_mean": float(np.mean(self.ms_map)) if self.ms_map else 0.0,
             "mapper": self.mapper,
+            "keyframes": len(self.kf_graph),
         }
 
     def surfel_cloud(self) -> tuple[np.ndarray, np.ndarray]:

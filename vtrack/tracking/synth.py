@@ -177,3 +177,37 @@ def run_sequence(tracker, seq: SynthSequence, drop: tuple[str, ...] = (), frames
     c = seq.centre[None]
     err = np.linalg.norm(se3.transform_points(E, c)[:, 0] - se3.transform_points(seq.gt[: len(E)], c)[:, 0], axis=1)
     return E, err
+
+
+def drifting_keyframes(
+    seq: SynthSequence,
+    axis,
+    lag_per_frame: float = 0.05,
+    lag_frames: int = 20,
+    trans_noise: float = 3e-4,
+    n_points: int = 400,
+    camera_origin=(0.0, -0.35, 0.22),
+    seed: int = 0,
+) -> list:
+    """Back-end keyframes (:class:`~vtrack.tracking.posegraph.Keyframe`) of every frame of ``seq`` with the
+    drift a SLAM front end shows: the spin about the world ``axis`` (through the object centre) lags by
+    ``lag_per_frame`` rad per frame over the first ``lag_frames`` frames and then stays behind, plus
+    ``trans_noise`` m of position noise. Normals: Open3D PCA facing the camera of :func:`make_sequence`."""
+    from vtrack.tracking.posegraph import Keyframe
+    from vtrack.tracking.slam import estimate_normals
+
+    rng = np.random.default_rng(seed)
+    ax = np.asarray(axis, np.float64)
+    ax = ax / np.linalg.norm(ax)
+    cam = np.asarray(camera_origin, np.float64)
+    kfs = []
+    for i, f in enumerate(seq.frames):
+        R = se3.so3_exp(ax * (-lag_per_frame * min(i, lag_frames)))
+        c = se3.transform_points(seq.gt[i], seq.centre[None])[0]
+        T = se3.make_transform(R, c - R @ c) @ seq.gt[i]
+        T[:3, 3] += rng.normal(0.0, trans_noise, 3)
+        V = f.vision_points
+        N = estimate_normals(V, cam, None)
+        sel = rng.choice(len(V), min(n_points, len(V)), replace=False)
+        kfs.append(Keyframe(t=float(f.t), T=T, points=V[sel], normals=N[sel]))
+    return kfs

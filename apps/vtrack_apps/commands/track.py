@@ -24,6 +24,12 @@ def register(app: typer.Typer) -> None:
         modalities: str = typer.Option("vision,touch", "--modalities", help="vision, touch or vision,touch"),
         method: str = typer.Option("ours", "--method", help="ours | icp (Open3D point-to-plane, vision only)"),
         mapper: str = typer.Option("surfel", "--mapper", help="SLAM map: surfel (numpy) | neural (neural SDF)"),
+        refine: bool = typer.Option(
+            True, "--refine/--no-refine", help="SLAM: keyframe pose-graph refinement after tracking (gtsam)"
+        ),
+        loop_closure: bool = typer.Option(
+            True, "--loop-closure/--no-loop-closure", help="SLAM: loop-closure edges in the pose graph"
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -62,7 +68,7 @@ def register(app: typer.Typer) -> None:
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
-                opts["mapper"] = mapper
+                opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure)
         m = track_session(
             session,
             out,
@@ -93,6 +99,9 @@ def register(app: typer.Typer) -> None:
             "ms_per_frame_mean",
             "poses_per_s",
             "status_counts",
+            "backend_s",
+            "keyframes",
+            "loop_edges",
         )
         report(f"track {session}", {k: m.get(k) for k in keys if k in m}, None)
         if json_out:
