@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.pointcloud import as_points
 
 
 @dataclass
@@ -42,14 +43,8 @@ class TrackingFrame:
 
 
 def _rows(a: np.ndarray | None, name: str) -> np.ndarray:
-    if a is None:
-        return np.zeros((0, 3))
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.size == 0:
-        return np.zeros((0, 3))
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise InputError("points must be an (N, 3) array", field=name, expected="(N, 3)", got=arr.shape)
-    return arr
+    """(N, 3) float64 points (a missing stream is no points); validation by the geometry layer's ``as_points``."""
+    return np.zeros((0, 3)) if a is None else as_points(a, name)
 
 
 def _subsample(n: int, budget: int, rng: np.random.Generator) -> np.ndarray:
