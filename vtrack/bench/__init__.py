@@ -12,4 +12,5 @@ STAGES: dict[str, str] = {
     "dome": "vtrack.bench.dome",
     "simreal": "vtrack.bench.simreal",
     "segmentation": "vtrack.bench.segmentation",
+    "generate": "vtrack.bench.generate",
 }

@@ -7,7 +7,9 @@ is compared with the real image on the contact crop (+-2 labelled contact radii,
 by MSE (grey levels^2, all channels), SSIM (Gaussian window, sigma 1.5 px) and PSNR (dB), and on the full
 frame by MSE and SSIM; means over the presses. Beside three baselines computed the same way:
 ``background`` (the no-contact frame), ``copy`` (the reference unchanged) and ``shift`` (the reference's
-contact patch, +-1 equivalent radius around its footprint, moved to the target centre).
+contact patch, +-1 equivalent radius around its footprint, moved to the target centre). An extra row
+``shift_denoised`` (the smoothed patch moved, no network) separates the gain of the smoothing from the
+network's.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ def generate_eval(
     modes: tuple[str, ...] = ("two_stage", "stage1", "hybrid"),
     max_presses: int = 0,
     threads: int = 0,
+    perturb: tuple[float, float] = (0.0, 1.0),
 ) -> dict[str, Any]:
     """Score the generator (``generator`` = ``modes[0]``; further modes as extra keys) and the baselines.
 
@@ -57,6 +60,8 @@ def generate_eval(
         holdout: presses to evaluate (default: the weights' real hold-out, i.e. never trained on).
         reference: file name of the reference press (default: the first evaluated press).
         max_presses: > 0 keeps that many targets (quick runs).
+        perturb: (dx px, scale): the target pose moved ``dx`` px along +x and the reference footprint
+            scaled about its centre (mask-robustness study; (0, 1) = none).
     """
     from vtrack.bench.simreal import _crop_box
     from vtrack.sim.presses import press_depth_mm
@@ -86,34 +91,39 @@ def generate_eval(
     bg = ps.background()
     H, W = bg.shape[:2]
     ref_img = ps.image(ref)
-    ref_mask = gd.disc_mask((H, W), ref.center_xy_px, ref.contact_radius_px)
+    ref_mask = gd.disc_mask((H, W), ref.center_xy_px, ref.contact_radius_px * perturb[1])
     ref_d = press_depth_mm(ps.ball_radius_mm, ref.contact_radius_px * ps.mm_per_px)
     shift = TactileGenerator(mode="shift")
-    rows: dict[str, list[dict[str, float]]] = {k: [] for k in ("background", "copy", "shift", *modes)}
+    rows: dict[str, list[dict[str, float]]] = {k: [] for k in ("background", "copy", "shift", "shift_denoised", *modes)}
     ms: dict[str, float] = {}
     per_press = []
-    reqs = [
-        shift.prepare(
-            ref_img,
-            bg,
-            ref_depth_mm=ref_d,
-            target_depth_mm=press_depth_mm(ps.ball_radius_mm, t.contact_radius_px * ps.mm_per_px),
-            target_pose=gd.Pose(t.center_xy_px[0], t.center_xy_px[1], 0.0),
-            ref_mask=ref_mask,
-        )
+    kws = [
+        {
+            "ref_depth_mm": ref_d,
+            "target_depth_mm": press_depth_mm(ps.ball_radius_mm, t.contact_radius_px * ps.mm_per_px),
+            "target_pose": gd.Pose(t.center_xy_px[0] + perturb[0], t.center_xy_px[1], 0.0),
+            "ref_mask": ref_mask,
+        }
         for t in targets
     ]
+    zero = np.zeros((gd.CROP_PX, gd.CROP_PX, 3), np.float32)
     outs: dict[str, list[np.ndarray]] = {}
     for m, g in gens.items():
         t0 = time.perf_counter()
-        outs[m] = g.generate_many(reqs, bg)
+        outs[m] = g.generate_many([g.prepare(ref_img, bg, **kw) for kw in kws], bg)
         ms[m] = (time.perf_counter() - t0) * 1e3 / len(targets)
-    outs["shift"] = shift.generate_many(reqs, bg)
+    outs["shift"] = shift.generate_many([shift.prepare(ref_img, bg, **kw) for kw in kws], bg)
+    sd = TactileGenerator(mode="shift_denoised")
+    outs["shift_denoised"] = [sd.compose(sd.prepare(ref_img, bg, **kw), bg, zero) for kw in kws]
     for k, t in enumerate(targets):
         real = ps.image(t)
         crop = _crop_box(t, (H, W), 1.0, 2.0)
         rec = {"file": t.file}
-        for name, img in (("background", bg), ("copy", ref_img), *((m, outs[m][k]) for m in ("shift", *modes))):
+        for name, img in (
+            ("background", bg),
+            ("copy", ref_img),
+            *((m, outs[m][k]) for m in ("shift", "shift_denoised", *modes)),
+        ):
             s = image_scores(img, real, crop)
             rows[name].append(s)
             rec[name] = s
@@ -123,7 +133,7 @@ def generate_eval(
         return {k: float(np.mean([r[k] for r in rs])) for k in METRICS}
 
     res: dict[str, Any] = {"generator": mean(rows[modes[0]]) | {"mode": modes[0]}}
-    for name in ("shift", "copy", "background"):
+    for name in ("shift", "copy", "background", "shift_denoised"):
         res[name] = mean(rows[name])
     for m in modes[1:]:
         res[m] = mean(rows[m]) | {"ms_per_image": ms[m]}

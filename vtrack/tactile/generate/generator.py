@@ -22,7 +22,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.tactile.generate import data as gd
 
-MODES = ("two_stage", "stage1", "hybrid", "shift")
+MODES = ("two_stage", "stage1", "hybrid", "shift", "shift_denoised")
 
 
 @dataclass
@@ -42,7 +42,8 @@ class TactileGenerator:
     Args:
         weights: ``.pt`` from :func:`vtrack.tactile.generate.train.train` (default: the shipped weights).
         mode: ``two_stage`` (stage 1 + control branch), ``stage1`` (force control only), ``hybrid``
-            (single-model baseline) or ``shift`` (no network: the aligned reference only).
+            (single-model baseline), ``shift`` (no network: the reference patch moved) or ``shift_denoised``
+            (no network: the smoothed reference patch moved, i.e. what the network corrects).
         threads: torch threads (0 = leave as set, e.g. by `vtrack --threads`).
     """
 
@@ -60,7 +61,8 @@ class TactileGenerator:
         self.path = Path(weights) if weights is not None else default_weights_path()
         self.net = None
         self.meta: dict = {}
-        if mode == "shift":
+        self._cache: tuple | None = None
+        if mode in ("shift", "shift_denoised"):
             return
         if not self.path.is_file():
             raise InputError(
@@ -92,6 +94,30 @@ class TactileGenerator:
         self.net = net.eval()
 
     # ------------------------------------------------------------------ request preparation
+    def _reference(
+        self, ref: np.ndarray, bg: np.ndarray, ref_mask: np.ndarray | None
+    ) -> tuple[np.ndarray, gd.Pose, float, np.ndarray]:
+        """(footprint, pose, footprint radius px, smoothed windowed colour change) of a reference; the last
+        reference is cached (keyed by a hash of subsampled pixels), so many targets from one reference cost
+        one preparation."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=16)
+        for a in (ref, bg) + (() if ref_mask is None else (np.asarray(ref_mask),)):
+            h.update(str(a.shape).encode())
+            h.update(np.ascontiguousarray(a[::5, ::5]).tobytes())
+        key = h.hexdigest()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        H, W = ref.shape[:2]
+        m = gd.detect_contact(ref, bg) if ref_mask is None else gd.check_mask(ref_mask, (H, W))
+        rp = gd.mask_pose(m)
+        radius = gd.footprint_radius(m, rp)
+        delta = ref.astype(np.float32) - bg.astype(np.float32)
+        out = (m, rp, radius, gd.reference_patch(delta, gd.contact_window(m), radius))
+        self._cache = (key, out)
+        return out
+
     def prepare(
         self,
         reference: np.ndarray,
@@ -118,11 +144,7 @@ class TactileGenerator:
                 got=bg.shape,
             )
         H, W = ref.shape[:2]
-        if ref_mask is None:
-            ref_mask = gd.detect_contact(ref, bg)
-        else:
-            ref_mask = gd.check_mask(ref_mask, (H, W))
-        rp = gd.mask_pose(ref_mask)
+        ref_mask, rp, radius, patch = self._reference(ref, bg, ref_mask)
         if target_mask is not None:
             tm = gd.check_mask(target_mask, (H, W))
             tp = gd.mask_pose(tm)
@@ -132,11 +154,11 @@ class TactileGenerator:
         else:
             tp = gd.Pose(rp.x, rp.y, rp.theta_deg + rotation_deg)
         gd.check_pose_in_gel(tp, (H, W))
-        win = gd.contact_window(ref_mask)
-        delta = ref.astype(np.float32) - bg.astype(np.float32)
-        radius = gd.footprint_radius(ref_mask, rp)
-        x, A, M = gd.crop_inputs(delta, ref_mask, win, rp, tp, radius)
-        aligned = gd.warp(np.ascontiguousarray(delta * win[..., None]), M)
+        x, A, M = gd.crop_inputs(patch, ref_mask, rp, tp, radius)
+        if self.mode == "shift":  # the baseline moves the patch as it is, noise included
+            delta = ref.astype(np.float32) - bg.astype(np.float32)
+            patch = gd.reference_patch(delta, gd.contact_window(ref_mask), radius, denoise=False)
+        aligned = gd.warp(patch, M)
         moved = gd.warp(ref_mask.astype(np.uint8), M)
         if moved.sum() < 0.25 * ref_mask.sum():
             raise InputError(

@@ -15,7 +15,8 @@ Stages (the paper's recipe at CPU scale):
    data": a sample of simulated pairs across poses plus the real training pairs).
 Baseline: :class:`~.model.Hybrid` from scratch on the position data only (the paper's hybrid model).
 
-Loss: mean squared colour-change error (grey levels / 64), weighted 5x on the target's contact window.
+Loss: mean squared colour-change error (grey levels / 64) in the target crop, weighted 5x on its inner disc;
+half of every batch is real pairs.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ class TrainConfig:
     sim_units: int = 2
     sim_poses: int = 8
     sim_depths: int = 4
+    stage1_sim_pairs: int = 1500
     stage2_sim_pairs: int = 600
     contact_weight: float = 4.0
     seed: int = 0
@@ -54,7 +56,9 @@ class TrainConfig:
     log: list = field(default_factory=list)
 
 
-def _pairs(bank: gd.PressBank, rng: np.random.Generator, n_cross_sim: int) -> tuple[np.ndarray, np.ndarray]:
+def _pairs(
+    bank: gd.PressBank, rng: np.random.Generator, n_cross_sim: int, max_sim_s1: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """(stage-1 pairs, stage-2 pairs) as (K, 2) index arrays (reference, target)."""
     s1, s2 = [], []
     sim = np.flatnonzero(~bank.real)
@@ -63,6 +67,8 @@ def _pairs(bank: gd.PressBank, rng: np.random.Generator, n_cross_sim: int) -> tu
         idx = sim[bank.site[sim] == site]
         s1 += [(i, j) for i in idx for j in idx if i != j]
     real_pairs = [(i, j) for i in real for j in real if i != j]
+    if max_sim_s1 and len(s1) > max_sim_s1:
+        s1 = [s1[k] for k in rng.choice(len(s1), max_sim_s1, replace=False)]
     s1 += real_pairs
     cross = []
     for g in np.unique(bank.group[sim]):
@@ -74,29 +80,37 @@ def _pairs(bank: gd.PressBank, rng: np.random.Generator, n_cross_sim: int) -> tu
     return np.array(s1, int), np.array(s2, int)
 
 
-def _batch(bank: gd.PressBank, pairs: np.ndarray, contact_weight: float) -> dict[str, Any]:
+def _precompute(bank: gd.PressBank, pairs: np.ndarray, contact_weight: float) -> dict[str, Any]:
+    """Network inputs/targets of all ``pairs`` once (float16; the crops are small), plus the loss weights."""
     import torch
 
-    a = gd.pair_arrays(bank, pairs)
-    x = a["x"]
-    y = a["target"] - x[:, :3]
+    xs, ys, cs, ps = [], [], [], []
+    for k in range(0, len(pairs), 256):
+        a = gd.pair_arrays(bank, pairs[k : k + 256])
+        xs.append(a["x"].astype(np.float16))
+        ys.append((a["target"] - a["x"][:, :3]).astype(np.float16))
+        cs.append(a["cond"])
+        ps.append(a["pose"])
     # the crop is +-2.2 footprint radii: weight the inner disc (contact, rim and shadow) more
     r = np.hypot(*np.meshgrid(np.linspace(-1, 1, gd.CROP_PX), np.linspace(-1, 1, gd.CROP_PX)))
     w = 1.0 + contact_weight * (r <= 0.7).astype(np.float32)
     return {
-        "x": torch.from_numpy(x),
-        "y": torch.from_numpy(y),
-        "w": torch.from_numpy(np.broadcast_to(w, (len(x), 1, *w.shape)).copy()),
-        "cond": torch.from_numpy(a["cond"]),
-        "pose": torch.from_numpy(a["pose"]),
+        "x": torch.from_numpy(np.concatenate(xs)),
+        "y": torch.from_numpy(np.concatenate(ys)),
+        "cond": torch.from_numpy(np.concatenate(cs)),
+        "pose": torch.from_numpy(np.concatenate(ps)),
+        "w": torch.from_numpy(w[None, None]),
+        "real": torch.from_numpy(bank.real[pairs[:, 1]]),
     }
 
 
-def _fit(net, params, bank, pairs, seconds: float, cfg: TrainConfig, rng, name: str) -> dict[str, float]:
-    """Adam with cosine decay over a wall-clock budget; returns the final loss and step count."""
+def _fit(net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rng, name: str) -> dict[str, float]:
+    """Adam with cosine decay over a wall-clock budget; half of every batch from real pairs (when any)."""
     import torch
 
     opt = torch.optim.Adam(params, lr=cfg.lr)
+    real = np.flatnonzero(data["real"].numpy())
+    sim = np.flatnonzero(~data["real"].numpy())
     t0 = time.perf_counter()
     step, losses = 0, []
     while True:
@@ -105,9 +119,14 @@ def _fit(net, params, bank, pairs, seconds: float, cfg: TrainConfig, rng, name: 
             break
         for g in opt.param_groups:
             g["lr"] = cfg.lr * 0.5 * (1 + np.cos(np.pi * min(1.0, el / seconds)))
-        b = _batch(bank, pairs[rng.integers(0, len(pairs), cfg.batch)], cfg.contact_weight)
-        pred = net(b["x"], b["cond"], b["pose"])
-        loss = (b["w"] * (pred - b["y"]) ** 2).mean()
+        nr = cfg.batch // 2 if len(real) and len(sim) else (cfg.batch if len(real) else 0)
+        idx = np.concatenate(
+            [rng.choice(real, nr), rng.choice(sim, cfg.batch - nr)] if len(sim) else [rng.choice(real, nr)]
+        )
+        ti = torch.from_numpy(idx)
+        x, y = data["x"][ti].float(), data["y"][ti].float()
+        pred = net(x, data["cond"][ti], data["pose"][ti])
+        loss = (data["w"] * (pred - y) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -161,19 +180,23 @@ def train(cfg: TrainConfig | None = None, out: str | Path | None = None, press_d
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     bank, info = build_bank(cfg, press_dir)
-    s1, s2 = _pairs(bank, rng, cfg.stage2_sim_pairs)
+    s1, s2 = _pairs(bank, rng, cfg.stage2_sim_pairs, cfg.stage1_sim_pairs)
     info |= {"stage1_pairs": len(s1), "stage2_pairs": len(s2)}
 
+    t0 = time.perf_counter()
+    d1 = _precompute(bank, s1, cfg.contact_weight)
+    d2 = _precompute(bank, s2, cfg.contact_weight)
+    info["pair_seconds"] = round(time.perf_counter() - t0, 1)
     base = UNet(ch=cfg.channels)
-    _fit(Stage1(base), base.parameters(), bank, s1, cfg.stage1_seconds, cfg, rng, "stage1")
+    _fit(Stage1(base), base.parameters(), d1, cfg.stage1_seconds, cfg, rng, "stage1")
     for p in base.parameters():
         p.requires_grad_(False)
     two = TwoStage(base, ControlBranch(base))
-    _fit(two, two.control.parameters(), bank, s2, cfg.stage2_seconds, cfg, rng, "stage2")
+    _fit(two, two.control.parameters(), d2, cfg.stage2_seconds, cfg, rng, "stage2")
     state: dict[str, Any] = {"base": base.state_dict(), "control": two.control.state_dict()}
     if cfg.train_hybrid:
         hyb = Hybrid(cfg.channels)
-        _fit(hyb, hyb.parameters(), bank, s2, cfg.hybrid_seconds, cfg, rng, "hybrid")
+        _fit(hyb, hyb.parameters(), d2, cfg.hybrid_seconds, cfg, rng, "hybrid")
         state["hybrid"] = hyb.state_dict()
     meta = {k: v for k, v in asdict(cfg).items() if k != "log"} | {"log": cfg.log, "data": info}
     meta["crop_px"], meta["crop_k"] = gd.CROP_PX, gd.CROP_K
