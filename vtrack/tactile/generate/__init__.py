@@ -4,7 +4,7 @@ From ONE reference tactile image (and its no-contact background) generate the ta
 contact at another indentation depth / normal force (stage 1, force control) and at another in-plane pose
 or contact mask (stage 2, position control, a zero-initialised ControlNet-style branch on the frozen
 stage-1 net). Small CPU models trained here (``vtrack tactile generate-train``) on simulated indenter
-presses and the training half of the real GelSight presses; weights ship in ``weights/generator.pt``.
+presses and the training half of the real GelSight presses; weights ship in ``generator_weights.pt``.
 
 Modules: :mod:`.data` (numpy: masks, poses, warps, indenters, training pairs), :mod:`.model` (torch
 networks), :mod:`.train`, :mod:`.generator` (:class:`~.generator.TactileGenerator`), :mod:`.evaluate`
@@ -17,8 +17,8 @@ from pathlib import Path
 
 
 def default_weights_path() -> Path:
-    """The shipped weights (``vtrack/tactile/generate/weights/generator.pt``)."""
-    return Path(__file__).resolve().parent / "weights" / "generator.pt"
+    """The shipped weights (``vtrack/tactile/generate/generator_weights.pt``; package data via ``*.pt``)."""
+    return Path(__file__).resolve().parent / "generator_weights.pt"
 
 
 def __getattr__(name: str):
