@@ -63,9 +63,12 @@ def _pose_net(n_out: int = 4):
     def blk(i: int, o: int) -> nn.Module:
         return nn.Sequential(nn.Conv2d(i, o, 3, stride=2, padding=1), nn.BatchNorm2d(o), nn.ReLU(inplace=True))
 
+    # input: colour change (3) + pixel coordinates (2, CoordConv) at 80x60; flattened (not pooled) features
+    # keep the position that a global pooling would throw away
     return nn.Sequential(
-        blk(3, 16), blk(16, 32), blk(32, 48), blk(48, 64), nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(64, n_out)
-    ).to(torch.float32)
+        blk(5, 16), blk(16, 32), blk(32, 48), blk(48, 48), nn.Flatten(), nn.Linear(48 * 4 * 5, 64),
+        nn.ReLU(inplace=True), nn.Linear(64, n_out),
+    ).to(torch.float32)  # fmt: skip
 
 
 def _pose_targets(poses: np.ndarray, W: int, H: int, sym: int) -> np.ndarray:
@@ -146,7 +149,10 @@ def pose_study(quick: bool = False, seconds: float = 60.0) -> list[dict]:
     def feats(imgs: np.ndarray) -> np.ndarray:
         d = imgs.astype(np.float32) - bg.astype(np.float32)
         small = np.stack([cv2.resize(x, (W // 4, H // 4), interpolation=cv2.INTER_AREA) for x in d])
-        return np.ascontiguousarray(small.transpose(0, 3, 1, 2) / 32.0, np.float32)
+        small = small.transpose(0, 3, 1, 2) / 32.0
+        yy, xx = np.meshgrid(np.linspace(-1, 1, H // 4), np.linspace(-1, 1, W // 4), indexing="ij")
+        coords = np.broadcast_to(np.stack([xx, yy])[None], (len(small), 2, H // 4, W // 4))
+        return np.ascontiguousarray(np.concatenate([small, coords], 1), np.float32)
 
     rows = []
     # PCA baseline (moments of the detected contact)
@@ -216,6 +222,7 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
         "copy": "copy baseline",
         "background": "background baseline",
     }
+    names["shift_denoised"] = "shift of the smoothed patch (no network; ablation)"
     for key, label in names.items():
         r = res[key]
         ms = res["ms_per_image"] if key == "generator" else r.get("ms_per_image", 0.0)
