@@ -116,7 +116,7 @@ def register_generate(tac: typer.Typer) -> None:
         pressset: Path = typer.Option(
             None, "--pressset", help="real labelled GelSight press set (default: shared gelsight_ball_presses)"
         ),
-        minutes: float = typer.Option(12.0, "--minutes", help="total training budget (stages split 9:5:5)"),
+        minutes: float = typer.Option(13.0, "--minutes", help="total training budget (stages split 9:5:5)"),
         no_hybrid: bool = typer.Option(False, "--no-hybrid", help="skip the hybrid baseline"),
         threads: int = typer.Option(2, "--train-threads", help="torch threads for training"),
         seed: int = typer.Option(0, "--seed"),

@@ -22,6 +22,8 @@ from vtrack.errors import InputError
 #: image changes.
 CROP_PX = 64
 CROP_K = 2.2
+#: Edge ramp of the reference's contact window (equivalent radii) for the generator's patch.
+FEATHER = 0.5
 #: The reference's colour change is smoothed (Gaussian, sigma = footprint radius / DENOISE_DIV px) before it
 #: is moved: its camera/JPEG noise is not the target's, so copying it only adds error (on the real held-out
 #: presses this alone lifts the shift's crop SSIM from 0.950 to 0.962; reported as its own row).
@@ -168,15 +170,19 @@ def check_pose_in_gel(pose: Pose, shape_hw: tuple[int, int], field: str = "posit
         )
 
 
-def contact_window(mask: np.ndarray, k: float = 1.0) -> np.ndarray:
-    """float32 {0, 1} window: the footprint dilated by ``k`` equivalent radii (the part of the reference's
-    colour change that belongs to the contact; the rest is camera noise)."""
+def contact_window(mask: np.ndarray, k: float = 1.0, feather: float = 0.0) -> np.ndarray:
+    """float32 window in [0, 1]: the footprint dilated by ``k`` equivalent radii (the part of the reference's
+    colour change that belongs to the contact; the rest is camera noise). ``feather`` > 0 ramps the edge
+    linearly over that many equivalent radii (centred on the hard edge) so a moved patch leaves no seam."""
     import cv2
 
     m = (np.asarray(mask) > 0).astype(np.uint8)
     r_eq = math.sqrt(max(float(m.sum()), 1.0) / math.pi)
     dist = cv2.distanceTransform(1 - m, cv2.DIST_L2, 5)
-    return (dist <= k * r_eq).astype(np.float32)
+    if feather <= 0:
+        return (dist <= k * r_eq).astype(np.float32)
+    f = feather * r_eq
+    return np.clip((k * r_eq + f / 2 - dist) / f, 0.0, 1.0).astype(np.float32)
 
 
 def warp(img: np.ndarray, M: np.ndarray, shape_hw: tuple[int, int] | None = None) -> np.ndarray:
@@ -262,10 +268,10 @@ def reference_patch(
     sigma = ``radius_px`` / :data:`DENOISE_DIV` when ``denoise`` (only the window's bounding box is filtered)."""
     import cv2
 
-    src = np.asarray(ref_delta, np.float32) * ref_window[..., None]
+    src = np.asarray(ref_delta, np.float32) * np.asarray(ref_window, np.float32)[..., None]
     if not denoise:
         return np.ascontiguousarray(src)
-    ys, xs = np.nonzero(ref_window)
+    ys, xs = np.nonzero(np.asarray(ref_window) > 0)
     if xs.size == 0:
         return np.ascontiguousarray(src)
     sig = radius_px / DENOISE_DIV
@@ -275,6 +281,14 @@ def reference_patch(
     src = np.ascontiguousarray(src)
     src[r0:r1, c0:c1] = cv2.GaussianBlur(src[r0:r1, c0:c1], (0, 0), sig)
     return src
+
+
+def crop_taper() -> np.ndarray:
+    """(CROP_PX, CROP_PX, 1) float32 taper of the correction: 1 inside 80 % of the crop's half-size, falling
+    linearly to 0 at its border, so the correction field leaves no square seam in the frame."""
+    u = np.abs(np.linspace(-1, 1, CROP_PX, dtype=np.float32))
+    t = np.clip((1.0 - u) / 0.2, 0.0, 1.0)
+    return (t[:, None] * t[None, :])[..., None]
 
 
 def crop_target(target_delta: np.ndarray, A: np.ndarray) -> np.ndarray:
@@ -339,7 +353,8 @@ class PressBank:
 
     Attributes:
         delta: per press (H, W, 3) int16 colour change (grey levels).
-        mask, window: per press (H, W) uint8 footprint and its contact window (:func:`contact_window`).
+        mask, window: per press (H, W) uint8 footprint and its feathered contact window (float16,
+            :func:`contact_window`).
         pose: (N, 3) x, y (px), theta (deg).
         radius: (N,) footprint radius (px, :func:`footprint_radius`).
         depth: (N,) mm.
@@ -367,7 +382,7 @@ class PressBank:
         return PressBank(
             [np.clip(np.rint(d), -32768, 32767).astype(np.int16) for d in deltas],
             [m.astype(np.uint8) for m in masks],
-            [contact_window(m).astype(np.uint8) for m in masks],
+            [contact_window(m, feather=FEATHER).astype(np.float16) for m in masks],
             np.array([(p.x, p.y, p.theta_deg) for p in poses], np.float32),
             np.array([footprint_radius(m, p) for m, p in zip(masks, poses, strict=True)], np.float32),
             np.array(depths, np.float32),

@@ -22,6 +22,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.tactile.generate import data as gd
 
+_TAPER = gd.crop_taper()
 MODES = ("two_stage", "stage1", "hybrid", "shift", "shift_denoised")
 
 
@@ -114,7 +115,7 @@ class TactileGenerator:
         rp = gd.mask_pose(m)
         radius = gd.footprint_radius(m, rp)
         delta = ref.astype(np.float32) - bg.astype(np.float32)
-        out = (m, rp, radius, gd.reference_patch(delta, gd.contact_window(m), radius))
+        out = (m, rp, radius, gd.reference_patch(delta, gd.contact_window(m, feather=gd.FEATHER), radius))
         self._cache = (key, out)
         return out
 
@@ -193,7 +194,7 @@ class TactileGenerator:
 
         H, W = background.shape[:2]
         # the correction lives in the target crop: map it back with the inverse crop affine (zero outside)
-        up = cv2.warpAffine(corr, req.crop, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+        up = cv2.warpAffine(corr * _TAPER, req.crop, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
         img = background.astype(np.float32) + req.aligned_full + up
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
