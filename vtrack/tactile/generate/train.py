@@ -108,6 +108,7 @@ def _fit(net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rn
     """Adam with cosine decay over a wall-clock budget; half of every batch from real pairs (when any)."""
     import torch
 
+    net.to(memory_format=torch.channels_last)  # ~2x faster small convolutions on CPU
     opt = torch.optim.Adam(params, lr=cfg.lr)
     real = np.flatnonzero(data["real"].numpy())
     sim = np.flatnonzero(~data["real"].numpy())
@@ -124,7 +125,8 @@ def _fit(net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rn
             [rng.choice(real, nr), rng.choice(sim, cfg.batch - nr)] if len(sim) else [rng.choice(real, nr)]
         )
         ti = torch.from_numpy(idx)
-        x, y = data["x"][ti].float(), data["y"][ti].float()
+        x = data["x"][ti].float().contiguous(memory_format=torch.channels_last)
+        y = data["y"][ti].float()
         pred = net(x, data["cond"][ti], data["pose"][ti])
         loss = (data["w"] * (pred - y) ** 2).mean()
         opt.zero_grad()
