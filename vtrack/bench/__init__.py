@@ -13,4 +13,5 @@ STAGES: dict[str, str] = {
     "simreal": "vtrack.bench.simreal",
     "segmentation": "vtrack.bench.segmentation",
     "slam": "vtrack.bench.slam",
+    "generate": "vtrack.bench.generate",
 }

@@ -13,7 +13,9 @@ from vtrack.errors import VtrackError
 def register(app: typer.Typer) -> None:
     @app.command("bench")
     def bench(
-        stage: str = typer.Argument("all", help="tactile | fusion | tracking | dome | segmentation | simreal | all"),
+        stage: str = typer.Argument(
+            "all", help="tactile | fusion | tracking | dome | segmentation | simreal | generate | all"
+        ),
         quick: bool = typer.Option(False, "--quick", help="fewer operating points and frames (< 3 min total)"),
         out: Path = typer.Option(
             None,

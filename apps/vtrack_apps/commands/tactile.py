@@ -238,6 +238,10 @@ def register(app: typer.Typer) -> None:
             out / "summary.json",
         )
 
+    from vtrack_apps.commands._tactile_generate import register_generate
+
+    register_generate(tac)
+
 
 def _write_ply(path: Path, pts, nrm) -> None:
     """ASCII PLY with normals (sensor frame, m)."""
