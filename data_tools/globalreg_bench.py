@@ -1,6 +1,6 @@
 """Success rate and time to first pose of :func:`vtrack.tracking.globalreg.global_register`.
 
-Synthetic single views (``globalreg.synthetic_frame``: hidden-point-removal view, 1 mm noise,
+Synthetic single views (``vtrack.testing.views.synthetic_frame``: hidden-point-removal view, 1 mm noise,
 10 % "hand" outliers, 4 contacts, 20 free gel points) of YCB meshes at seeded random poses.
 Success: ADD-S < 5 mm for symmetric objects (soup can), ADD < 5 mm otherwise, on the best
 hypothesis. Ground truth only scores. Run on one core:
@@ -30,7 +30,8 @@ def main() -> None:
     from vtrack.eval.pose_metrics import add, add_s, sample_model_points
     from vtrack.io.mesh import load_mesh
     from vtrack.paths import shared_data_dir
-    from vtrack.tracking.globalreg import global_register, random_pose, synthetic_frame
+    from vtrack.testing.views import synthetic_frame
+    from vtrack.tracking.globalreg import global_register, random_pose
 
     out = {}
     for name in args.objects:

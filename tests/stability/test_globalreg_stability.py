@@ -7,7 +7,8 @@ import pytest
 
 from vtrack.errors import InputError
 from vtrack.eval.pose_metrics import add_s, sample_model_points
-from vtrack.tracking.globalreg import Relocaliser, global_register, random_pose, synthetic_frame
+from vtrack.testing.views import synthetic_frame
+from vtrack.tracking.globalreg import Relocaliser, global_register, random_pose
 
 pytestmark = pytest.mark.stability
 

@@ -18,13 +18,13 @@ from vtrack.errors import InputError
 from vtrack.eval.pose_metrics import add, add_s, sample_model_points
 from vtrack.geometry import se3
 from vtrack.io.mesh import load_mesh
+from vtrack.testing.views import synthetic_frame
 from vtrack.tracking.globalreg import (
     GlobalRegOptions,
     PoseHypothesis,
     Relocaliser,
     global_register,
     random_pose,
-    synthetic_frame,
 )
 
 CENTRE = np.array([0.0, 0.0, 0.1])

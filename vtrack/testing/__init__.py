@@ -10,6 +10,7 @@ Nothing heavy is imported here; each module imports what it needs when a builder
   (fusion tests and the quick fusion benchmark).
 - :mod:`vtrack.testing.sequences`: ray-cast tracking sequences (``make_sequence``, ``run_sequence``;
   implemented in :mod:`vtrack.tracking.synth`).
+- :mod:`vtrack.testing.views`: single synthetic views of a mesh for global registration (``synthetic_frame``).
 - :mod:`vtrack.testing.recordings`: other tools' recordings (FeelSight logs, ROS 1/2 bags, MCAP) and
   tactile videos, for the importer and recorder tests.
 - :mod:`vtrack.testing.viewer`: a tiny session with reconstruction and tracking result folders for the
