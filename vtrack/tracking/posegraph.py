@@ -233,42 +233,6 @@ def icp_point_to_plane(
         if np.linalg.norm(delta[:3]) < 1e-6 and np.linalg.norm(delta[3:]) < 1e-5:
             break
     return C, H, stats
-    for it in range(iters + 1):
-        X = src @ C[:3, :3].T + C[:3, 3]
-        d, idx = tree.query(X, distance_upper_bound=max_dist)
-        ok = np.isfinite(d)
-        if ok.sum() < 6:
-            return C, np.zeros((6, 6)), {"overlap": float(ok.mean()), "rmse": float("inf"), "n": int(ok.sum())}
-        x, n = X[ok], tgt_normals[idx[ok]]
-        r = np.einsum("ij,ij->i", x - tgt[idx[ok]], n)
-        J = np.concatenate([n, np.cross(x, n)], axis=1)
-        a = np.abs(r) / sigma
-        w = np.where(a <= 1.5, 1.0, 1.5 / np.maximum(a, 1e-12)) / sigma**2
-        H = (J * w[:, None]).T @ J
-        stats = {"overlap": float(ok.mean()), "rmse": float(np.sqrt(np.mean(r * r))), "n": int(ok.sum())}
-        if it == iters:
-            break
-        g = J.T @ (w * r)
-        delta = -np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(6) + 1e-12 * np.eye(6), g)
-        from vtrack.tracking.window import _exp
-
-        C = _exp(delta) @ C
-        if np.linalg.norm(delta[:3]) < 1e-6 and np.linalg.norm(delta[3:]) < 1e-5:
-            # one more pass for the information at the solution
-            X = src @ C[:3, :3].T + C[:3, 3]
-            d, idx = tree.query(X, distance_upper_bound=max_dist)
-            ok = np.isfinite(d)
-            if ok.sum() < 6:
-                break
-            x, n = X[ok], tgt_normals[idx[ok]]
-            r = np.einsum("ij,ij->i", x - tgt[idx[ok]], n)
-            J = np.concatenate([n, np.cross(x, n)], axis=1)
-            a = np.abs(r) / sigma
-            w = np.where(a <= 1.5, 1.0, 1.5 / np.maximum(a, 1e-12)) / sigma**2
-            H = (J * w[:, None]).T @ J
-            stats = {"overlap": float(ok.mean()), "rmse": float(np.sqrt(np.mean(r * r))), "n": int(ok.sum())}
-            break
-    return C, H, stats
 
 
 def _relative(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
