@@ -3,7 +3,13 @@
 Inference (:mod:`vtrack.dome.reconstruct`) needs only this module, never the training code. A bundle is a
 ``torch.save`` dict: ``version`` (:data:`BUNDLE_VERSION`), ``kind`` (gnn | cnn), ``cfg`` (DomeConfig),
 ``train`` (TrainConfig), ``info``, ``contact_calib`` (Platt a, b), ``recon`` (float16 state dict) and
-``force_p`` / ``force_nop`` (force heads with / without the internal pressure).
+``force_p`` / ``force_nop`` (force nets with / without the internal pressure, architecture ``force_arch``).
+
+Version 3 adds ``force_arch`` (``vtrack.dome.force.ARCHS``: ``decoder_film`` = :class:`nets.ForceHead` on the
+decoder features, ``patch_graph`` = the S18-S23 GNN + patch net, ``cnn_film`` = FiLM on the CNN feature map)
+and, when the main nets are not ``decoder_film``, the decoder-feature heads as ``legacy_force_p`` /
+``legacy_force_nop`` (kept as ablation rows). Versions 1-2 have no ``force_arch``: their heads are
+``decoder_film``.
 
 Versions: 1 = written before the field existed (no ``version`` key): missing DomeConfig / TrainConfig keys
 take the behaviour of that time (reference frame at P = 0; 4-NN, 3 layers, no edge strain, no still-L1);
@@ -19,7 +25,7 @@ from vtrack.dome.model import DomeConfig, DomeGeometry
 from vtrack.errors import InputError
 
 #: Format version written by :func:`save_bundle`.
-BUNDLE_VERSION = 2
+BUNDLE_VERSION = 3
 #: TrainConfig keys a version-1 bundle may lack, with the behaviour it was trained with.
 _V1_TRAIN_DEFAULTS = {"gnn_k": 4, "gnn_layers": 3, "gnn_edge_strain": False, "still_l1": 0.0}
 
@@ -43,6 +49,11 @@ class TrainConfig:
     #: weight of an L1 term (mean error norm, mm) on the non-contact points, next to their L2 term: L2 alone
     #: leaves ~0.01 mm of phantom deformation on the ~80 % of the dome that does not move; L1 pulls it to 0
     still_l1: float = 2.0
+    #: reconstruction losses: "mix" (L2 region terms + L1 on still points, L2 Laplacian / edge vs GT) or "paper"
+    #: (FusionTouch S9, S14-S17: L1 region terms, L1 Laplacian and edge-length terms); see train.recon_loss
+    recon_loss: str = "mix"
+    #: epochs of the S18-S23 force nets (GNN + patch / CNN feature map; best validation checkpoint kept)
+    epochs_force_net: int = 12
 
 
 def read_bundle(path: str | Path) -> dict:
@@ -103,8 +114,11 @@ def build_model(
 
 
 def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: TrainConfig, info: dict) -> None:
-    """Weights in float16 (they are small; halves the shipped size) plus configs."""
+    """Weights in float16 (they are small; halves the shipped size) plus configs. ``heads``: ``p`` / ``nop``
+    (any one architecture) and optionally ``legacy_p`` / ``legacy_nop`` (decoder-feature heads)."""
     import torch
+
+    arch = getattr(heads.get("p", heads.get("nop")), "arch", "decoder_film")
 
     def half(sd):
         return {k: (v.half() if v.is_floating_point() else v) for k, v in sd.items()}
@@ -119,15 +133,22 @@ def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: 
             "info": info,
             "contact_calib": list(model.decoder.contact_calib),
             "recon": half(model.state_dict()),
-            **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()},
+            "force_arch": arch,
+            **{f"force_{k}": half(h.state_dict()) for k, h in heads.items() if not k.startswith("legacy")},
+            **{
+                f"{k.split('_')[0]}_force_{k.split('_')[1]}": half(h.state_dict())
+                for k, h in heads.items()
+                if k.startswith("legacy")
+            },
         },
         path,
     )
 
 
 def load_bundle(path: Path, with_heads: bool = True):
-    """-> (model, {"p": head, "nop": head}, DomeConfig, info) in eval mode, float32."""
+    """-> (model, {"p": net, "nop": net[, "legacy_p", "legacy_nop"]}, DomeConfig, info) in eval mode, float32."""
 
+    from vtrack.dome.force import ARCHS, build_force
     from vtrack.dome.nets import ForceHead
 
     b = read_bundle(path)
@@ -138,11 +159,18 @@ def load_bundle(path: Path, with_heads: bool = True):
     model = build_model(b["kind"], geo, hidden, tc.gnn_k, tc.gnn_layers, tc.gnn_edge_strain)
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
     model.decoder.contact_calib = tuple(float(v) for v in b.get("contact_calib", (1.0, 0.0)))
+    arch = b.get("force_arch", "decoder_film")
+    if arch not in ARCHS:
+        raise InputError("unknown force architecture in dome bundle", path=path, field="force_arch", got=arch)
     heads = {}
-    for key, use_p in (("p", True), ("nop", False)):
-        if with_heads and f"force_{key}" in b:
-            h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
-            h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[f"force_{key}"].items()})
+    for key, use_p in (("p", True), ("nop", False), ("legacy_p", True), ("legacy_nop", False)):
+        stored = f"legacy_force_{key[7:]}" if key.startswith("legacy") else f"force_{key}"
+        if with_heads and stored in b:
+            if arch == "decoder_film" or key.startswith("legacy"):
+                h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
+            else:
+                h = build_force(arch, cfg.pressure_max_kpa, use_p, hidden)
+            h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[stored].items()})
             heads[key] = h.eval()
     return model.eval(), heads, cfg, b.get("info", {})
 

@@ -50,7 +50,8 @@ def evaluate_predictions(pred: dict[str, np.ndarray], gt: dict[str, np.ndarray])
         "vertex_err_moved": float(np.mean(verr_def)) if verr_def else 0.0,
         "contact_l2": float(np.sqrt(np.mean((pred["contact"] - gt["contact"].astype(np.float64)) ** 2))),
     }
-    for key, name in (("force", "force"), ("force_nop", "force_nop")):
+    for name in ("force", "force_nop", "force_legacy", "force_legacy_nop"):
+        key = name
         if key in pred:
             err = pred[key] - gt["force"]
             mae = np.abs(err).mean(0)
