@@ -3,13 +3,14 @@
 Inference (:mod:`vtrack.dome.reconstruct`) needs only this module, never the training code. A bundle is a
 ``torch.save`` dict: ``version`` (:data:`BUNDLE_VERSION`), ``kind`` (gnn | cnn), ``cfg`` (DomeConfig),
 ``train`` (TrainConfig), ``info``, ``contact_calib`` (Platt a, b), ``recon`` (float16 state dict) and
-``force_p`` / ``force_nop`` (force nets with / without the internal pressure, architecture ``force_arch``).
+``force_p`` / ``force_nop`` (force nets with / without the internal pressure).
 
-Version 3 adds ``force_arch`` (``vtrack.dome.force.ARCHS``: ``decoder_film`` = :class:`nets.ForceHead` on the
-decoder features, ``patch_graph`` = the S18-S23 GNN + patch net, ``cnn_film`` = FiLM on the CNN feature map)
-and, when the main nets are not ``decoder_film``, the decoder-feature heads as ``legacy_force_p`` /
-``legacy_force_nop`` (kept as ablation rows). Versions 1-2 have no ``force_arch``: their heads are
-``decoder_film``.
+Version 3 adds ``force_archs`` ({head key: architecture}, ``vtrack.dome.force.ARCHS``: ``decoder_film`` =
+:class:`nets.ForceHead` on the decoder features, ``patch_graph`` / ``patch_graph_plain`` = the S18-S23 GNN +
+patch net, ``cnn_film`` = FiLM on the CNN feature map) and ``force_arch`` (that of ``p``). Besides ``p`` / ``nop``
+(the main nets) a bundle may hold ablation heads under other keys (``force_<key>``, e.g. ``legacy_p`` = the
+decoder-feature head, ``plain_p`` = the S18-S20 net without the additions). The head key's suffix says whether
+it reads the pressure (``p``) or not (``nop``). Versions 1-2: ``force_p`` / ``force_nop`` are ``decoder_film``.
 
 Versions: 1 = written before the field existed (no ``version`` key): missing DomeConfig / TrainConfig keys
 take the behaviour of that time (reference frame at P = 0; 4-NN, 3 layers, no edge strain, no still-L1);
@@ -114,15 +115,14 @@ def build_model(
 
 
 def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: TrainConfig, info: dict) -> None:
-    """Weights in float16 (they are small; halves the shipped size) plus configs. ``heads``: ``p`` / ``nop``
-    (any one architecture) and optionally ``legacy_p`` / ``legacy_nop`` (decoder-feature heads)."""
+    """Weights in float16 (they are small; halves the shipped size) plus configs. ``heads``: {key: force net}
+    with keys ending in ``p`` (reads the pressure) or ``nop``; ``p`` / ``nop`` are the main nets."""
     import torch
-
-    arch = getattr(heads.get("p", heads.get("nop")), "arch", "decoder_film")
 
     def half(sd):
         return {k: (v.half() if v.is_floating_point() else v) for k, v in sd.items()}
 
+    archs = {k: getattr(h, "arch", "decoder_film") for k, h in heads.items()}
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(
         {
@@ -133,20 +133,16 @@ def save_bundle(path: Path, kind: str, model, heads: dict, cfg: DomeConfig, tc: 
             "info": info,
             "contact_calib": list(model.decoder.contact_calib),
             "recon": half(model.state_dict()),
-            "force_arch": arch,
-            **{f"force_{k}": half(h.state_dict()) for k, h in heads.items() if not k.startswith("legacy")},
-            **{
-                f"{k.split('_')[0]}_force_{k.split('_')[1]}": half(h.state_dict())
-                for k, h in heads.items()
-                if k.startswith("legacy")
-            },
+            "force_arch": archs.get("p", archs.get("nop", "decoder_film")),
+            "force_archs": archs,
+            **{f"force_{k}": half(h.state_dict()) for k, h in heads.items()},
         },
         path,
     )
 
 
 def load_bundle(path: Path, with_heads: bool = True):
-    """-> (model, {"p": net, "nop": net[, "legacy_p", "legacy_nop"]}, DomeConfig, info) in eval mode, float32."""
+    """-> (model, {"p": net, "nop": net, ...ablation heads}, DomeConfig, info) in eval mode, float32."""
 
     from vtrack.dome.force import ARCHS, build_force
     from vtrack.dome.nets import ForceHead
@@ -159,19 +155,22 @@ def load_bundle(path: Path, with_heads: bool = True):
     model = build_model(b["kind"], geo, hidden, tc.gnn_k, tc.gnn_layers, tc.gnn_edge_strain)
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b["recon"].items()})
     model.decoder.contact_calib = tuple(float(v) for v in b.get("contact_calib", (1.0, 0.0)))
-    arch = b.get("force_arch", "decoder_film")
-    if arch not in ARCHS:
-        raise InputError("unknown force architecture in dome bundle", path=path, field="force_arch", got=arch)
+    archs = b.get("force_archs") if bundle_version(b) >= 3 else None
+    if archs is None:
+        archs = {k: "decoder_film" for k in ("p", "nop") if f"force_{k}" in b}
     heads = {}
-    for key, use_p in (("p", True), ("nop", False), ("legacy_p", True), ("legacy_nop", False)):
-        stored = f"legacy_force_{key[7:]}" if key.startswith("legacy") else f"force_{key}"
-        if with_heads and stored in b:
-            if arch == "decoder_film" or key.startswith("legacy"):
-                h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
-            else:
-                h = build_force(arch, cfg.pressure_max_kpa, use_p, hidden)
-            h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[stored].items()})
-            heads[key] = h.eval()
+    for key, arch in archs.items() if with_heads else ():
+        if arch not in ARCHS:
+            raise InputError("unknown force architecture in dome bundle", path=path, field="force_archs", got=arch)
+        if f"force_{key}" not in b or not key.endswith("p"):
+            raise InputError("dome bundle force head missing or misnamed", path=path, field=f"force_{key}")
+        use_p = not key.endswith("nop")
+        if arch == "decoder_film":
+            h = ForceHead(geo, hidden, 2 * hidden, use_pressure=use_p)
+        else:
+            h = build_force(arch, cfg.pressure_max_kpa, use_p, hidden)
+        h.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in b[f"force_{key}"].items()})
+        heads[key] = h.eval()
     return model.eval(), heads, cfg, b.get("info", {})
 
 

@@ -149,9 +149,11 @@ FORCE_SETTINGS = {
     "gnn_patch_no_p": ("gnn", "force_nop"),
     "cnn_with_p": ("cnn", "force"),
     "cnn_no_p": ("cnn", "force_nop"),
-    "gnn_decoder_head_with_p": ("gnn", "force_legacy"),
+    "gnn_patch_plain_with_p": ("gnn", "force_plain_p"),
+    "gnn_patch_plain_no_p": ("gnn", "force_plain_nop"),
+    "gnn_decoder_head_with_p": ("gnn", "force_legacy_p"),
     "gnn_decoder_head_no_p": ("gnn", "force_legacy_nop"),
-    "cnn_decoder_head_with_p": ("cnn", "force_legacy"),
+    "cnn_decoder_head_with_p": ("cnn", "force_legacy_p"),
     "cnn_decoder_head_no_p": ("cnn", "force_legacy_nop"),
 }
 

@@ -33,7 +33,7 @@ from vtrack.dome.nets import NODE_IN, GraphEncoder, mlp
 #: patch side (px) around each marker centre; ~1.1 rest-marker spacings at 160 px
 PATCH = 9
 #: force-net architectures stored in a bundle's ``force_arch``
-ARCHS = ("decoder_film", "patch_graph", "cnn_film")
+ARCHS = ("decoder_film", "patch_graph", "patch_graph_plain", "cnn_film")
 
 
 def centers_from_x(x: np.ndarray, image_size: int) -> np.ndarray:
@@ -83,9 +83,15 @@ class FiLM(nn.Module):
 
 
 class PatchGraphForce(nn.Module):
-    """GNN + patch encoder force net (S18-S20); see the module docstring."""
+    """GNN + patch encoder force net (S18-S20); see the module docstring.
 
-    arch = "patch_graph"
+    ``plain=True`` is the net exactly as S18-S20 describe it (node input = FiLM(patch), descriptor, phi_i).
+    ``plain=False`` (arch ``patch_graph``, shipped) adds two things: the frozen reconstruction GNN's per-marker
+    encoder features in the node input (``node_h``), and a second FiLM by the pressure on the pooled graph
+    feature concatenated with two indentation-volume proxies of the reconstructed surface
+    (:func:`indentation_sums`) - the simulator's force is ``k_n(P)`` x indentation volume, a product the
+    per-node FiLM alone had to learn through message passing and pooling."""
+
     needs_patches = True
 
     def __init__(
@@ -96,10 +102,15 @@ class PatchGraphForce(nn.Module):
         layers: int = 3,
         node_in: int = NODE_IN,
         edge_dim: int = EDGE_DIM + 3,
+        plain: bool = False,
+        enc_dim: int = 64,
     ) -> None:
         super().__init__()
         self.p_max = float(p_max_kpa)
         self.use_pressure = use_pressure
+        self.plain = plain
+        self.arch = "patch_graph_plain" if plain else "patch_graph"
+        self.enc_dim = 0 if plain else enc_dim
         self.patch = nn.Sequential(
             nn.Conv2d(2, 16, 3, 2, 1),
             nn.ReLU(),
@@ -109,27 +120,54 @@ class PatchGraphForce(nn.Module):
             nn.Linear(32 * ((PATCH + 3) // 4) ** 2, hidden),
         )
         self.film = FiLM(hidden)
-        self.graph = GraphEncoder(hidden, layers, edge_dim, node_in=hidden + node_in + 1)
-        self.head = mlp(2 * hidden, hidden, 3)
+        self.graph = GraphEncoder(hidden, layers, edge_dim, node_in=hidden + node_in + 1 + self.enc_dim)
+        g_dim = 2 * hidden + (0 if plain else 2)
+        if not plain:
+            self.gfilm = FiLM(g_dim)
+        self.head = mlp(g_dim, hidden, 3)
 
     def pressure_input(self, pressure_kpa: torch.Tensor) -> torch.Tensor:
         p = torch.as_tensor(pressure_kpa, dtype=torch.float32).reshape(-1, 1) / self.p_max
         return p if self.use_pressure else torch.zeros_like(p)
 
-    def forward(self, batch: dict, pressure_kpa: torch.Tensor) -> torch.Tensor:
-        """batch: collated marker graphs (``features.collate_graphs``) + ``patches`` (N, 2, P, P) in [0, 1]."""
+    def forward(
+        self,
+        batch: dict,
+        pressure_kpa: torch.Tensor,
+        node_h: torch.Tensor | None = None,
+        indent: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """batch: collated marker graphs (``features.collate_graphs``) + ``patches`` (N, 2, P, P) in [0, 1];
+        ``node_h`` (N, enc_dim): the reconstruction GNN's per-marker encoder features; ``indent`` (B, 2): the
+        indentation-volume proxies (:func:`indentation_sums`); both zeros when None, unused when ``plain``."""
         p = self.pressure_input(pressure_kpa)
         B = int(batch["n_graphs"])
         pn = p[batch["batch"]]  # per node
         h = self.film(self.patch(batch["patches"]), pn)  # S19
         phi = pn * batch["x"][:, 2:3]  # S20: (p / p_max) * normalised marker area
-        _, g = self.graph(
-            torch.cat([h, batch["x"], phi], 1), batch["edge_index"], batch["edge_attr"], batch["batch"], B
-        )
+        parts = [h, batch["x"], phi]
+        if not self.plain:
+            parts.append(node_h if node_h is not None else h.new_zeros(len(h), self.enc_dim))
+        _, g = self.graph(torch.cat(parts, 1), batch["edge_index"], batch["edge_attr"], batch["batch"], B)
+        if not self.plain:
+            g = self.gfilm(torch.cat([g, indent if indent is not None else g.new_zeros(B, 2)], 1), p)
         return self.head(g)
 
     def run(self, out: dict, batch: dict, pressure_kpa: torch.Tensor) -> torch.Tensor:
-        return self(batch, pressure_kpa)
+        ind = indentation_sums(out) if not self.plain else None
+        return self(batch, pressure_kpa, out.get("node_h"), ind)
+
+
+def indentation_sums(out: dict) -> torch.Tensor:
+    """(B, 2) indentation-volume proxies from the reconstruction net's coarse stage: the sums over the coarse
+    template of the inward displacement (mm) from the reference state, contact-probability weighted and plain,
+    / 10 (the same two sums the decoder-feature head ``nets.ForceHead`` reads)."""
+    d = out["disp_coarse"]
+    rest = out["coarse"] - d  # reference-state positions of the coarse template
+    nrm = rest / rest.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    ind = torch.relu(-(d * nrm).sum(-1))
+    prob = torch.sigmoid(out["contact_logit"])
+    return torch.stack([(ind * prob).sum(1), ind.sum(1)], 1) / 10.0
 
 
 class CNNMapForce(nn.Module):
@@ -158,8 +196,8 @@ class CNNMapForce(nn.Module):
 
 def build_force(arch: str, p_max_kpa: float, use_pressure: bool, hidden: int = 64) -> nn.Module:
     """A fresh force net of ``arch`` (``patch_graph`` | ``cnn_film``; ``decoder_film`` = nets.ForceHead)."""
-    if arch == "patch_graph":
-        return PatchGraphForce(p_max_kpa, use_pressure)
+    if arch in ("patch_graph", "patch_graph_plain"):
+        return PatchGraphForce(p_max_kpa, use_pressure, plain=arch == "patch_graph_plain")
     if arch == "cnn_film":
         return CNNMapForce(p_max_kpa, use_pressure, in_ch=hidden)
     raise ValueError(f"unknown force architecture {arch!r} ({' | '.join(ARCHS)})")
@@ -233,7 +271,7 @@ def train_force_net(
 def head_call(head: nn.Module, inputs, pressure: torch.Tensor) -> torch.Tensor:
     """Call a force net on the inputs its ``batch_fn`` prepared (graph batch dict, or a feature map)."""
     if isinstance(head, PatchGraphForce):
-        return head(inputs, pressure)
+        return head(inputs, pressure, inputs.get("node_h"), inputs.get("indent"))
     if isinstance(head, CNNMapForce):
         return head(inputs, pressure)
     out, rest = inputs  # legacy decoder-feature head

@@ -174,9 +174,16 @@ def _split_component(comp: np.ndarray, max_iter: int = 3) -> list[np.ndarray]:
 
 
 def markers_from_probability(
-    prob: np.ndarray, *, threshold: float = 0.5, mask_radius: float = 0.98, min_area: float = 2.0
+    prob: np.ndarray,
+    *,
+    threshold: float = 0.5,
+    mask_radius: float = 0.98,
+    min_area: float = 2.0,
+    max_area_ratio: float = 6.0,
 ) -> MarkerSet:
-    """Connected components of ``prob > threshold`` with morphological splitting of merged markers (S4)."""
+    """Connected components of ``prob > threshold`` with morphological splitting of merged markers (S4); parts
+    larger than ``max_area_ratio`` x the median marker area or thin arcs are rejected (the dome rim), as in the
+    classic extractor."""
     import cv2
 
     H, W = prob.shape
@@ -228,6 +235,10 @@ def markers_from_probability(
     area = cnt[ids].astype(np.float64)
     rr = np.hypot(ctr[:, 0] - (W - 1) / 2, ctr[:, 1] - (H - 1) / 2) / (min(H, W) / 2)
     good = np.all(np.isfinite(ctr), 1) & (rr <= mask_radius)
+    if good.sum() >= 3:  # giants and thin arcs that did not split into marker-sized parts: the dome rim
+        med = float(np.median(area[good]))
+        good &= area <= max_area_ratio * med
+        good &= ~((axes[:, 1] / np.maximum(axes[:, 0], 1e-9) < 0.25) & (area > 2 * med))
     return MarkerSet(ctr[good], area[good], axes[good], ang[good], (H, W), n_split, int((~good).sum()))
 
 

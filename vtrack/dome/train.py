@@ -388,30 +388,31 @@ def train_spec_force(
     log=print,
     feats: dict | None = None,
     keys: tuple[str, ...] = ("legacy", "p", "nop"),
+    gnn_arch: str = "patch_graph",
 ) -> dict:
     """Force nets as FusionTouch specifies them (S18-S23, :mod:`vtrack.dome.force`), with and without pressure,
     on the frozen reconstruction net: ``patch_graph`` for the GNN, ``cnn_film`` for the CNN; plus today's
     decoder-feature heads (:func:`train_force_heads`) as ``legacy_p`` / ``legacy_nop``. ``keys`` picks which
-    (so they can be trained in parallel processes)."""
+    (so they can be trained in parallel processes); ``gnn_arch``: ``patch_graph`` (shipped) or
+    ``patch_graph_plain`` (S18-S20 exactly, ablation)."""
     import torch
 
-    from vtrack.dome.force import build_force, train_force_net
+    from vtrack.dome.force import build_force, indentation_sums, train_force_net
 
     heads = {}
     if "legacy" in keys:
         heads.update({f"legacy_{k}": h for k, h in train_force_heads(model, train, tc, log, feats).items()})
     if not any(k in keys for k in ("p", "nop")):
         return heads
-    arch = "patch_graph" if kind == "gnn" else "cnn_film"
+    arch = gnn_arch if kind == "gnn" else "cnn_film"
 
     def frozen(key: str):
         with torch.no_grad():
-            return torch.cat(
-                [
-                    model(train.inputs(np.arange(b, min(len(train), b + 128))), coarse_only=True)[key]
-                    for b in range(0, len(train), 128)
-                ]
-            )
+            outs = [
+                model(train.inputs(np.arange(b, min(len(train), b + 128))), coarse_only=True)
+                for b in range(0, len(train), 128)
+            ]
+            return torch.cat([indentation_sums(o) if key == "indent" else o[key] for o in outs])
 
     if arch == "cnn_film":
         fmap = frozen("fmap")
@@ -422,12 +423,14 @@ def train_spec_force(
     else:
         train.patches()
         node_h = frozen("node_h")  # per-marker encoder features of the reconstruction GNN, all nodes
+        indent = frozen("indent")  # (n, 2) indentation-volume proxies of the reconstructed surfaces
         off = train.graphs["node_off"]
 
         def batch_fn(idx):
             i = np.asarray(idx)
             inp = train.inputs(i, patches=True)
             inp["node_h"] = torch.cat([node_h[off[j] : off[j + 1]] for j in i])
+            inp["indent"] = indent[torch.as_tensor(i)]
             return inp, train.pressure[i], train.force[i]
 
     for key, use_p in (("p", True), ("nop", False)):
@@ -468,7 +471,7 @@ def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str,
     """Run a model (and force heads) over a whole dataset."""
     import torch
 
-    names = {"p": "force", "nop": "force_nop", "legacy_p": "force_legacy", "legacy_nop": "force_legacy_nop"}
+    names = {k: {"p": "force", "nop": "force_nop"}.get(k, f"force_{k}") for k in heads}
     patches = any(getattr(h, "needs_patches", False) for h in heads.values())
     outs: dict[str, list] = {}
     with torch.no_grad():
