@@ -9,9 +9,11 @@ Otsu + k-means extractor :func:`~vtrack.dome.markers.extract_markers`):
 2. **U-Net** (:class:`TinyUNet`: 3 levels, 8-16-32 channels, ~25k parameters) resized to the training
    resolution (160 px) -> marker probability; fixed threshold 0.5.
 3. **Morphological post-processing.** Components of normal area and shape are kept as they are; components
-   larger than 1.7x the median area, or elongated / concave, are eroded (3x3 cross, up to 3 times) until they
+   larger than 1.4x the median area that are elongated or concave (or > 2.5x) are eroded (3x3 cross, up to
+   3 times) until they
    break into several cores; each core is dilated back inside the original component (nearest-core
-   assignment) so the split markers keep their pixels; residues below ``min_area`` are dropped.
+   assignment) so the split markers keep their pixels; residues below ``min_area`` or 0.3x the median area,
+   giants (> 6x) and thin arcs (the dome rim) are dropped.
 4. Centres = probability-weighted moments of each component, in the input image's pixels.
 
 Training data (:func:`make_seg_dataset`): simulated dome presses rendered with exact marker masks
@@ -194,7 +196,7 @@ def markers_from_probability(
     areas = stats[1:, cv2.CC_STAT_AREA].astype(np.float64)
     med = float(np.median(areas[areas >= min_area])) if (areas >= min_area).any() else 1.0
     next_label, n_split = n, 0
-    for b in np.nonzero(areas >= 1.7 * med)[0] + 1:
+    for b in np.nonzero(areas >= 1.4 * med)[0] + 1:
         x0, y0, w, h = stats[b, :4]
         sub = lab[y0 : y0 + h, x0 : x0 + w] == b
         yy, xx = np.nonzero(sub)
@@ -237,7 +239,7 @@ def markers_from_probability(
     good = np.all(np.isfinite(ctr), 1) & (rr <= mask_radius)
     if good.sum() >= 3:  # giants and thin arcs that did not split into marker-sized parts: the dome rim
         med = float(np.median(area[good]))
-        good &= area <= max_area_ratio * med
+        good &= (area <= max_area_ratio * med) & (area >= 0.3 * med)  # giants; residues of the splitting
         good &= ~((axes[:, 1] / np.maximum(axes[:, 0], 1e-9) < 0.25) & (area > 2 * med))
     return MarkerSet(ctr[good], area[good], axes[good], ang[good], (H, W), n_split, int((~good).sum()))
 
