@@ -387,14 +387,14 @@ def train_spec_force(
     tc: TrainConfig,
     log=print,
     feats: dict | None = None,
-    keys: tuple[str, ...] = ("legacy", "p", "nop"),
+    keys: tuple[str, ...] = ("legacy", "p", "nop", "plain_p", "plain_nop"),
     gnn_arch: str = "patch_graph",
 ) -> dict:
     """Force nets as FusionTouch specifies them (S18-S23, :mod:`vtrack.dome.force`), with and without pressure,
     on the frozen reconstruction net: ``patch_graph`` for the GNN, ``cnn_film`` for the CNN; plus today's
-    decoder-feature heads (:func:`train_force_heads`) as ``legacy_p`` / ``legacy_nop``. ``keys`` picks which
-    (so they can be trained in parallel processes); ``gnn_arch``: ``patch_graph`` (shipped) or
-    ``patch_graph_plain`` (S18-S20 exactly, ablation)."""
+    decoder-feature heads (:func:`train_force_heads`) as ``legacy_p`` / ``legacy_nop`` and, for the GNN, the net
+    exactly as S18-S20 (``patch_graph_plain``) as ``plain_p`` / ``plain_nop``. ``keys`` picks which (so they can
+    be trained in parallel processes); ``gnn_arch``: the main GNN net's architecture."""
     import torch
 
     from vtrack.dome.force import build_force, indentation_sums, train_force_net
@@ -402,7 +402,7 @@ def train_spec_force(
     heads = {}
     if "legacy" in keys:
         heads.update({f"legacy_{k}": h for k, h in train_force_heads(model, train, tc, log, feats).items()})
-    if not any(k in keys for k in ("p", "nop")):
+    if not any(k in keys for k in ("p", "nop", "plain_p", "plain_nop")):
         return heads
     arch = gnn_arch if kind == "gnn" else "cnn_film"
 
@@ -433,10 +433,11 @@ def train_spec_force(
             inp["indent"] = indent[torch.as_tensor(i)]
             return inp, train.pressure[i], train.force[i]
 
-    for key, use_p in (("p", True), ("nop", False)):
-        if key not in keys:
-            continue
-        net = build_force(arch, train.geo.cfg.pressure_max_kpa, use_p, tc.hidden)
+    todo = [(k, arch, k == "p") for k in ("p", "nop") if k in keys]
+    if kind == "gnn" and arch == "patch_graph":  # the net exactly as S18-S20, ablation rows
+        todo += [(k, "patch_graph_plain", k == "plain_p") for k in ("plain_p", "plain_nop") if k in keys]
+    for key, arch_k, use_p in todo:
+        net = build_force(arch_k, train.geo.cfg.pressure_max_kpa, use_p, tc.hidden)
         heads[key], info = train_force_net(
             net,
             batch_fn,
@@ -446,9 +447,9 @@ def train_spec_force(
             lr=tc.lr,
             seed=tc.seed,
             log=log,
-            name=f"{arch} p={use_p}",
+            name=f"{arch_k} p={use_p}",
         )
-        log(f"[{arch} p={use_p}] best validation loss {info['best_val_loss']:.4f} at epoch {info['best_epoch']}")
+        log(f"[{arch_k} p={use_p}] best validation loss {info['best_val_loss']:.4f} at epoch {info['best_epoch']}")
     return heads
 
 

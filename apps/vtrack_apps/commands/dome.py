@@ -62,8 +62,9 @@ def register(app: typer.Typer) -> None:
         from vtrack.dome.model import DomeConfig
         from vtrack.dome.train import TrainConfig, load_sets, train_all, weights_dir
 
+        epochs_force_net = TrainConfig().epochs_force_net
         if quick:
-            n_train, n_test, epochs_coarse, epochs_fine, epochs_force = 128, 32, 1, 1, 1
+            n_train, n_test, epochs_coarse, epochs_fine, epochs_force, epochs_force_net = 128, 32, 1, 1, 1, 1
         tc = TrainConfig(
             n_train=n_train,
             n_test=n_test,
@@ -71,6 +72,7 @@ def register(app: typer.Typer) -> None:
             epochs_coarse=epochs_coarse,
             epochs_fine=epochs_fine,
             epochs_force=epochs_force,
+            epochs_force_net=epochs_force_net,
         )
         out = out or weights_dir()
         kinds = tuple(m.strip() for m in methods.split(",") if m.strip())
