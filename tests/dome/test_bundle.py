@@ -62,9 +62,10 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
 
     b = read_bundle(weights_dir() / "gnn.pt")
     # an old bundle: no version, no force_arch, the decoder-feature heads as force_p / force_nop
-    new_keys = ("version", "force_arch", "force_p", "force_nop", "legacy_force_p", "legacy_force_nop")
+    new_keys = ("version", "force_arch", "force_archs", "force_p", "force_nop", "force_plain_p", "force_plain_nop")
+    new_keys += ("force_legacy_p", "force_legacy_nop")
     v1 = {k: v for k, v in b.items() if k not in new_keys}
-    v1.update(force_p=b["legacy_force_p"], force_nop=b["legacy_force_nop"])
+    v1.update(force_p=b["force_legacy_p"], force_nop=b["force_legacy_nop"])
     v1["train"] = {k: v for k, v in b["train"].items() if k not in ("still_l1",)}
     v1["cfg"] = {k: v for k, v in b["cfg"].items() if k != "reference_at_pressure"}
     assert bundle_train_config(v1).still_l1 == 0.0 and bundle_dome_config(v1).reference_at_pressure is False
@@ -77,6 +78,6 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
     assert cfg.reference_at_pressure is False and set(heads) == {"p", "nop"}
     assert all(h.arch == "decoder_film" for h in heads.values())
     bad = tmp_path / "arch.pt"
-    torch.save({**b, "force_arch": "transformer"}, bad)
+    torch.save({**b, "force_archs": {**b["force_archs"], "p": "transformer"}}, bad)
     with pytest.raises(InputError, match="force architecture"):
         load_bundle(bad)
