@@ -222,9 +222,10 @@ def train_force_net(
     log=print,
     name: str = "force",
 ) -> tuple[nn.Module, dict]:
-    """Train ``head`` with the S21 loss; ``batch_fn(idx) -> (inputs, pressure (B,), force (B, 3))`` runs
-    ``head.run({...}, inputs, pressure)``-style via ``head_call``. Keeps the state with the lowest validation
-    loss (``val_frac`` of the ``n`` training samples, fixed by ``seed``). Returns (head in eval mode, log dict)."""
+    """Train ``head`` with the S21 loss. ``batch_fn(idx) -> (inputs, pressure (B,), force (B, 3))`` prepares a
+    batch (:func:`head_call` feeds it to the net). Keeps the state with the lowest validation loss (``val_frac``
+    of the ``n`` training samples, fixed by ``seed``). Returns (head in eval mode, {best_val_loss, best_epoch,
+    epochs})."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     perm0 = rng.permutation(n)
