@@ -53,6 +53,9 @@ def register(app: typer.Typer) -> None:
         methods: str = typer.Option("gnn,cnn", "--methods", help="comma list of gnn, cnn"),
         jobs: int = typer.Option(2, "--jobs", min=1, help="methods trained in parallel, 1 thread each"),
         quick: bool = typer.Option(False, "--quick", help="tiny run (smoke test, not for shipping)"),
+        recon_loss: str = typer.Option(
+            "mix", "--recon-loss", help="mix (shipped: L2 + L1 on still points) | paper (FusionTouch S9, S14-S17, L1)"
+        ),
     ) -> None:
         """Simulate (cached) and train GNN and CNN with the same budget; writes <method>.pt bundles."""
         import json
@@ -73,7 +76,14 @@ def register(app: typer.Typer) -> None:
             epochs_fine=epochs_fine,
             epochs_force=epochs_force,
             epochs_force_net=epochs_force_net,
+            recon_loss=recon_loss,
         )
+        if recon_loss not in ("mix", "paper"):
+            from vtrack.errors import InputError
+
+            raise InputError(
+                "unknown reconstruction loss", field="--recon-loss", expected="mix or paper", got=recon_loss
+            )
         out = out or weights_dir()
         kinds = tuple(m.strip() for m in methods.split(",") if m.strip())
         load_sets(tc, DomeConfig(), progress=True)  # simulate once, before the workers read the cache
