@@ -14,13 +14,13 @@ class _Payload:  # a pickled object in a "bundle": loading it must not run anyth
         return (exec, ("import pathlib; pathlib.Path(__import__('os').environ['VT_PWNED']).write_text('x')",))
 
 
-def test_shipped_bundles_are_version_2_and_inference_never_imports_training():
+def test_shipped_bundles_are_version_3_and_inference_never_imports_training():
     import subprocess
 
     from vtrack.dome.bundle import BUNDLE_VERSION, read_bundle, weights_dir
 
     for kind in ("gnn", "cnn"):
-        assert read_bundle(weights_dir() / f"{kind}.pt")["version"] == BUNDLE_VERSION == 2
+        assert read_bundle(weights_dir() / f"{kind}.pt")["version"] == BUNDLE_VERSION == 3
     code = (
         "import sys, numpy as np; from vtrack.dome.reconstruct import DomeReconstructor; "
         "DomeReconstructor(); print('TRAIN' if 'vtrack.dome.train' in sys.modules else 'CLEAN')"
@@ -44,7 +44,7 @@ def test_bundle_with_code_newer_version_or_missing_parts_is_refused(tmp_path, mo
     assert not flag.exists()
     b = read_bundle(weights_dir() / "gnn.pt")
     newer = tmp_path / "newer.pt"
-    torch.save({**b, "version": 3}, newer)
+    torch.save({**b, "version": 4}, newer)
     with pytest.raises(InputError, match="newer vtrack"):
         read_bundle(newer)
     part = tmp_path / "part.pt"
@@ -61,7 +61,11 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
     from vtrack.dome.bundle import bundle_dome_config, bundle_train_config, load_bundle, read_bundle, weights_dir
 
     b = read_bundle(weights_dir() / "gnn.pt")
-    v1 = {k: v for k, v in b.items() if k != "version"}
+    # an old bundle: no version, no force_arch, the decoder-feature heads as force_p / force_nop
+    new_keys = ("version", "force_arch", "force_archs", "force_p", "force_nop", "force_plain_p", "force_plain_nop")
+    new_keys += ("force_legacy_p", "force_legacy_nop")
+    v1 = {k: v for k, v in b.items() if k not in new_keys}
+    v1.update(force_p=b["force_legacy_p"], force_nop=b["force_legacy_nop"])
     v1["train"] = {k: v for k, v in b["train"].items() if k not in ("still_l1",)}
     v1["cfg"] = {k: v for k, v in b["cfg"].items() if k != "reference_at_pressure"}
     assert bundle_train_config(v1).still_l1 == 0.0 and bundle_dome_config(v1).reference_at_pressure is False
@@ -72,3 +76,8 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
     torch.save(v1, p)
     model, heads, cfg, _ = load_bundle(p)
     assert cfg.reference_at_pressure is False and set(heads) == {"p", "nop"}
+    assert all(h.arch == "decoder_film" for h in heads.values())
+    bad = tmp_path / "arch.pt"
+    torch.save({**b, "force_archs": {**b["force_archs"], "p": "transformer"}}, bad)
+    with pytest.raises(InputError, match="force architecture"):
+        load_bundle(bad)

@@ -73,8 +73,9 @@ def run(quick: bool = False) -> BenchTable:
         model.decoder.set_dense(geo.dense_rest)
     table.notes += [
         f"Held-out simulated test set: {n_test} presses (seed 12345), lengths in mm, force in N. "
-        "`force_mae` uses the pressure-FiLM head, `force_mae_nop` the same head without pressure (both "
-        "continued from one shared start, `train.train_force_heads`).",
+        "`force_mae` uses the shipped force net with the pressure input (GNN: GNN + marker patches, CNN: FiLM "
+        "on the feature map; FusionTouch S18-S23, `vtrack.dome.force`), `force_mae_nop` the same net trained "
+        "without pressure.",
         "ms = median wall time per frame, one frame at a time, 1 thread: image -> marker extraction -> Delaunay "
         "graph -> GNN (or image -> CNN) -> dense surface + force. On a machine shared with other jobs "
         "wall times are noisy upper bounds; `cpu_ms` is the process CPU time per frame (what one free core needs).",

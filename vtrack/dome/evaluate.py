@@ -128,3 +128,54 @@ def pressure_probe(method: str = "gnn", weights_dir: Path | None = None, ridge: 
     w = np.linalg.solve(a.T @ a + ridge * np.eye(a.shape[1]), a.T @ (ytr - ytr.mean()))
     pred = b @ w + ytr.mean()
     return {"mae_kpa": float(np.abs(pred - yte).mean()), "baseline_mae_kpa": float(np.abs(yte - ytr.mean()).mean())}
+
+
+#: JSON keys of the force ablation (Table S6) -> (bundle, prediction key); the decoder-feature heads of the
+#: previous design are extra rows
+FORCE_SETTINGS = {
+    "gnn_patch_with_p": ("gnn", "force"),
+    "gnn_patch_no_p": ("gnn", "force_nop"),
+    "cnn_with_p": ("cnn", "force"),
+    "cnn_no_p": ("cnn", "force_nop"),
+    "gnn_patch_plain_with_p": ("gnn", "force_plain_p"),
+    "gnn_patch_plain_no_p": ("gnn", "force_plain_nop"),
+    "gnn_decoder_head_with_p": ("gnn", "force_legacy_p"),
+    "gnn_decoder_head_no_p": ("gnn", "force_legacy_nop"),
+    "cnn_decoder_head_with_p": ("cnn", "force_legacy_p"),
+    "cnn_decoder_head_no_p": ("cnn", "force_legacy_nop"),
+}
+
+
+def force_table(results: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Table S6 layout from :func:`evaluate` results: per setting ``mae``, ``rmse``, ``mae_fx/fy/fz`` (N)."""
+    out: dict[str, dict[str, float]] = {}
+    for name, (method, key) in FORCE_SETTINGS.items():
+        r = results.get(method, {})
+        if f"{key}_mae" not in r:
+            continue
+        out[name] = {
+            "mae": r[f"{key}_mae"],
+            "rmse": r[f"{key}_rmse"],
+            "mae_fx": r[f"{key}_mae_x"],
+            "mae_fy": r[f"{key}_mae_y"],
+            "mae_fz": r[f"{key}_mae_z"],
+        }
+    return out
+
+
+def marker_eval(n_sim: int = 100, seed: int = 777, tactip: bool = True) -> dict:
+    """Marker detection (S4): U-Net vs classic (Otsu + k-means) on held-out simulated frames (training-style
+    lighting/blur/noise/occlusion, ``hard``; and the simulator's own rendering, ``plain``) and, when the shared
+    data is present, on the real TacTip frames. ``unet`` / ``classic`` hold the held-out ``hard`` numbers."""
+    from vtrack.dome.segment import MarkerSegmenter, evaluate_simulated, evaluate_tactip
+    from vtrack.paths import shared_data_dir
+
+    seg = MarkerSegmenter()
+    hard = evaluate_simulated(seg, n_sim, seed, hard=True)
+    plain = evaluate_simulated(seg, n_sim, seed + 1, hard=False)
+    out: dict = {k: hard[k] for k in ("unet", "classic")}
+    out["plain"] = plain
+    root = shared_data_dir() / "tactip_frames"
+    if tactip and root.exists():
+        out["tactip"] = evaluate_tactip(seg, root)
+    return out

@@ -62,12 +62,11 @@ def evaluate_predictions(pred: dict[str, np.ndarray], gt: dict[str, np.ndarray])
         "vertex_err_moved": float(np.mean(verr_def)) if verr_def else 0.0,
         "contact_l2": float(np.sqrt(np.mean((pred["contact"] - gt["contact"].astype(np.float64)) ** 2))),
     }
-    for key, name in (("force", "force"), ("force_nop", "force_nop")):
-        if key in pred:
-            err = pred[key] - gt["force"]
-            mae = np.abs(err).mean(0)
-            out[f"{name}_mae"] = float(mae.mean())
-            out[f"{name}_rmse"] = float(np.sqrt((err**2).mean()))
-            for a, v in zip("xyz", mae, strict=True):
-                out[f"{name}_mae_{a}"] = float(v)
+    for name in sorted(k for k in pred if k.startswith("force")):  # force, force_nop, ablation heads
+        err = pred[name] - gt["force"]
+        mae = np.abs(err).mean(0)
+        out[f"{name}_mae"] = float(mae.mean())
+        out[f"{name}_rmse"] = float(np.sqrt((err**2).mean()))
+        for a, v in zip("xyz", mae, strict=True):
+            out[f"{name}_mae_{a}"] = float(v)
     return out

@@ -230,6 +230,7 @@ class DomeGNN(nn.Module):
         feat = (feat.view(B, idx.shape[1], self.k, -1) * w.unsqueeze(-1)).sum(2)
         out = self.decoder(feat, glob, coarse_only, batch.get("ref_inflation_mm"))
         out["glob"] = glob
+        out["node_h"] = h  # per-marker encoder features, read by the GNN + patch force net (force.PatchGraphForce)
         return out
 
 
@@ -266,6 +267,7 @@ class DomeCNN(nn.Module):
         glob = torch.cat([f4.mean((2, 3)), f4.amax((2, 3))], -1)
         out = self.decoder(feat, glob, coarse_only, batch.get("ref_inflation_mm"))
         out["glob"] = glob
+        out["fmap"] = f4  # stride-16 feature map, read by the CNN force net (force.CNNMapForce)
         return out
 
 
@@ -310,6 +312,15 @@ class ForceHead(nn.Module):
         nn.init.zeros_(self.film[-1].bias)
         self.head = mlp(2 * hidden + 2 + glob_dim, hidden, hidden, 3)
         self.hidden = hidden
+        # not in the state dict (bundles predate it): the coarse template the decoder features live on
+        self.register_buffer("coarse_rest", torch.tensor(geo.coarse_rest, dtype=torch.float32), persistent=False)
+
+    arch = "decoder_film"
+    needs_patches = False
+
+    def run(self, out: dict[str, torch.Tensor], batch: dict, pressure_kpa: torch.Tensor) -> torch.Tensor:
+        """Common force-net call (``force.PatchGraphForce.run``): reads only the decoder outputs."""
+        return self(out, pressure_kpa, self.coarse_rest)
 
     def forward(self, out: dict[str, torch.Tensor], pressure_kpa: torch.Tensor, coarse_rest: torch.Tensor):
         B = out["hidden"].shape[0]

@@ -241,8 +241,14 @@ class DomeReconstructor:
             batch["ref_inflation_mm"] = infl
             out = self.model(batch)
             force = np.zeros(3, np.float32)
-            if "p" in self.heads:
-                force = self.heads["p"](out, torch.tensor([p]), self.model.decoder.coarse_rest)[0].numpy()
+            head = self.heads.get("p")
+            if head is not None:
+                if getattr(head, "needs_patches", False):  # S18-S23 net: marker-centred [image, reference] patches
+                    from vtrack.dome.force import centers_from_x, marker_patches
+
+                    c = centers_from_x(g["x"], self.cfg.image_size)
+                    batch["patches"] = torch.from_numpy(marker_patches(img, ref_img, c)).float() / 255.0
+                force = head.run(out, batch, torch.tensor([p]))[0].numpy()
         ms = (time.perf_counter() - t0) * 1e3
         dense = out["dense"][0].numpy().astype(np.float64)
         coarse = out["coarse"][0].numpy().astype(np.float64)

@@ -15,8 +15,16 @@ Deformation model (why: fast, smooth, and it respects the rigid-contact constrai
    ``P`` (kPa) inflates the shell radially by ``alpha * P`` (``DomeConfig.inflation_mm_per_kpa``) and
    stiffens it. The reference (no-contact) frame is rendered at the operating pressure when
    ``DomeConfig.reference_at_pressure`` (one reference per sample), else at P = 0.
-4. *Force* (N): ``F = -n_c k_n(P) sum delta A + k_t s A_contact`` with ``k_n(P) = k0 (1 + P / P_max)``
-   (Winkler-foundation estimate; the shell gets stiffer when inflated).
+4. *Force* (N): ``F = -n_c (k_n(P) sum delta A + P A_contact) + k_t s A_contact`` with
+   ``k_n(P) = k0 (1 + 4 P / P_max)`` (Winkler-foundation estimate). Why this form (FusionTouch S3/S6: the
+   internal air pressure sets the stiffness of the shell, so the same deformation comes with a different force):
+   an inflated shell carries the membrane tension ``T = P R / 2`` (Laplace), and the restoring force of a
+   tensioned membrane against an indentation grows linearly with ``T``; the material's own bending stiffness
+   is the P-independent part (``k0``; at ``P_max`` the tension part is 4x it - FusionTouch Fig. S5 shows the
+   pressurised double shell several times stiffer than the unpressurised one). The internal pressure also
+   pushes back on the contact patch directly, ``P A_contact`` (1 kPa = 1e-3 N/mm^2). The deformation itself is
+   displacement-controlled (the indenter goes to a given depth), so it does not depend on P: the image shows
+   the same pattern and only the pressure input can resolve the force.
 
 Markers (inner surface) are rendered as filled ellipses from 8 projected rim points each (so
 foreshortening and fisheye distortion are exact per marker), then blur, vignetting, gain and noise.
@@ -36,7 +44,9 @@ from vtrack.dome.model import DomeConfig, DomeGeometry
 INDENTERS = ("sphere", "cylinder", "edge", "textured")
 
 #: area per template point (mm^2) is computed from the cap area; stiffness constants below.
-K0_N_PER_MM3 = 0.04
+K0_N_PER_MM3 = 0.02
+#: tension part of the indentation stiffness at P_max, in units of K0 (k_n(P) = K0 (1 + TENSION_GAIN P / P_max))
+TENSION_GAIN = 4.0
 KT_N_PER_MM3 = 0.05
 
 
@@ -142,10 +152,10 @@ class DomeSimulator:
             shear = press.shear_mm[0] * e1 + press.shear_mm[1] * e2
             wmax = max(float(w.max()), 1e-9)
             disp = disp - w[:, None] * n[None, :] + (w / wmax)[:, None] * shear[None, :]
-            k_n = K0_N_PER_MM3 * (1.0 + P / c.pressure_max_kpa)
+            k_n = K0_N_PER_MM3 * (1.0 + TENSION_GAIN * P / c.pressure_max_kpa)
             vol = float(delta[:nd].sum() * self.area_per_src)
             area = float((delta[:nd] > 0).sum() * self.area_per_src)
-            force = -n * k_n * vol + KT_N_PER_MM3 * area * shear
+            force = -n * (k_n * vol + 1e-3 * P * area) + KT_N_PER_MM3 * area * shear
         nd, nc = c.n_dense, c.n_coarse
         return {
             "disp_dense": disp[:nd],
@@ -157,13 +167,14 @@ class DomeSimulator:
             "force": force,
         }
 
-    def render(self, marker_pos: np.ndarray, rng: np.random.Generator | None, *, noise: float = 1.0) -> np.ndarray:
-        """Grey uint8 image (S, S) of markers at dome-frame positions (n, 3) mm (bright pins on dark)."""
+    def draw_markers(self, marker_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Anti-aliased marker coverage (S, S) float32 in [0, 1] (before blur, lighting and noise) of markers at
+        dome-frame positions (n, 3) mm, and their image centres (n, 2) px (mean of the 8 projected rim points =
+        the drawn ellipse centre). Exact masks for the marker-segmentation training: ``coverage > 0.5``."""
         import cv2
 
         c = self.cfg
         S = c.image_size
-        rng = rng or np.random.default_rng(0)
         n = marker_pos / np.linalg.norm(marker_pos, axis=1, keepdims=True)
         e1 = np.cross(n, np.array([1.0, 0.0, 0.0]))
         bad = np.linalg.norm(e1, axis=1) < 1e-6
@@ -195,6 +206,15 @@ class DomeSimulator:
                 cv2.LINE_AA,
                 sh,
             )
+        return img, ctr
+
+    def render(self, marker_pos: np.ndarray, rng: np.random.Generator | None, *, noise: float = 1.0) -> np.ndarray:
+        """Grey uint8 image (S, S) of markers at dome-frame positions (n, 3) mm (bright pins on dark)."""
+        import cv2
+
+        S = self.cfg.image_size
+        rng = rng or np.random.default_rng(0)
+        img, _ = self.draw_markers(marker_pos)
         gain = rng.uniform(0.75, 1.0) if noise > 0 else 0.9
         img = cv2.GaussianBlur(img, (0, 0), 0.7) * gain
         yy, xx = np.mgrid[0:S, 0:S]
@@ -238,7 +258,7 @@ class DomeSimulator:
 def dataset_path(n: int, seed: int, cfg: DomeConfig) -> Path:
     from vtrack.paths import cache_dir
 
-    key = hashlib.sha1(json.dumps({"n": n, "seed": seed, "cfg": cfg.to_dict(), "v": 4}, sort_keys=True).encode())
+    key = hashlib.sha1(json.dumps({"n": n, "seed": seed, "cfg": cfg.to_dict(), "v": 5}, sort_keys=True).encode())
     return cache_dir() / "dome" / f"sim_{n}_{seed}_{key.hexdigest()[:10]}.npz"
 
 

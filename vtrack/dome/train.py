@@ -62,14 +62,37 @@ class Batcher:
                 got=str(refs.shape),
             )
 
+        self._patches: np.ndarray | None = None
+
     def __len__(self) -> int:
         return len(self.coarse)
 
-    def inputs(self, idx: np.ndarray) -> dict:
+    def patches(self) -> np.ndarray:
+        """Marker-centred [image, reference] patches (all nodes, 2, P, P) uint8 for the patch force net."""
+        if self._patches is None:
+            from vtrack.dome.force import PATCH, centers_from_x, marker_patches
+
+            G, refs = self.graphs, np.asarray(self.data["reference_image"])
+            out = np.zeros((len(G["x"]), 2, PATCH, PATCH), np.uint8)
+            S = self.geo.cfg.image_size
+            for i in range(len(self)):
+                a, b = G["node_off"][i], G["node_off"][i + 1]
+                ref = refs[i] if refs.ndim == 3 else refs
+                out[a:b] = marker_patches(self.data["image"][i], ref, centers_from_x(G["x"][a:b], S))
+            self._patches = out
+        return self._patches
+
+    def inputs(self, idx: np.ndarray, patches: bool = False) -> dict:
         from vtrack.dome.features import collate_graphs, image_batch, slice_graph
 
         if self.kind == "gnn":
             batch = collate_graphs([slice_graph(self.graphs, int(i)) for i in idx])
+            if patches:
+                import torch
+
+                P, off = self.patches(), self.graphs["node_off"]
+                pt = np.concatenate([P[off[int(i)] : off[int(i) + 1]] for i in idx])
+                batch["patches"] = torch.from_numpy(pt).float() / 255.0
         else:
             refs = self.data["reference_image"]
             batch = image_batch(self.data["image"][idx], refs[idx] if refs.ndim == 3 else refs)
@@ -95,10 +118,47 @@ def _dense_graph(geo: DomeGeometry, k: int = 6):
     return torch.as_tensor(nbr[:, 1:])
 
 
-def recon_loss(out: dict, tg: dict, nbr, phase: int, still_l1: float = 0.0) -> tuple:
+def recon_loss_paper(out: dict, tg: dict, nbr, phase: int, rest_coarse=None) -> tuple:
+    """FusionTouch's losses (S9, S13-S17), all L1: phase 1 = contact-region offset loss (S9, mean abs error per
+    coordinate over contact points of the coarse template) + the contact BCE of the mask estimator; phase 2 adds
+    L_contact + L_nc (S14-S15: per-coordinate L1 on contact / non-contact dense vertices), the Laplacian term
+    (S16, L1; as the difference of predicted and GT uniform Laplacians - the Laplacian of a sphere is not zero,
+    so the bare S16 term would pull the dome flat) and the edge-length term (S17, L1, edges of the dense kNN
+    graph, lengths against the GT mesh). Weights: lambda_c = 1, lambda_n = 1, lambda_l = lambda_e = 1."""
     import torch
     import torch.nn.functional as F
 
+    c = tg["contact"]
+    bce = F.binary_cross_entropy_with_logits(out["contact_logit"], c, pos_weight=torch.tensor(4.0))
+
+    def region_l1(pred, gt, mask):
+        e = (pred - gt).abs().sum(-1) / 3.0
+        con = (e * mask).sum() / mask.sum().clamp_min(1.0)
+        non = (e * (1 - mask)).sum() / (1 - mask).sum().clamp_min(1.0)
+        return con, non
+
+    lc, lnc = region_l1(out["coarse"], tg["coarse"], c)
+    # S9 supervises only the contact region; the non-contact coarse offsets get a weak L1 so the ungated
+    # free-surface branch of our decoder (x = t + g d_c + (1 - g) d_f) is still trained
+    loss = bce + lc + 0.25 * lnc
+    parts = {"bce": bce.item(), "coarse": (lc + lnc).item()}
+    if phase == 2:
+        d, g = out["dense"], tg["dense"]
+        dc, dnc = region_l1(d, g, tg["contact_dense"])
+        lap = ((d - d[:, nbr].mean(2)) - (g - g[:, nbr].mean(2))).abs().sum(-1).mean() / 3.0
+        el = ((d.unsqueeze(2) - d[:, nbr]).norm(dim=-1) - (g.unsqueeze(2) - g[:, nbr]).norm(dim=-1)).abs().mean()
+        loss = loss + dc + dnc + lap + el
+        parts.update(dense=(dc + dnc).item(), lap=lap.item(), edge=el.item())
+    return loss, parts
+
+
+def recon_loss(out: dict, tg: dict, nbr, phase: int, still_l1: float = 0.0, mode: str = "mix") -> tuple:
+    """Reconstruction loss; ``mode="paper"`` -> :func:`recon_loss_paper`."""
+    import torch
+    import torch.nn.functional as F
+
+    if mode == "paper":
+        return recon_loss_paper(out, tg, nbr, phase)
     c = tg["contact"]
     bce = F.binary_cross_entropy_with_logits(out["contact_logit"], c, pos_weight=torch.tensor(4.0))
 
@@ -153,7 +213,7 @@ def train_recon(kind: str, train: Batcher, tc: TrainConfig, log=print):
             for b in range(n // tc.batch):
                 idx = perm[b * tc.batch : (b + 1) * tc.batch]
                 out = model(train.inputs(idx), coarse_only=phase == 1)
-                loss, parts = recon_loss(out, train.targets(idx), nbr, phase, tc.still_l1)
+                loss, parts = recon_loss(out, train.targets(idx), nbr, phase, tc.still_l1, tc.recon_loss)
                 opt.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
@@ -320,21 +380,111 @@ def retrain_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
     return info
 
 
+def train_spec_force(
+    model,
+    kind: str,
+    train: Batcher,
+    tc: TrainConfig,
+    log=print,
+    feats: dict | None = None,
+    keys: tuple[str, ...] = ("legacy", "p", "nop", "plain_p", "plain_nop"),
+    gnn_arch: str = "patch_graph",
+) -> dict:
+    """Force nets as FusionTouch specifies them (S18-S23, :mod:`vtrack.dome.force`), with and without pressure,
+    on the frozen reconstruction net: ``patch_graph`` for the GNN, ``cnn_film`` for the CNN; plus today's
+    decoder-feature heads (:func:`train_force_heads`) as ``legacy_p`` / ``legacy_nop`` and, for the GNN, the net
+    exactly as S18-S20 (``patch_graph_plain``) as ``plain_p`` / ``plain_nop``. ``keys`` picks which (so they can
+    be trained in parallel processes); ``gnn_arch``: the main GNN net's architecture."""
+    import torch
+
+    from vtrack.dome.force import build_force, indentation_sums, train_force_net
+
+    heads = {}
+    if "legacy" in keys:
+        heads.update({f"legacy_{k}": h for k, h in train_force_heads(model, train, tc, log, feats).items()})
+    if not any(k in keys for k in ("p", "nop", "plain_p", "plain_nop")):
+        return heads
+    arch = gnn_arch if kind == "gnn" else "cnn_film"
+
+    def frozen(key: str):
+        with torch.no_grad():
+            outs = [
+                model(train.inputs(np.arange(b, min(len(train), b + 128))), coarse_only=True)
+                for b in range(0, len(train), 128)
+            ]
+            return torch.cat([indentation_sums(o) if key == "indent" else o[key] for o in outs])
+
+    if arch == "cnn_film":
+        fmap = frozen("fmap")
+
+        def batch_fn(idx):
+            i = torch.as_tensor(np.asarray(idx))
+            return fmap[i], train.pressure[i], train.force[i]
+    else:
+        train.patches()
+        node_h = frozen("node_h")  # per-marker encoder features of the reconstruction GNN, all nodes
+        indent = frozen("indent")  # (n, 2) indentation-volume proxies of the reconstructed surfaces
+        off = train.graphs["node_off"]
+
+        def batch_fn(idx):
+            i = np.asarray(idx)
+            inp = train.inputs(i, patches=True)
+            inp["node_h"] = torch.cat([node_h[off[j] : off[j + 1]] for j in i])
+            inp["indent"] = indent[torch.as_tensor(i)]
+            return inp, train.pressure[i], train.force[i]
+
+    todo = [(k, arch, k == "p") for k in ("p", "nop") if k in keys]
+    if kind == "gnn" and arch == "patch_graph":  # the net exactly as S18-S20, ablation rows
+        todo += [(k, "patch_graph_plain", k == "plain_p") for k in ("plain_p", "plain_nop") if k in keys]
+    for key, arch_k, use_p in todo:
+        net = build_force(arch_k, train.geo.cfg.pressure_max_kpa, use_p, tc.hidden)
+        heads[key], info = train_force_net(
+            net,
+            batch_fn,
+            len(train),
+            epochs=tc.epochs_force_net,
+            batch=tc.batch,
+            lr=tc.lr,
+            seed=tc.seed,
+            log=log,
+            name=f"{arch_k} p={use_p}",
+        )
+        log(f"[{arch_k} p={use_p}] best validation loss {info['best_val_loss']:.4f} at epoch {info['best_epoch']}")
+    return heads
+
+
+def retrain_spec_force(path: Path, tc: TrainConfig | None = None, log=print) -> dict:
+    """Retrain all force nets of a saved bundle (:func:`train_spec_force`) and re-save it (format version 3)."""
+    import torch
+
+    b = read_bundle(path)
+    tc = tc or bundle_train_config(b)
+    torch.set_num_threads(tc.threads)
+    model, _, cfg, info = load_bundle(path, with_heads=False)
+    tr, _ = load_sets(tc, cfg)
+    btr = Batcher(b["kind"], tr, DomeGeometry(cfg), f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
+    heads = train_spec_force(model, b["kind"], btr, tc, log)
+    save_bundle(path, b["kind"], model, heads, cfg, tc, info)
+    return heads
+
+
 def predict(model, heads: dict, batcher: Batcher, batch: int = 128) -> dict[str, np.ndarray]:
     """Run a model (and force heads) over a whole dataset."""
     import torch
 
+    names = {k: {"p": "force", "nop": "force_nop"}.get(k, f"force_{k}") for k in heads}
+    patches = any(getattr(h, "needs_patches", False) for h in heads.values())
     outs: dict[str, list] = {}
     with torch.no_grad():
         for b in range(0, len(batcher), batch):
             idx = np.arange(b, min(len(batcher), b + batch))
-            o = model(batcher.inputs(idx))
+            inp = batcher.inputs(idx, patches=patches)
+            o = model(inp)
             outs.setdefault("coarse", []).append(o["coarse"].numpy())
             outs.setdefault("dense", []).append(o["dense"].numpy())
             outs.setdefault("contact", []).append(model.decoder.contact_prob(o["contact_logit"]).numpy())
             for key, h in heads.items():
-                f = h(o, batcher.pressure[idx], model.decoder.coarse_rest).numpy()
-                outs.setdefault("force" if key == "p" else "force_nop", []).append(f)
+                outs.setdefault(names[key], []).append(h.run(o, inp, batcher.pressure[idx]).numpy())
     return {k: np.concatenate(v) for k, v in outs.items()}
 
 
@@ -363,7 +513,7 @@ def train_all(
         bte = Batcher(kind, te, geo, f"{tc.n_test}-{tc.test_seed}-{cfg.to_dict()}")
         model = train_recon(kind, btr, tc, log)
         feats = force_features(model, btr)  # frozen net outputs, shared by the force heads and the calibration
-        heads = train_force_heads(model, btr, tc, log, feats)
+        heads = train_spec_force(model, kind, btr, tc, log, feats)
         model.decoder.contact_calib = fit_contact_calibration(model, btr, feats)
         secs = time.time() - t0
         pred = predict(model, heads, bte)

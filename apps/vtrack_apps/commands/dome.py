@@ -53,6 +53,9 @@ def register(app: typer.Typer) -> None:
         methods: str = typer.Option("gnn,cnn", "--methods", help="comma list of gnn, cnn"),
         jobs: int = typer.Option(2, "--jobs", min=1, help="methods trained in parallel, 1 thread each"),
         quick: bool = typer.Option(False, "--quick", help="tiny run (smoke test, not for shipping)"),
+        recon_loss: str = typer.Option(
+            "mix", "--recon-loss", help="mix (shipped: L2 + L1 on still points) | paper (FusionTouch S9, S14-S17, L1)"
+        ),
     ) -> None:
         """Simulate (cached) and train GNN and CNN with the same budget; writes <method>.pt bundles."""
         import json
@@ -62,8 +65,9 @@ def register(app: typer.Typer) -> None:
         from vtrack.dome.model import DomeConfig
         from vtrack.dome.train import TrainConfig, load_sets, train_all, weights_dir
 
+        epochs_force_net = TrainConfig().epochs_force_net
         if quick:
-            n_train, n_test, epochs_coarse, epochs_fine, epochs_force = 128, 32, 1, 1, 1
+            n_train, n_test, epochs_coarse, epochs_fine, epochs_force, epochs_force_net = 128, 32, 1, 1, 1, 1
         tc = TrainConfig(
             n_train=n_train,
             n_test=n_test,
@@ -71,7 +75,15 @@ def register(app: typer.Typer) -> None:
             epochs_coarse=epochs_coarse,
             epochs_fine=epochs_fine,
             epochs_force=epochs_force,
+            epochs_force_net=epochs_force_net,
+            recon_loss=recon_loss,
         )
+        if recon_loss not in ("mix", "paper"):
+            from vtrack.errors import InputError
+
+            raise InputError(
+                "unknown reconstruction loss", field="--recon-loss", expected="mix or paper", got=recon_loss
+            )
         out = out or weights_dir()
         kinds = tuple(m.strip() for m in methods.split(",") if m.strip())
         load_sets(tc, DomeConfig(), progress=True)  # simulate once, before the workers read the cache
@@ -91,14 +103,66 @@ def register(app: typer.Typer) -> None:
         weights: Path = typer.Option(None, "--weights", help="weights folder (default: shipped)"),
         n_test: int = typer.Option(300, "--n-test", min=4),
         seed: int = typer.Option(12345, "--seed", help="test-set seed (12345 = the held-out set)"),
+        markers: bool = typer.Option(True, "--markers/--no-markers", help="marker detection: U-Net vs classic"),
+        n_markers: int = typer.Option(100, "--n-markers", min=4, help="held-out simulated frames for markers"),
     ) -> None:
-        """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms)."""
+        """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms); ``force``: the Table S6
+        ablation (with / without pressure, per axis); ``markers``: U-Net vs classic marker detection."""
 
-        from vtrack.dome.evaluate import EVAL_KEYS, evaluate
+        from vtrack.dome.evaluate import EVAL_KEYS, evaluate, force_table, marker_eval
         from vtrack_apps.output import print_table
 
-        res = evaluate(weights, n_test, seed)
+        res: dict = evaluate(weights, n_test, seed)
         print_table("dome eval", [{"method": m, **{k: round(r[k], 4) for k in EVAL_KEYS}} for m, r in res.items()])
+        res["force"] = force_table(res)
+        print_table(
+            "dome force (N)",
+            [{"setting": k, **{m: round(v, 4) for m, v in r.items()}} for k, r in res["force"].items()],
+        )
+        if markers:
+            res["markers"] = marker_eval(n_markers)
+            rows = [
+                {"frames": f"simulated held-out ({n_markers})", "method": m, **res["markers"][m]}
+                for m in ("unet", "classic")
+            ]
+            rows += [{"frames": k, **v} for k, v in res["markers"].get("tactip", {}).items()]
+            print_table("dome markers", rows)
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            write_json(json_out, res, indent=1)
+            typer.echo(f"wrote {json_out}")
+
+    @dome_app.command("segment")
+    def segment(
+        train: bool = typer.Option(False, "--train", help="train the marker U-Net first (writes --weights)"),
+        weights: Path = typer.Option(None, "--weights", help="U-Net file (default: shipped marker_unet.pt)"),
+        n_train: int = typer.Option(1200, "--n-train", min=16),
+        epochs: int = typer.Option(12, "--epochs", min=1),
+        n_test: int = typer.Option(100, "--n-test", min=2, help="held-out simulated frames"),
+        json_out: Path = typer.Option(None, "--json", help="write the detection results as JSON"),
+    ) -> None:
+        """Marker segmentation (FusionTouch S4): U-Net vs classic Otsu + k-means extractor, detection rate and
+        position error on held-out simulated frames, pin counts and track continuity on the real TacTip frames."""
+        import torch
+
+        from vtrack.dome.segment import MarkerSegmenter, evaluate_simulated, evaluate_tactip, train_unet
+        from vtrack.paths import shared_data_dir
+        from vtrack_apps.output import print_table
+
+        torch.set_num_threads(1)
+        if train:
+            weights = train_unet(n_train, epochs, out=weights)
+        seg = MarkerSegmenter(weights)
+        res: dict = {}
+        for hard in (True, False):
+            r = evaluate_simulated(seg, n_test, 777 if hard else 778, hard=hard)
+            res["simulated_hard" if hard else "simulated_plain"] = r
+            print_table(
+                f"markers, simulated ({'hard' if hard else 'plain'})", [{"method": k, **v} for k, v in r.items()]
+            )
+        if (shared_data_dir() / "tactip_frames").exists():
+            res["tactip"] = evaluate_tactip(seg)
+            print_table("markers, real TacTip", list(res["tactip"].values()))
         if json_out:
             json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
