@@ -124,7 +124,7 @@ def test_slam_options_are_typed_and_keyframes_feed_the_back_end(mustard_seq):
     with pytest.raises(InputError) as e:
         SLAMTracker(mustard_seq.gt[0], refresh_evry=3)
     assert "refresh_evry" in str(e.value.field)
-    tr = SLAMTracker(mustard_seq.gt[0], trunc=0.01, kf_max_gap_s=0.2)
+    tr = SLAMTracker(mustard_seq.gt[0], trunc=0.01, kf_max_gap_s=0.2, refine=True)
     assert tr.slam_opts.trunc == 0.01 and tr.slam_opts.map_voxel == SLAMOptions().map_voxel
     assert tr.opts.gate == pytest.approx(0.008)  # SLAM's tracker default follows the band
     frames = mustard_seq.frames[:20]

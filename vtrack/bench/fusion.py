@@ -107,10 +107,11 @@ def _quick(table: BenchTable) -> None:
 def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np.ndarray, float, dict]:
     """Observations of a simulator session and the GT mesh in the frame of their poses.
 
-    Blind (default): SLAM poses (refined by the keyframe pose graph), segmentation and touch from the raw
-    streams; the GT mesh is moved into the SLAM object frame by the first-frame alignment (scoring only);
-    ``info["observations_frontend"]`` holds the same observations placed with the front end's poses (the
-    ``slam (no refinement)`` ablation). Oracle: GT poses, GT masks, GT height maps.
+    Blind (default): SLAM poses refined by the keyframe pose graph (``--refine``; not the CLI default),
+    segmentation and touch from the raw streams; the GT mesh is moved into the SLAM object frame by the
+    first-frame alignment (scoring only); ``info["observations_frontend"]`` holds the same observations placed
+    with the front end's poses (the ``slam (no refinement)`` row: what ``vtrack reconstruct`` does by default).
+    Oracle: GT poses, GT masks, GT height maps.
     """
     from vtrack.eval.session_gt import SessionGroundTruth
     from vtrack.frames.session import SessionFrames
@@ -127,7 +128,7 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
     if blind:
         kept: dict = {}
         m, (times, est) = track_session(
-            path, "", shape="slam", write=False, return_poses=True, keep_frames=kept, keep_step=2
+            path, "", shape="slam", write=False, return_poses=True, keep_frames=kept, keep_step=2, refine=True
         )
         info = {
             "motion_err_mm": m.get("motion_err_mm"),

@@ -130,8 +130,8 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
             ("known/" + m + " [blind]", dict(shape="known_shape", mesh=mesh, modalities=mods))
             for m, mods in MODES.items()
         ]
-        runs.append(("slam/visuo-tactile [blind]", dict(shape="slam")))
-        runs.append(("slam/vision [blind]", dict(shape="slam", modalities=("vision",))))
+        runs.append(("slam/visuo-tactile [blind]", dict(shape="slam", refine=True)))
+        runs.append(("slam/vision [blind]", dict(shape="slam", modalities=("vision",), refine=True)))
         runs.append(("known/visuo-tactile [oracle]", dict(shape="known_shape", mesh=mesh, **oracle)))
         runs.append(
             (
@@ -139,18 +139,23 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                 dict(shape="known_shape", method="icp", mesh=mesh, init="gt", segmentation="gt"),
             )
         )
-        runs.append(("slam/visuo-tactile [oracle]", dict(shape="slam", tactile_source="gt", segmentation="gt")))
+        runs.append(
+            ("slam/visuo-tactile [oracle]", dict(shape="slam", tactile_source="gt", segmentation="gt", refine=True))
+        )
         for name, kw in runs:
             try:
                 m = track_session(sess, "", write=False, **kw)
             except InputError as e:  # e.g. global registration found nothing with touch only: a result too
                 table.notes.append(f"{name} {setting}: {e}")
                 continue
-            _add_session_row(table, name, setting, obj, occ, noise, m)
-            if "frontend" in m:  # ablation from the same run: the SLAM front end before the keyframe pose graph
+            if "frontend" in m:
+                # one SLAM run, two rows: the front end's poses (the default, `slam/`) and the same run after the
+                # keyframe pose graph with loop closure (`--refine`, `slam + pose graph/`)
                 fe = {**m, **m["frontend"], "rot_drift_deg": float("nan"), "drift_max_mm": float("nan")}
                 fe["backend_s"] = float("nan")
-                _add_session_row(table, name.replace("slam/", "slam (no refinement)/"), setting, obj, occ, noise, fe)
+                _add_session_row(table, name, setting, obj, occ, noise, fe)
+                name = name.replace("slam/", "slam + pose graph/")
+            _add_session_row(table, name, setting, obj, occ, noise, m)
     # the aggregate: every YCB object, occlusion none and medium (means over objects)
     table.add_group_means(
         by=("method", "occlusion"),

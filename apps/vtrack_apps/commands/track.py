@@ -25,7 +25,10 @@ def register(app: typer.Typer) -> None:
         method: str = typer.Option("ours", "--method", help="ours | icp (Open3D point-to-plane, vision only)"),
         mapper: str = typer.Option("surfel", "--mapper", help="SLAM map: surfel (numpy) | neural (neural SDF)"),
         refine: bool = typer.Option(
-            True, "--refine/--no-refine", help="SLAM: keyframe pose-graph refinement after tracking (gtsam)"
+            False,
+            "--refine/--no-refine",
+            help="SLAM: keyframe pose-graph refinement with loop closure after tracking (gtsam; off by default, "
+            "it pays off when the object shows a face again)",
         ),
         loop_closure: bool = typer.Option(
             True, "--loop-closure/--no-loop-closure", help="SLAM: loop-closure edges in the pose graph"
