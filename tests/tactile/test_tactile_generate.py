@@ -141,3 +141,28 @@ def test_cli_generate_and_eval_on_tiny_set(tmp_path, scene):
         assert all(math.isfinite(res[k][m]) for m in ("crop_mse", "crop_ssim", "full_mse", "full_ssim"))
     # moving the patch beats copying the reference unchanged on the contact crops
     assert res["shift"]["crop_mse"] < res["copy"]["crop_mse"]
+
+
+class _Boom:
+    """Unpickling this calls ``os.system``: a weights file must never be able to run code."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        import os
+
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_weights_file_cannot_run_code(tmp_path):
+    import torch
+
+    from vtrack.tactile.generate.generator import TactileGenerator
+
+    p = tmp_path / "evil.pt"
+    marker = tmp_path / "pwned"
+    torch.save({"meta": _Boom(marker)}, p)
+    with pytest.raises(InputError, match="cannot load generator weights"):
+        TactileGenerator(weights=p)
+    assert not marker.exists()  # the payload did not run

@@ -122,10 +122,15 @@ def register_generate(tac: typer.Typer) -> None:
         seed: int = typer.Option(0, "--seed"),
     ) -> None:
         """Train the generator: stage 1 (depth/force), stage 2 (position ControlNet), hybrid baseline."""
+        import math
+
+        from vtrack.errors import InputError
         from vtrack.tactile.generate.train import TrainConfig, train
         from vtrack_apps.output import print_table
 
-        total = max(0.1, minutes) * 60.0
+        if not (math.isfinite(minutes) and minutes > 0):
+            raise InputError("training budget must be a positive number of minutes", field="--minutes", got=minutes)
+        total = minutes * 60.0
         parts = (9, 5, 0 if no_hybrid else 5)
         s = total / sum(parts)
         cfg = TrainConfig(

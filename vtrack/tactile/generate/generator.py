@@ -70,7 +70,8 @@ class TactileGenerator:
                 "generator weights not found (run `vtrack tactile generate-train`)", path=self.path, field="weights"
             )
         try:
-            state = torch.load(self.path, map_location="cpu", weights_only=False)
+            # weights_only: a weights file is data; it must never be able to run code when unpickled
+            state = torch.load(self.path, map_location="cpu", weights_only=True)
             self.meta = state["meta"]
             ch = tuple(self.meta["channels"])
             f32 = {k: ({n: t.float() for n, t in v.items()} if k != "meta" else v) for k, v in state.items()}
@@ -100,14 +101,14 @@ class TactileGenerator:
         self, ref: np.ndarray, bg: np.ndarray, ref_mask: np.ndarray | None
     ) -> tuple[np.ndarray, gd.Pose, float, np.ndarray]:
         """(footprint, pose, footprint radius px, smoothed windowed colour change) of a reference; the last
-        reference is cached (keyed by a hash of subsampled pixels), so many targets from one reference cost
-        one preparation."""
+        reference is cached (keyed by a hash of every pixel: a subsampled hash would serve a different reference
+        that differs only between the samples), so many targets from one reference cost one preparation."""
         import hashlib
 
         h = hashlib.blake2b(digest_size=16)
         for a in (ref, bg) + (() if ref_mask is None else (np.asarray(ref_mask),)):
             h.update(str(a.shape).encode())
-            h.update(np.ascontiguousarray(a[::5, ::5]).tobytes())
+            h.update(np.ascontiguousarray(a).tobytes())
         key = h.hexdigest()
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
