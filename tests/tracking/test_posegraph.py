@@ -138,3 +138,14 @@ def test_slam_options_are_typed_and_keyframes_feed_the_back_end(mustard_seq):
     off = SLAMTracker(mustard_seq.gt[0], refine=False)
     run_sequence(off, mustard_seq, frames=frames[:6])
     assert off.kf_graph == [] and np.array_equal(off.refine_poses(times, E), E)
+
+
+def test_missing_gtsam_names_the_extra(monkeypatch):
+    import sys
+
+    from vtrack.errors import VtrackError
+    from vtrack.tracking.posegraph import _import_gtsam
+
+    monkeypatch.setitem(sys.modules, "gtsam", None)  # import fails as if the extra were not installed
+    with pytest.raises(VtrackError, match=r"vtrack\[slam\]"):
+        _import_gtsam()

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from vtrack.errors import InputError
+from vtrack.errors import InputError, VtrackError
 from vtrack.geometry import se3
 
 
@@ -127,13 +127,11 @@ _TO_GTSAM = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3)
 def _import_gtsam():
     try:
         import gtsam
-    except ImportError as e:  # pragma: no cover - gtsam is a core dependency
-        raise InputError(
-            "the SLAM back end needs gtsam (pip install gtsam==4.3.0); or run without refinement "
-            "(--no-refine / refine=False)",
-            field="refine",
-            expected="gtsam importable",
-            got=str(e),
+    except ImportError as e:
+        # a missing optional package, not bad input: VtrackError (exit 1), naming what to install
+        raise VtrackError(
+            "the SLAM back end (--refine) needs gtsam: pip install 'vtrack[slam]' (gtsam==4.3.0), "
+            f"or run without --refine ({e})"
         ) from e
     return gtsam
 
