@@ -149,3 +149,16 @@ def test_missing_gtsam_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "gtsam", None)  # import fails as if the extra were not installed
     with pytest.raises(VtrackError, match=r"vtrack\[slam\]"):
         _import_gtsam()
+
+
+@pytest.mark.parametrize(
+    "opt", [{"sigma_odom_trans": 0.0}, {"sigma_point": float("nan")}, {"robust_k": -1.0}, {"kf_max": 1}]
+)
+def test_back_end_options_are_checked_by_name(opt):
+    from vtrack.errors import InputError
+    from vtrack.tracking.posegraph import BackendOptions
+
+    with pytest.raises(InputError) as e:
+        BackendOptions.from_dict(opt)
+    assert next(iter(opt)) in str(e.value.field)
+    BackendOptions.from_dict({})  # the defaults pass

@@ -83,6 +83,25 @@ class BackendOptions:
                 field="rounds/icp_iters/kf_points",
                 got=(o.rounds, o.icp_iters, o.kf_points),
             )
+        # noise levels, distances and gates enter as divisors or information: zero, negative or NaN would give
+        # inf/NaN information deep inside the solver, so they are refused here by name
+        positive = (
+            "kf_trans kf_rot kf_max_gap_s icp_dist sigma_point point_correlation loop_point_correlation max_rmse "
+            "map_window_s sigma_odom_trans sigma_odom_rot loop_max_trans loop_max_rot loop_view_angle loop_voxel "
+            "object_radius weak_ratio"
+        ).split()
+        for name in positive:
+            v = float(getattr(o, name))
+            if not (np.isfinite(v) and v > 0):
+                raise InputError("SLAM back-end option must be a positive number", field=name, expected="> 0", got=v)
+        for name in ("robust_k", "loop_min_gap_s", "min_overlap", "loop_min_overlap"):
+            v = float(getattr(o, name))
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError("SLAM back-end option must be >= 0", field=name, expected=">= 0", got=v)
+        if o.kf_max < o.min_keyframes:
+            raise InputError(
+                "kf_max must be at least min_keyframes", field="kf_max", expected=f">= {o.min_keyframes}", got=o.kf_max
+            )
         return o
 
 
