@@ -141,6 +141,15 @@ def test_cli_generate_and_eval_on_tiny_set(tmp_path, scene):
         assert all(math.isfinite(res[k][m]) for m in ("crop_mse", "crop_ssim", "full_mse", "full_ssim"))
     # moving the patch beats copying the reference unchanged on the contact crops
     assert res["shift"]["crop_mse"] < res["copy"]["crop_mse"]
+    assert res["trained_on_targets"] == 0  # another press set: nothing of it was trained on
+
+
+def test_eval_flags_scores_over_training_presses():
+    from vtrack.tactile.generate.evaluate import _trained_on
+
+    meta = {"data": {"press_set": "/elsewhere/gelsight_ball_presses", "real_train": ["a.png", "b.png"]}}
+    assert _trained_on(meta, "/data/gelsight_ball_presses", ["a.png", "c.png"]) == 1  # same set, other copy
+    assert _trained_on(meta, "/data/other_set", ["a.png"]) == 0
 
 
 class _Boom:

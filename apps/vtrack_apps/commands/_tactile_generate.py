@@ -167,5 +167,10 @@ def register_generate(tac: typer.Typer) -> None:
             f"(generator {res['ms_per_image']:.1f} ms/image)",
             [{"method": n} | {m: res[n][m] for m in METRICS} for n in names],
         )
+        if res["trained_on_targets"]:
+            print(
+                f"warning: {res['trained_on_targets']} of the {res['n']} scored presses were used to train these "
+                "weights: these are not held-out numbers (omit --holdout to score the held-out presses)"
+            )
         if json_out:
             write_json(json_out, res)

@@ -143,8 +143,22 @@ def generate_eval(
         "press_set": str(ps.root),
         "reference": ref.file,
         "holdout": holdout,
+        # presses of this set the weights were trained on: scores over them are not held-out numbers
+        "trained_on_targets": _trained_on(first.meta, ps.root, [t.file for t in targets]),
         "weights": str(first.path),
         "crop": "+-2 labelled contact radii around the labelled centre",
         "presses": per_press,
     }
     return res
+
+
+def _trained_on(meta: dict, root, files: list[str]) -> int:
+    """How many of ``files`` (of the press set at ``root``) the weights' training used (0 for another set)."""
+    from pathlib import Path
+
+    data = meta.get("data", {}) if isinstance(meta, dict) else {}
+    trained = data.get("press_set")
+    # the same set by path, or by folder name (the weights may have been trained on another machine's copy)
+    if not trained or (Path(trained).resolve() != Path(root).resolve() and Path(trained).name != Path(root).name):
+        return 0
+    return len(set(files) & set(data.get("real_train", [])))
