@@ -129,16 +129,6 @@ class Edge:
     stats: dict = field(default_factory=dict)
 
 
-def _adjoint(T: np.ndarray) -> np.ndarray:
-    """Adjoint of T for twists ordered [rho, phi]."""
-    R, t = T[:3, :3], T[:3, 3]
-    A = np.zeros((6, 6))
-    A[:3, :3] = R
-    A[:3, 3:] = se3.hat(t[None])[0] @ R
-    A[3:, 3:] = R
-    return A
-
-
 #: tangent [rho, phi] -> gtsam's [omega, v]
 _TO_GTSAM = np.block([[np.zeros((3, 3)), np.eye(3)], [np.eye(3), np.zeros((3, 3))]])
 
@@ -259,10 +249,6 @@ def _relative(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
     return se3.invert(T_a) @ T_b
 
 
-def _rot_angle(R: np.ndarray) -> float:
-    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
-
-
 def _fpfh(P: np.ndarray, N: np.ndarray, voxel: float):
     """Voxel-downsampled points (M, 3) and their FPFH features (33, M) (Open3D)."""
     import open3d as o3d
@@ -297,6 +283,8 @@ def _edge(i: int, j: int, C: np.ndarray, H: np.ndarray, X: np.ndarray, o: Backen
     a map expressed with the current poses (``X_i' = X_i C^-1``, only its observable part); ``H`` is the
     information of a left perturbation of ``C``, carried to the error ``Log(Z^-1 X_i^-1 X_j)``."""
     Z = _observable(C, H, o) @ _relative(X[i], X[j])
+    from vtrack.tracking.window import _adjoint  # one adjoint for [rho, phi] twists
+
     AdZ = _adjoint(Z)
     corr = o.loop_point_correlation if kind == "loop" else o.point_correlation
     info = AdZ.T @ (H / max(corr, 1.0)) @ AdZ
@@ -382,7 +370,7 @@ def registration_edges(
                     C, H, st, good = C2, H2, st2, True
         if not good:
             continue
-        if np.linalg.norm(C[:3, 3]) > o.loop_max_trans or _rot_angle(C[:3, :3]) > o.loop_max_rot:
+        if np.linalg.norm(C[:3, 3]) > o.loop_max_trans or float(se3.rotation_angle(C)) > o.loop_max_rot:
             # a false match on a symmetric or repetitive surface usually needs a large jump
             rep["loop_rejected"] += 1
             continue
