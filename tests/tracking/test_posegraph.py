@@ -162,3 +162,15 @@ def test_back_end_options_are_checked_by_name(opt):
         BackendOptions.from_dict(opt)
     assert next(iter(opt)) in str(e.value.field)
     BackendOptions.from_dict({})  # the defaults pass
+
+
+def test_keyframes_stay_bounded_and_keep_covering_the_run(mustard_seq):
+    from vtrack.tracking.slam import SLAMTracker
+    from vtrack.tracking.synth import run_sequence
+
+    tr = SLAMTracker(mustard_seq.gt[0], refine=True, kf_max=4, kf_max_gap_s=0.01)
+    frames = mustard_seq.frames[:15]
+    run_sequence(tr, mustard_seq, frames=frames)
+    assert len(tr.kf_graph) <= 4 and tr.kf_thinned > 0
+    # the gauge (first keyframe) stays and the newest frames still become keyframes
+    assert tr.kf_graph[0].t == frames[0].t and tr.kf_graph[-1].t >= frames[-3].t

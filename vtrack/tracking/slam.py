@@ -193,6 +193,7 @@ class SLAMTracker(WindowTracker):
         self._ref_keys = np.zeros(0, np.int64)
         self._ref_P = self._ref_N = np.zeros((0, 3))
         self.kf_graph: list[Keyframe] = []  #: back-end keyframes (world points + normals, front-end pose)
+        self.kf_thinned = 0  #: keyframes dropped to stay within kf_max (reported by the back end)
         self.backend_report: dict[str, Any] = {}
 
     @classmethod
@@ -299,7 +300,7 @@ class SLAMTracker(WindowTracker):
     def _maybe_keyframe(self, t: float, T: np.ndarray, V: np.ndarray, Nw: np.ndarray, rng) -> None:
         """Keep this frame for the back end after enough motion or time since the last keyframe."""
         b = self.backend_opts
-        if not b.refine or len(V) < 30 or len(self.kf_graph) >= b.kf_max:
+        if not b.refine or len(V) < 30:
             return
         if self.kf_graph:
             last = self.kf_graph[-1]
@@ -312,18 +313,26 @@ class SLAMTracker(WindowTracker):
         if len(V) > b.kf_points:
             sel = rng.choice(len(V), b.kf_points, replace=False)
             V, Nw = V[sel], Nw[sel]
+        if len(self.kf_graph) >= b.kf_max:
+            # bounded memory without going blind for the rest of the run: thin the older keyframes (every other
+            # one; the first is SLAM's gauge, the newest quarter stays dense for the registration windows)
+            keep_recent = max(1, b.kf_max // 4)
+            old, recent = self.kf_graph[1:-keep_recent], self.kf_graph[-keep_recent:]
+            self.kf_graph = self.kf_graph[:1] + old[1::2] + recent
+            self.kf_thinned += len(old) - len(old[1::2])
         self.kf_graph.append(Keyframe(t=float(t), T=T.copy(), points=V.copy(), normals=Nw.copy()))
 
     def refine_poses(self, times: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The trajectory ``poses`` (N, 4, 4) at ``times`` corrected by the keyframe pose graph
         (:func:`~vtrack.tracking.posegraph.refine_keyframes`); the report is in ``backend_report``."""
         if not self.backend_opts.refine or len(self.kf_graph) < self.backend_opts.min_keyframes:
-            self.backend_report = {"keyframes": len(self.kf_graph), "refined": False}
+            self.backend_report = {"keyframes": len(self.kf_graph), "refined": False, "thinned": self.kf_thinned}
             return np.asarray(poses, np.float64).copy()
         X_new, rep = refine_keyframes(self.kf_graph, self.backend_opts)
         X_old = np.stack([kf.T for kf in self.kf_graph])
         out = interpolate_corrections(np.array([kf.t for kf in self.kf_graph]), X_old, X_new, times, poses)
         rep["refined"] = True
+        rep["thinned"] = self.kf_thinned
         self.backend_report = rep
         return out
 
