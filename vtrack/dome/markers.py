@@ -149,16 +149,34 @@ def extract_markers(
                 next_label += 1
             n_split += k - 1
         n = next_label
-    # image moments per label, vectorised with bincount
+    ctr, area, axes, ang = label_ellipses(lab, n, g, min_area)
+    # reject blobs outside the circular mask, and unsplittable giants / arcs (dome rim)
+    rr = np.hypot(ctr[:, 0] - (W - 1) / 2, ctr[:, 1] - (H - 1) / 2) / (min(H, W) / 2)
+    ok = rr <= mask_radius
+    if ok.sum() >= 3:
+        med = float(np.median(area[ok]))
+        ok &= area <= max_area_ratio * med
+        ok &= ~((axes[:, 1] / np.maximum(axes[:, 0], 1e-9) < 0.25) & (area > 2 * med))
+    good = np.all(np.isfinite(ctr), 1) & ok
+    return MarkerSet(ctr[good], area[good], axes[good], ang[good], (H, W), n_split, int((~good).sum()))
+
+
+def label_ellipses(
+    lab: np.ndarray, n: int, weight: np.ndarray, min_area: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Intensity-weighted ellipse of every label ``1..n-1`` of ``lab`` with at least ``min_area`` pixels
+    (image moments vectorised with bincount): centres (K, 2) px ``(x, y)``, areas (K,) px, full axes (K, 2) px
+    (major, minor) and orientation (K,) rad. A label with zero weight gives a NaN centre (caller drops it)."""
     ys, xs = np.nonzero(lab)
     ls = lab[ys, xs]
-    wts = g[ys, xs].astype(np.float64) + 1e-3
+    wts = weight[ys, xs].astype(np.float64) + 1e-3
     m00 = np.bincount(ls, wts, n)
     cnt = np.bincount(ls, None, n)
     with np.errstate(invalid="ignore", divide="ignore"):
         mx = np.bincount(ls, wts * xs, n) / m00
         my = np.bincount(ls, wts * ys, n) / m00
         dx, dy = xs - mx[ls], ys - my[ls]
+        # + 1/12: the variance of a uniform unit pixel, so a one-pixel blob has a finite size
         cxx = np.bincount(ls, wts * dx * dx, n) / m00 + 1 / 12
         cyy = np.bincount(ls, wts * dy * dy, n) / m00 + 1 / 12
         cxy = np.bincount(ls, wts * dx * dy, n) / m00
@@ -170,16 +188,7 @@ def extract_markers(
     axes = np.stack([2 * np.sqrt(l1), 2 * np.sqrt(l2)], 1)
     ang = 0.5 * np.arctan2(2 * cxy[ids], cxx[ids] - cyy[ids])
     ctr = np.stack([mx[ids], my[ids]], 1)
-    area = cnt[ids].astype(np.float64)
-    # reject blobs outside the circular mask, and unsplittable giants / arcs (dome rim)
-    rr = np.hypot(ctr[:, 0] - (W - 1) / 2, ctr[:, 1] - (H - 1) / 2) / (min(H, W) / 2)
-    ok = rr <= mask_radius
-    if ok.sum() >= 3:
-        med = float(np.median(area[ok]))
-        ok &= area <= max_area_ratio * med
-        ok &= ~((axes[:, 1] / np.maximum(axes[:, 0], 1e-9) < 0.25) & (area > 2 * med))
-    good = np.all(np.isfinite(ctr), 1) & ok
-    return MarkerSet(ctr[good], area[good], axes[good], ang[good], (H, W), n_split, int((~good).sum()))
+    return ctr, cnt[ids].astype(np.float64), axes, ang
 
 
 def _empty(H: int, W: int) -> MarkerSet:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtrack.dome.markers import MarkerSet, _empty, check_image
+from vtrack.dome.markers import MarkerSet, _empty, check_image, label_ellipses
 
 #: training resolution (px)
 SEG_SIZE = 160
@@ -224,27 +224,7 @@ def markers_from_probability(
             next_label += 1
         n_split += len(parts) - 1
     n = next_label
-    ys, xs = np.nonzero(lab)
-    ls = lab[ys, xs]
-    wts = prob[ys, xs].astype(np.float64) + 1e-3
-    m00 = np.bincount(ls, wts, n)
-    cnt = np.bincount(ls, None, n)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mx = np.bincount(ls, wts * xs, n) / m00
-        my = np.bincount(ls, wts * ys, n) / m00
-        dx, dy = xs - mx[ls], ys - my[ls]
-        cxx = np.bincount(ls, wts * dx * dx, n) / m00 + 1 / 12
-        cyy = np.bincount(ls, wts * dy * dy, n) / m00 + 1 / 12
-        cxy = np.bincount(ls, wts * dx * dy, n) / m00
-    ids = np.arange(1, n)
-    ids = ids[cnt[ids] >= min_area]  # small residues removed
-    tr, det = cxx[ids] + cyy[ids], cxx[ids] * cyy[ids] - cxy[ids] ** 2
-    disc = np.sqrt(np.clip(tr * tr / 4 - det, 0, None))
-    l1, l2 = tr / 2 + disc, np.clip(tr / 2 - disc, 1e-9, None)
-    axes = np.stack([2 * np.sqrt(l1), 2 * np.sqrt(l2)], 1)
-    ang = 0.5 * np.arctan2(2 * cxy[ids], cxx[ids] - cyy[ids])
-    ctr = np.stack([mx[ids], my[ids]], 1)
-    area = cnt[ids].astype(np.float64)
+    ctr, area, axes, ang = label_ellipses(lab, n, prob, min_area)  # small residues removed
     rr = np.hypot(ctr[:, 0] - (W - 1) / 2, ctr[:, 1] - (H - 1) / 2) / (min(H, W) / 2)
     good = np.all(np.isfinite(ctr), 1) & (rr <= mask_radius)
     if good.sum() >= 3:  # giants and thin arcs that did not split into marker-sized parts: the dome rim
