@@ -21,14 +21,29 @@ def register(app: typer.Typer) -> None:
             "thread", "--reader", help="decode frames in a child 'process' (no GIL contention) or a 'thread'"
         ),
         json_out: Path = typer.Option(None, "--json", help="write the statistics as JSON"),
+        mesh: Path = typer.Option(None, "--mesh", help="track: known object shape (object frame, m); default SLAM"),
+        init_pose: str = typer.Option(
+            None, "--init-pose", help="track with --mesh: first-frame prior x,y,z,qx,qy,qz,qw or a poses.csv"
+        ),
+        poses: Path = typer.Option(
+            None, "--poses", help="reconstruct: poses.csv of T_world_object (e.g. from vtrack track)"
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
+        from vtrack.io.poses import parse_pose
         from vtrack.live.consumers import make_consumer, replay_streams
         from vtrack.live.pipeline import LivePipeline
         from vtrack.live.sources import SessionReplaySource
         from vtrack_apps.output import print_table, write_json
 
-        cons = [make_consumer(c, session) for c in consumer]
+        per_kind = {
+            "track": {"mesh": mesh, "init_pose": parse_pose(init_pose) if init_pose else None},
+            "reconstruct": {"poses": poses},
+        }
+        cons = [
+            make_consumer(c, session, **{k: v for k, v in per_kind.get(c, {}).items() if v is not None})
+            for c in consumer
+        ]
         src = SessionReplaySource(
             session,
             streams=replay_streams(session, cons),
