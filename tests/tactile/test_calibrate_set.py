@@ -96,3 +96,29 @@ def test_edge_placements_are_scored_on_the_same_presses_and_circles(mini_set, mo
     (chosen,) = [t for t in run.edge_trials if t["chosen"]]
     assert chosen["radius_abs_err_pct_median"] == min(t["radius_abs_err_pct_median"] for t in pool)
     assert run.calib.info["autolabel_edge_weight"] == chosen["edge_weight"]
+
+
+def test_mlp_on_colour_relative_to_the_background_round_trips_and_older_files_load(mini_set, tmp_path):
+    """``mlp_features="rel"`` (colour change / background colour) is stored in the calibration and used at
+    prediction; a calibration without the field (written before it existed) predicts with the raw colour."""
+    import numpy as np
+    import torch
+
+    from vtrack.tactile.calibration import Calibration, TrainOptions, calibrate
+    from vtrack.tactile.pressset import load_press_set
+
+    torch.set_num_threads(1)
+    ps = load_press_set(mini_set)
+    train, img = ps.presses[:3], ps.image(ps.presses[10])
+    small = {"mlp_epochs": 1, "mlp_hidden": 16, "inside_per_press": 1500, "flat_per_press": 1000}
+    rel = calibrate(ps, "mlp", train, TrainOptions(mlp_features="rel", **small))
+    back = Calibration.load(rel.save(tmp_path / "rel.npz"))
+    assert int(back.params["mlp_features"]) == 1
+    np.testing.assert_array_equal(rel.slopes(img)[0], back.slopes(img)[0])
+    raw = calibrate(ps, "mlp", train, TrainOptions(**small))
+    assert "mlp_features" not in raw.params
+    # the same weights read as the other feature set give other slopes: the flag is really used
+    swapped = Calibration("mlp", rel.sensor, rel.mm_per_px, rel.background, dict(rel.params, mlp_features=0))
+    assert np.abs(swapped.slopes(img)[0] - rel.slopes(img)[0]).max() > 0.01
+    with pytest.raises(InputError, match="unknown MLP feature set"):
+        calibrate(ps, "mlp", train, TrainOptions(mlp_features="hsv", **small))

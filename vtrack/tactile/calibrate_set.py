@@ -10,9 +10,10 @@ placement is scored on the SAME held-out presses and contact discs (those of the
 on its own circles, a placement that draws them too small hid its poorly reconstructed rim from its own
 score (simulated GelSight Mini: 0.5 chosen, 13.3 % against the true circles, where 1.0 gives 4.8 %).
 
-``method="auto"`` then chooses the model (:data:`AUTO_CANDIDATES`: MLP of three widths, colour LUT,
-photometric stereo) by k-fold cross-validation over the training presses (folds of whole presses, never of
-pixels) and reports the cross-validated errors as what to expect on new presses of this sensor.
+``method="auto"`` then chooses the model (:data:`AUTO_CANDIDATES`: MLP of three widths, MLP on the colour
+change relative to the background, colour LUT, photometric stereo) by k-fold cross-validation over the
+training presses (folds of whole presses, never of pixels) and reports the cross-validated errors as what to
+expect on new presses of this sensor.
 
 A calibration whose held-out normal error is implausible (> ``max_normal_err_deg``, 15 deg by default: a
 flat-gel guess scores about 25-40 deg on ball presses) is refused with the numbers instead of written.
@@ -30,12 +31,14 @@ EDGE_WEIGHTS = (0.5, 0.75, 1.0)
 #: Held-out median normal error above which a calibration is not written (deg).
 MAX_NORMAL_ERR_DEG = 15.0
 #: Models ``method="auto"`` chooses among by cross-validation on the training presses: (name, method,
-#: TrainOptions fields it overrides). The narrower MLPs are its capacity regularisation: fewer presses or
-#: another sensor's optics may favour a smaller net over the default 64-wide one.
+#: TrainOptions fields it overrides). The narrower MLPs are its capacity regularisation (fewer presses or
+#: another sensor's optics may favour a smaller net); ``mlp-rel`` normalises the colour change against the
+#: sensor's own background (see ``TrainOptions.mlp_features``).
 AUTO_CANDIDATES: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("mlp", "mlp", {}),
     ("mlp-h32", "mlp", {"mlp_hidden": 32}),
     ("mlp-h16", "mlp", {"mlp_hidden": 16}),
+    ("mlp-rel", "mlp", {"mlp_features": "rel"}),
     ("lut", "lut", {}),
     ("ps", "ps", {}),
 )
