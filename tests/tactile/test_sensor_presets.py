@@ -105,3 +105,22 @@ def test_gelsight_preset_lights_match_the_real_presses(gelsight_set):
     for k, colour in enumerate(("blue", "green", "red")):
         diff = (fitted[k] - preset[colour] + 180.0) % 360.0 - 180.0
         assert abs(diff) < 30.0, (colour, fitted[k], preset[colour])
+
+
+def test_calibrate_warns_when_press_images_are_not_in_the_stored_orientation(tmp_path):
+    """A DIGIT press set recorded landscape by another tool would give a calibration that does not fit the
+    portrait DIGIT frames vtrack records: `vtrack calibrate` says so (and still calibrates)."""
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    from vtrack.sim.presses import render_press_set
+    from vtrack.tactile.sensors import orientation_warning
+
+    assert orientation_warning("digit", 240, 320) is None and orientation_warning("gelsight", 640, 480) is None
+    assert "portrait" in orientation_warning("digit", 320, 240) and orientation_warning("unknown", 320, 240) is None
+    root = render_press_set("digit", tmp_path / "landscape", n=6, seed=1, width=320, height=240)
+    out = tmp_path / "c.npz"
+    res = CliRunner().invoke(app, ["calibrate", str(root), "--out", str(out), "--method", "lut", "--holdout", "none"])
+    assert res.exit_code == 0, res.output
+    assert "warning: digit images are 320x240 but vtrack stores digit frames 240x320 (portrait)" in res.output
+    assert out.is_file()

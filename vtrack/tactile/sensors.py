@@ -124,6 +124,24 @@ def sensor_preset(sensor_type: str, field: str = "sensor") -> SensorPreset:
     return p
 
 
+def orientation_warning(sensor_type: str, width_px: int, height_px: int) -> str | None:
+    """A warning when images of ``width_px`` x ``height_px`` are not in the orientation vtrack stores this
+    sensor type in (:attr:`SensorPreset.stored_size`; e.g. a DIGIT recorded landscape by another tool): a
+    calibration from them would not fit the sensor's frames recorded by vtrack. None when they match, the
+    type is unknown or the images are square."""
+    p = SENSOR_PRESETS.get(sensor_type)
+    if p is None or width_px == height_px:
+        return None
+    sw, sh = p.stored_size
+    if (width_px > height_px) == (sw > sh):
+        return None
+    return (
+        f"{sensor_type} images are {width_px}x{height_px} but vtrack stores {sensor_type} frames {sw}x{sh} "
+        f"({'portrait' if sh > sw else 'landscape'}): a calibration from them will not fit frames recorded by "
+        "vtrack (rotate the press images, or record them with `vtrack record presses`)"
+    )
+
+
 def guess_sensor_type(name: str, default: str = "digit") -> str:
     """Guess a sensor type from a topic / device / folder name (case-insensitive)."""
     low = name.lower()
