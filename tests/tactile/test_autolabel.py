@@ -152,25 +152,41 @@ def test_too_few_usable_presses_names_the_reasons(shared_data, tmp_path):
 
 @pytest.mark.slow
 def test_method_auto_chooses_by_cross_validation_on_training_presses_only(shared_data):
-    """``method="auto"``: 3-fold CV of mlp / lut / ps on the 36 training presses, held-out 12 untouched.
+    """``method="auto"``: 3-fold CV (whole presses per fold) on the 36 training presses; the 12 held-out
+    presses stay untouched and check the choice.
 
-    Measured (shared GelSight, hand labels): CV normal error mlp 3.82 deg, lut 5.47, ps 10.64 -> mlp; held out
-    0.98 % / 3.38 deg (the CV error is what a user should expect; it is close to the held-out one).
+    Measured with the full candidate list and training (shared GelSight, hand labels; docs/tactile.md): CV
+    normal error mlp 3.55 deg, mlp-h32 3.65, mlp-h16 4.27, mlp-rel 3.53, lut 5.27, ps 10.23 -> mlp (tie within
+    0.25 deg, smaller radius error), held out 0.72 % / 3.19 deg.
     """
-    from vtrack.tactile.calibrate_set import calibrate_press_set, cross_validate
+    from vtrack.tactile.calibrate_set import AUTO_CANDIDATES, calibrate_press_set, cross_validate
+    from vtrack.tactile.calibration import TrainOptions
 
-    run = calibrate_press_set(shared_data / "gelsight_ball_presses", method="auto")
-    assert [r["method"] for r in run.cv] == ["mlp", "lut", "ps"]
+    # the suite's lighter MLP training and a subset of the candidates (the widths are covered by
+    # tests/tactile/test_calibrate_set.py's option test); the full list is measured in docs/tactile.md
+    cands = tuple(c for c in AUTO_CANDIDATES if c[0] in ("mlp", "mlp-rel", "lut", "ps"))
+    run = calibrate_press_set(
+        shared_data / "gelsight_ball_presses",
+        method="auto",
+        opts=TrainOptions(mlp_epochs=6, inside_per_press=3000, flat_per_press=2000),
+        candidates=cands,
+    )
+    assert [r["model"] for r in run.cv] == ["mlp", "mlp-rel", "lut", "ps"]
     assert all(r["n_presses"] == 36 and r["folds"] == 3 for r in run.cv)
-    best = min(run.cv, key=lambda r: r["normal_err_deg_median"])
-    assert best["chosen"] and run.calib.method == best["method"] == "mlp"
+    best_n = min(r["normal_err_deg_median"] for r in run.cv)
+    (chosen,) = [r for r in run.cv if r["chosen"]]
+    assert chosen["normal_err_deg_median"] <= best_n + 0.25  # the tie rule: within 0.25 deg, smaller radius error
+    assert run.calib.info["model"] == chosen["model"] and run.calib.method == chosen["method"] == "mlp"
+    # the chosen model was trained (the relative-colour MLP stores its feature set), not the default
+    assert ("mlp_features" in run.calib.params) == (chosen["model"] == "mlp-rel")
     assert set(run.calib.info["train_files"]) == {p.file for p in run.train}
     assert not set(run.calib.info["train_files"]) & {p.file for p in run.test}
     # the CV estimate predicts the held-out error (same sensor, same labels): within 1.5 deg
-    assert abs(best["normal_err_deg_median"] - run.held_out["normal_err_deg_median"]) < 1.5, (best, run.held_out)
+    assert abs(chosen["normal_err_deg_median"] - run.held_out["normal_err_deg_median"]) < 1.5, (chosen, run.held_out)
     # photometric stereo's single Lambertian model is clearly worse on this gel: CV must see it
-    ps_row = next(r for r in run.cv if r["method"] == "ps")
-    assert ps_row["normal_err_deg_median"] > best["normal_err_deg_median"] + 2.0
+    ps_row = next(r for r in run.cv if r["model"] == "ps")
+    assert ps_row["normal_err_deg_median"] > best_n + 2.0
+    assert run.plausible
     with pytest.raises(InputError, match="too few presses"):
         cross_validate(run.press_set, "lut", run.train[:1])
     with pytest.raises(InputError, match="unknown calibration method"):

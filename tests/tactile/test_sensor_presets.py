@@ -71,3 +71,56 @@ def test_simulated_press_set_defaults_to_the_preset_geometry(tmp_path):
     ps = load_press_set(root)
     assert ps.mm_per_px == pytest.approx(0.09) and ps.mm_per_px_source == "given"
     assert np.isfinite([p.contact_radius_px for p in ps.presses]).all()
+
+
+def test_simulator_optics_follow_the_preset_light_layout():
+    """The simulator's per-type optical model (vtrack.sim.tactile_optics) lights the gel with the LEDs the
+    preset lists (count, azimuths, dominant colour), so a simulated DIGIT / Mini / GelSight looks like the
+    hardware the preset describes; every preset type has an optical model."""
+    from vtrack.sim.tactile_optics import OpticalModel
+
+    channel = {"blue": 0, "green": 1, "red": 2}  # BGR
+    for name, preset in SENSOR_PRESETS.items():
+        model = OpticalModel.for_sensor(name, seed=None)
+        assert len(model.lights) == len(preset.lights), name
+        for light, (colour, az) in zip(model.lights, preset.lights, strict=True):
+            assert light.azimuth_deg == pytest.approx(az), (name, colour)
+            c = np.asarray(light.colour_bgr)
+            if colour == "white":
+                assert c.max() - c.min() < 0.1, (name, c)
+            else:
+                assert int(np.argmax(c)) == channel[colour], (name, colour, c)
+
+
+def test_gelsight_preset_lights_match_the_real_presses(gelsight_set):
+    """Photometric stereo fitted to 16 of the real GelSight presses recovers one light direction per colour
+    channel; the preset's LED azimuths must agree (within 30 deg). The fitted vector points away from the LED
+    in this normal convention (checked on the simulator, whose LEDs are known), hence the 180 deg."""
+    from vtrack.tactile.calibration import TrainOptions, fit_ps, training_samples
+
+    data = training_samples(gelsight_set, gelsight_set.presses[::3], TrainOptions())  # 16 presses suffice
+    L = fit_ps(data["dI"], data["n"])["lights"]  # rows B, G, R: (x, y, z)
+    fitted = (np.degrees(np.arctan2(L[:, 1], L[:, 0])) + 180.0) % 360.0
+    preset = dict(SENSOR_PRESETS["gelsight"].lights)
+    for k, colour in enumerate(("blue", "green", "red")):
+        diff = (fitted[k] - preset[colour] + 180.0) % 360.0 - 180.0
+        assert abs(diff) < 30.0, (colour, fitted[k], preset[colour])
+
+
+def test_calibrate_warns_when_press_images_are_not_in_the_stored_orientation(tmp_path):
+    """A DIGIT press set recorded landscape by another tool would give a calibration that does not fit the
+    portrait DIGIT frames vtrack records: `vtrack calibrate` says so (and still calibrates)."""
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    from vtrack.sim.presses import render_press_set
+    from vtrack.tactile.sensors import orientation_warning
+
+    assert orientation_warning("digit", 240, 320) is None and orientation_warning("gelsight", 640, 480) is None
+    assert "portrait" in orientation_warning("digit", 320, 240) and orientation_warning("unknown", 320, 240) is None
+    root = render_press_set("digit", tmp_path / "landscape", n=6, seed=1, width=320, height=240)
+    out = tmp_path / "c.npz"
+    res = CliRunner().invoke(app, ["calibrate", str(root), "--out", str(out), "--method", "lut", "--holdout", "none"])
+    assert res.exit_code == 0, res.output
+    assert "warning: digit images are 320x240 but vtrack stores digit frames 240x320 (portrait)" in res.output
+    assert out.is_file()

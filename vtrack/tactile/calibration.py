@@ -45,6 +45,10 @@ class TrainOptions:
     mlp_layers: int = 2
     mlp_epochs: int = 12
     mlp_lr: float = 3e-3
+    #: MLP colour features besides the change: "raw" = the raw colour (the original model), "rel" = the change
+    #: relative to the sensor's own background at that pixel, dI / (bg + 16): an LED's fall-off across the
+    #: gel scales bg and dI alike, so "rel" needs fewer presses to learn it (`--method auto` tries both)
+    mlp_features: str = "raw"
     inside_frac: float = 0.95  # use the labelled disc shrunk by this factor as gradient truth
     outside_frac: float = 1.15  # and pixels beyond this factor x radius as flat gel
     flat_per_press: int = 3000
@@ -288,7 +292,8 @@ class Calibration:
         self, d: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
     ) -> np.ndarray:
         if self.method == "mlp":
-            return _mlp_forward(self.params, _mlp_features(d, raw, rows, cols, shape))
+            kind = MLP_FEATURES[int(self.params.get("mlp_features", 0))]
+            return _mlp_forward(self.params, _mlp_features(d, raw, rows, cols, shape, kind))
         if self.method == "ps":
             return _ps_solve(self.params, d)
         raise InputError("unknown calibration method", field="method", expected="|".join(METHODS), got=self.method)
@@ -434,13 +439,28 @@ def fit_lut(src: np.ndarray, target: np.ndarray, bins: int, lo: float, hi: float
 
 
 # ---------------------------------------------------------------------- MLP
+#: Feature sets of the MLP (stored in a calibration as their index, ``params["mlp_features"]``; absent = 0).
+MLP_FEATURES = ("raw", "rel")
+
+
 def _mlp_features(
-    dI: np.ndarray, raw: np.ndarray, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
+    dI: np.ndarray,
+    raw: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    shape: tuple[int, int],
+    kind: str = "raw",
 ) -> np.ndarray:
+    """(N, 8) float32 MLP inputs: colour change / 64, then the raw colour (``raw``: / 255 - 0.5) or the change
+    relative to the background colour (``rel``: 2 dI / (bg + 16), bg = raw - dI, grey levels), then the
+    pixel position normalised to [-1, 1] (x = column, y = row)."""
     H, W = shape
     f = np.empty((len(rows), 8), np.float32)
     f[:, 0:3] = dI * (1.0 / 64.0)
-    f[:, 3:6] = raw * (1.0 / 255.0) - 0.5
+    if kind == "rel":
+        f[:, 3:6] = 2.0 * dI / (np.asarray(raw, np.float32) - dI + 16.0)
+    else:
+        f[:, 3:6] = raw * (1.0 / 255.0) - 0.5
     f[:, 6] = cols * (2.0 / W) - 1.0
     f[:, 7] = rows * (2.0 / H) - 1.0
     return f
@@ -604,6 +624,10 @@ def calibrate(
     opts = opts or TrainOptions()
     if method not in METHODS:
         raise InputError("unknown calibration method", field="method", expected=" | ".join(METHODS), got=method)
+    if opts.mlp_features not in MLP_FEATURES:
+        raise InputError(
+            "unknown MLP feature set", field="mlp_features", expected=" | ".join(MLP_FEATURES), got=opts.mlp_features
+        )
     train = ps.presses if train is None else train
     if not train:
         raise InputError("no training presses left after the hold-out split", field="holdout")
@@ -621,8 +645,10 @@ def calibrate(
     elif method == "lut_raw":
         params = fit_lut(data["raw"], data["n"], opts.lut_bins, -0.5, 255.5)
     elif method == "mlp":
-        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], ps.shape)
+        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], ps.shape, opts.mlp_features)
         params = fit_mlp(feats, data["n"], opts)
+        if opts.mlp_features != "raw":  # absent = raw: calibrations written before the option load unchanged
+            params["mlp_features"] = np.int64(MLP_FEATURES.index(opts.mlp_features))
     else:
         params = fit_ps(data["dI"], data["n"])
     params["inverse"] = fit_inverse(data["dI"], data["n"])

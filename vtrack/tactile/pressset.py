@@ -220,8 +220,11 @@ def resolve_meta(root: Path, meta_file: str | Path | None = None, **overrides) -
         meta.update(_read_meta_file(root / "meta.json"))
     if meta_file is not None:
         meta.update(_read_meta_file(Path(meta_file)))
+    # a recorder that used the preset's nominal pitch says so ("preset"); a pitch given on the command line
+    # (or a file without the field) counts as given
+    source = "preset" if meta.get("mm_per_px_source") == "preset" and "mm_per_px" in meta else "given"
     meta.update({k: v for k, v in overrides.items() if v is not None})
-    meta["mm_per_px_source"] = "given"
+    meta["mm_per_px_source"] = "given" if overrides.get("mm_per_px") is not None else source
     if "mm_per_px" not in meta and "sensor" in meta:
         # a known sensor type without a measured pitch: its preset's nominal pitch at this image size (flagged)
         from vtrack.tactile.sensors import SENSOR_PRESETS

@@ -10,7 +10,11 @@ width: a unit's own calibration (or ``--mm-per-px``) replaces it, and anything c
 Sources: DIGIT QVGA 320x240 at 60 fps (Lambeta et al. 2020); GelSight Mini 0.0634 mm/px at 320x240 (the
 normalflow configuration listed in ``shared/data/README.md``); GelSight (Taxim data pack) 0.0295 mm/px at
 640x480 (``shared/data/gelsight_ball_presses``). The light layouts describe the hardware for people and
-the simulator's defaults; the pipeline learns colour -> normal from presses and never assumes them.
+the simulator's defaults; the pipeline learns colour -> normal from presses and never assumes them. They
+are given in image coordinates (azimuth from +x = right towards +y = DOWN, the simulator's convention) and
+match the simulator's optical model (tested); the GelSight layout matches the light directions photometric
+stereo fits to the shared real presses (red ~0 deg, green ~245, blue ~125; tested). An earlier version of
+this table had red and blue swapped (a BGR tuple read as RGB) and called the angles counter-clockwise.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ class SensorPreset:
     gel_thickness_mm: float
     #: degrees clockwise vtrack rotates the camera frame by when storing it (DIGIT: portrait)
     rotate_deg: int
-    #: LEDs around the gel: (colour, azimuth deg in the image, counter-clockwise from +x)
+    #: LEDs around the gel: (colour, azimuth deg in image coordinates: from +x (right) towards +y (down))
     lights: tuple[tuple[str, float], ...]
     #: substrings of the UVC device name / serial that identify this sensor
     name_hints: tuple[str, ...]
@@ -53,7 +57,7 @@ class SensorPreset:
 SENSOR_PRESETS: dict[str, SensorPreset] = {
     # DIGIT streams QVGA 320x240 at 60 fps (VGA at 30); stored portrait (240 wide, 320 high).
     "digit": SensorPreset(
-        "digit", 320, 240, 60.0, 0.09, 3.0, 90, (("blue", 90.0), ("green", 210.0), ("red", 330.0)), ("DIGIT", "Digit")
+        "digit", 320, 240, 60.0, 0.09, 3.0, 90, (("red", 90.0), ("green", 210.0), ("blue", 330.0)), ("DIGIT", "Digit")
     ),
     # GelSight Mini: 3280x2464 sensor, usually streamed downscaled; 320x240 is the common working size.
     "gelsight_mini": SensorPreset(
@@ -64,11 +68,11 @@ SENSOR_PRESETS: dict[str, SensorPreset] = {
         0.0634,
         4.0,
         0,
-        (("blue", 0.0), ("green", 120.0), ("red", 240.0), ("white", 300.0)),
+        (("red", 0.0), ("green", 120.0), ("blue", 240.0), ("white", 300.0)),
         ("GelSight Mini", "GelSight"),
     ),
     "gelsight": SensorPreset(
-        "gelsight", 640, 480, 30.0, 0.0295, 3.0, 0, (("blue", 0.0), ("green", 270.0), ("red", 135.0)), ("GelSight",)
+        "gelsight", 640, 480, 30.0, 0.0295, 3.0, 0, (("red", 0.0), ("green", 270.0), ("blue", 135.0)), ("GelSight",)
     ),
 }
 
@@ -118,6 +122,24 @@ def sensor_preset(sensor_type: str, field: str = "sensor") -> SensorPreset:
             "unknown tactile sensor type", field=field, expected=" | ".join(SENSOR_PRESETS), got=sensor_type
         )
     return p
+
+
+def orientation_warning(sensor_type: str, width_px: int, height_px: int) -> str | None:
+    """A warning when images of ``width_px`` x ``height_px`` are not in the orientation vtrack stores this
+    sensor type in (:attr:`SensorPreset.stored_size`; e.g. a DIGIT recorded landscape by another tool): a
+    calibration from them would not fit the sensor's frames recorded by vtrack. None when they match, the
+    type is unknown or the images are square."""
+    p = SENSOR_PRESETS.get(sensor_type)
+    if p is None or width_px == height_px:
+        return None
+    sw, sh = p.stored_size
+    if (width_px > height_px) == (sw > sh):
+        return None
+    return (
+        f"{sensor_type} images are {width_px}x{height_px} but vtrack stores {sensor_type} frames {sw}x{sh} "
+        f"({'portrait' if sh > sw else 'landscape'}): a calibration from them will not fit frames recorded by "
+        "vtrack (rotate the press images, or record them with `vtrack record presses`)"
+    )
 
 
 def guess_sensor_type(name: str, default: str = "digit") -> str:

@@ -139,15 +139,13 @@ def register(app: typer.Typer) -> None:
             raise InputError(
                 "unknown tactile sensor type", field="--sensor", expected=" | ".join(SENSOR_PRESETS), got=sensor
             )
-        pitch = mm_per_px if mm_per_px is not None else SENSOR_PRESETS[sensor].mm_per_px
-        if mm_per_px is None:
-            typer.echo(f"pixel pitch: {pitch} mm/px (nominal {sensor} preset; pass --mm-per-px if you know yours)")
+        # without --mm-per-px the recorder uses the preset's nominal pitch at the stored frame size (flagged)
         rep = record_presses(
             camera,
             out,
             sensor=sensor,
             ball_radius_mm=ball_radius_mm,
-            mm_per_px=pitch,
+            mm_per_px=mm_per_px,
             n_presses=n,
             background_frames=background_frames,
             max_frames=frames,

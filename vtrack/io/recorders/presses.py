@@ -7,6 +7,11 @@ of each episode (largest change) is checked with the automatic contact detector
 (centre, contact radius, estimated depth) and a warning when the press is too shallow, cut by the image
 border, saturated, or not a single round contact. The folder is a press set ``vtrack calibrate`` reads
 (``meta.json`` with the sensor, pitch and ball radius; ``labels.auto.csv`` for review).
+
+The sensor preset (:data:`vtrack.tactile.sensors.SENSOR_PRESETS`) sets the camera format of a device, the
+orientation frames are stored in (a DIGIT is stored portrait, as ``vtrack record tactile`` stores it, so a
+calibration from these presses fits that sensor's sessions) and, when the pitch is not given, its nominal
+pitch at the stored frame size, flagged ``mm_per_px_source: preset`` in ``meta.json``.
 """
 
 from __future__ import annotations
@@ -57,7 +62,7 @@ def record_presses(
     *,
     sensor: str,
     ball_radius_mm: float,
-    mm_per_px: float,
+    mm_per_px: float | None = None,
     n_presses: int = 30,
     background_frames: int = 15,
     start_level: float = 15.0,
@@ -71,7 +76,8 @@ def record_presses(
         source: device index, ``/dev/videoN``, ``serial:S`` or a video file.
         out: press-set folder to create (must be new or empty unless ``overwrite``).
         sensor: digit | gelsight_mini | gelsight (camera format for devices; ``meta.json`` ``sensor``).
-        ball_radius_mm, mm_per_px: the ball pressed and the gel's pixel pitch (mm).
+        ball_radius_mm, mm_per_px: the ball pressed and the gel's pixel pitch (mm); ``mm_per_px`` None: the
+            preset's nominal pitch at the stored frame size (flagged in ``meta.json``).
         n_presses: stop after this many saved presses.
         background_frames: untouched frames at the start, averaged (median) into the background.
         start_level: press signal (grey levels above the background's own frame-to-frame level) that starts
@@ -79,11 +85,18 @@ def record_presses(
     """
     import cv2
 
-    from vtrack.io.recorders.tactile import TactileCamera, open_capture
+    from vtrack.io.recorders.tactile import TactileCamera, _rotate, _rotation, open_capture
     from vtrack.sim.presses import press_depth_mm  # ball geometry only (no renderer)
     from vtrack.tactile.autolabel import Detection, detect_contact, write_auto_labels
+    from vtrack.tactile.sensors import sensor_preset
 
-    if not (np.isfinite(ball_radius_mm) and ball_radius_mm > 0 and np.isfinite(mm_per_px) and mm_per_px > 0):
+    preset = sensor_preset(sensor, "--sensor")
+    pitch_given = mm_per_px is not None
+    if not (
+        np.isfinite(ball_radius_mm)
+        and ball_radius_mm > 0
+        and (not pitch_given or (np.isfinite(mm_per_px) and mm_per_px > 0))
+    ):
         raise InputError(
             "ball radius and pixel pitch must be positive",
             field="--ball-radius-mm/--mm-per-px",
@@ -92,9 +105,11 @@ def record_presses(
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise InputError("output folder exists and is not empty (pass --force to add to it)", path=out)
-    cap, _ = open_capture(TactileCamera(name="presses", source=source, type=sensor, rotate=0))
+    cam = TactileCamera(name="presses", source=source, type=sensor)  # rotate=None: the preset's orientation
+    cap, _ = open_capture(cam)
     rep = PressRecording(str(out))
-    R_px = ball_radius_mm / mm_per_px
+    rotate: int | None = None
+    R_px = float("nan")  # set from the pitch once the stored frame size is known
     bg_stack: list[np.ndarray] = []
     background = None
     noise = 0.0
@@ -147,7 +162,14 @@ def record_presses(
                 break
             if frame.ndim != 3 or frame.shape[2] < 3:
                 raise InputError("tactile camera delivers non-colour frames", field="--camera", got=frame.shape)
-            frame = np.ascontiguousarray(frame[..., :3])
+            if rotate is None:
+                rotate = _rotation(cam, frame)
+                h, w = _rotate(frame, rotate).shape[:2]
+                if not pitch_given:
+                    mm_per_px = preset.pitch_at(w, h)
+                    echo(f"pixel pitch: {mm_per_px:.4f} mm/px (nominal {sensor} preset at {w}x{h}; unverified)")
+                R_px = ball_radius_mm / mm_per_px
+            frame = np.ascontiguousarray(_rotate(frame[..., :3], rotate))
             rep.frames_read += 1
             if background is None:
                 bg_stack.append(frame)
@@ -184,6 +206,8 @@ def record_presses(
                     {
                         "sensor": sensor,
                         "mm_per_px": float(mm_per_px),
+                        # "preset": nominal, unverified; calibrate flags it like a meta.json without a pitch
+                        "mm_per_px_source": "given" if pitch_given else "preset",
                         "ball_radius_mm": float(ball_radius_mm),
                         "recorded_with": "vtrack record presses",
                     },

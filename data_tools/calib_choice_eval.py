@@ -1,0 +1,89 @@
+"""Measure ``vtrack calibrate``'s model choice (issue #21): the fixed default ``mlp`` vs ``--method auto``.
+
+    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json]
+
+``SET`` is calibrated as ``vtrack calibrate`` does (auto labels: edge placement chosen on common circles;
+hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses. Both the
+default ``mlp`` and the chosen model are scored:
+- on ``FRESH_SET`` (e.g. 60 more presses of the same simulated unit, rendered with
+  ``render_press_set(type, DIR, n=60, seed=S2, model=OpticalModel.for_sensor(type, S1))``), against its true
+  circles;
+- or, without ``--fresh``, on the held-out presses of ``SET`` against its hand labels (``labels.csv``).
+
+This is an evaluation tool: it reads the labels only to score. Prints one JSON line (and writes it with
+``--json``): edge trials, CV rows, chosen model, both scores, seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+
+def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None) -> dict:
+    """The comparison for one press set (see the module docstring)."""
+    from vtrack.tactile.calibrate_set import _labelled_run, choose_model
+    from vtrack.tactile.calibration import calibrate
+    from vtrack.tactile.evaluation import evaluate_calibration
+    from vtrack.tactile.pressset import load_press_set
+
+    t0 = time.time()
+    run = _labelled_run(
+        root,
+        method="mlp",
+        holdout="every:4:3",
+        opts=None,
+        labels=labels,
+        edge_weights=(0.5, 0.75, 1.0),
+        meta_file=None,
+        sensor=None,
+        mm_per_px=None,
+        ball_radius_mm=None,
+        downsample="auto",
+    )
+    if fresh:
+        ref = load_press_set(fresh, labels="hand")
+        presses, where = ref.presses, f"fresh {len(ref.presses)} presses vs true circles"
+    else:
+        ref = load_press_set(root, labels="hand")
+        files = {p.file for p in run.test}
+        presses = [p for p in ref.presses if p.file in files]
+        where = f"held-out {len(presses)} presses vs hand labels"
+
+    def score(calib) -> dict:
+        d = evaluate_calibration(ref, calib, presses)["summary"]
+        keys = ("radius_err_pct_median", "radius_abs_err_pct_median", "normal_err_deg_median")
+        return {k: round(d[k], 2) for k in keys}
+
+    out: dict = {"set": str(root), "labels": labels, "eval": where, "edge_trials": run.edge_trials}
+    out["default_mlp"] = score(run.calib)
+    name, method, opts, rows = choose_model(run.press_set, run.train)
+    out["cv"] = rows
+    out["chosen"] = name
+    out["auto"] = out["default_mlp"] if name == "mlp" else score(calibrate(run.press_set, method, run.train, opts))
+    out["seconds"] = round(time.time() - t0)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("set", type=Path)
+    ap.add_argument("labels", choices=("auto", "hand"))
+    ap.add_argument("--fresh", type=Path, default=None, help="fresh presses of the same unit (true circles)")
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args()
+    from vtrack.threads import limit_threads
+
+    limit_threads(1)
+    res = evaluate(a.set, a.labels, a.fresh)
+    print(json.dumps(res))
+    if a.json:
+        from vtrack.io.jsonio import write_json
+
+        write_json(a.json, res)
+
+
+if __name__ == "__main__":
+    main()

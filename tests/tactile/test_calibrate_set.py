@@ -1,0 +1,124 @@
+"""Model choice by cross-validation and edge placement of ``vtrack calibrate`` (issue #21), on simulated presses.
+
+Fast: LUT / photometric-stereo candidates only (the MLP candidates run in the slow test on the real set,
+tests/tactile/test_autolabel.py).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from vtrack.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def mini_set(tmp_path_factory):
+    """16 presses of a simulated GelSight Mini (independent optical model), true circles in labels.csv."""
+    from vtrack.sim.presses import render_press_set
+
+    return render_press_set("gelsight_mini", tmp_path_factory.mktemp("mini") / "set", n=16, seed=4)
+
+
+def test_cross_validation_folds_are_whole_presses_and_cover_each_once(mini_set, monkeypatch):
+    import vtrack.tactile.calibration as cal
+    import vtrack.tactile.evaluation as ev
+    from vtrack.tactile.calibrate_set import cross_validate
+    from vtrack.tactile.pressset import load_press_set
+
+    ps = load_press_set(mini_set)
+    trained, scored = [], []
+    real_cal, real_eval = cal.calibrate, ev.evaluate_calibration
+
+    def spy_cal(ps_, method, train, opts=None):
+        trained.append({p.file for p in train})
+        return real_cal(ps_, method, train, opts)
+
+    def spy_eval(ps_, calib, presses, **kw):
+        scored.append({p.file for p in presses})
+        return real_eval(ps_, calib, presses, **kw)
+
+    monkeypatch.setattr(cal, "calibrate", spy_cal)
+    monkeypatch.setattr(ev, "evaluate_calibration", spy_eval)
+    row = cross_validate(ps, "lut", ps.presses, folds=4, name="lut-x")
+    assert row["model"] == "lut-x" and row["folds"] == 4 and row["n_presses"] == 16
+    assert len(trained) == len(scored) == 4
+    for tr, te in zip(trained, scored, strict=True):
+        assert not tr & te and len(tr | te) == 16  # a press is never on both sides of a fold
+    assert set().union(*scored) == {p.file for p in ps.presses} and sum(map(len, scored)) == 16
+    # the errors are real: a LUT on 12 presses of this sensor is neither perfect nor a flat-gel guess
+    assert 2.0 < row["normal_err_deg_median"] < 15.0, row
+
+
+def test_choose_model_picks_the_lowest_cross_validated_error_and_its_options(mini_set):
+    from vtrack.tactile.calibrate_set import choose_model
+    from vtrack.tactile.calibration import TrainOptions
+    from vtrack.tactile.pressset import load_press_set
+
+    ps = load_press_set(mini_set)
+    cands = (("lut4", "lut", {"lut_bins": 4}), ("lut", "lut", {}), ("ps", "ps", {}))
+    name, method, opts, rows = choose_model(ps, ps.presses, TrainOptions(mlp_hidden=8), candidates=cands)
+    assert [r["model"] for r in rows] == ["lut4", "lut", "ps"] and sum(r["chosen"] for r in rows) == 1
+    (best,) = [r for r in rows if r["chosen"]]
+    assert name == best["model"] and method == best["method"]
+    assert best["normal_err_deg_median"] <= min(r["normal_err_deg_median"] for r in rows) + 0.25
+    # 4 bins per channel cannot resolve this sensor's colours: CV sees it
+    lut4 = rows[0]["normal_err_deg_median"]
+    assert lut4 > rows[1]["normal_err_deg_median"] + 1.0, rows
+    # the candidate's overrides replace the user's options field by field, the rest is kept
+    assert opts.mlp_hidden == 8 and opts.lut_bins == {"lut4": 4}.get(name, TrainOptions().lut_bins)
+    with pytest.raises(InputError, match="no candidate"):
+        choose_model(ps, ps.presses, candidates=())
+
+
+def test_edge_placements_are_scored_on_the_same_presses_and_circles(mini_set, monkeypatch):
+    """Each placement scored on its own circles let one that draws them too small hide its poorly
+    reconstructed rim (simulated GelSight Mini: 13.3 % radius error against the true circles); now all are
+    scored on the middle placement's held-out presses and circles, and trained without those presses."""
+    import vtrack.tactile.evaluation as ev
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+
+    seen = []
+    real_eval = ev.evaluate_calibration
+
+    def spy_eval(ps_, calib, presses, **kw):
+        seen.append((calib.info.get("autolabel_edge_weight"), [(p.file, p.contact_radius_px) for p in presses]))
+        return real_eval(ps_, calib, presses, **kw)
+
+    monkeypatch.setattr(ev, "evaluate_calibration", spy_eval)
+    run = calibrate_press_set(mini_set, method="lut", labels="auto", edge_weights=(0.5, 0.75, 1.0))
+    assert run.press_set.labels_source == "auto" and [t["edge_weight"] for t in run.edge_trials] == [0.5, 0.75, 1.0]
+    trials = [s for s in seen if s[0] is not None]
+    assert [w for w, _ in trials] == [0.5, 0.75, 1.0]
+    assert trials[0][1] == trials[1][1] == trials[2][1]  # identical presses AND circles for every placement
+    test_files = {f for f, _ in trials[0][1]}
+    assert test_files and not test_files & set(run.calib.info["train_files"])
+    pool = [t for t in run.edge_trials if t["n_presses"] >= 0.8 * max(u["n_presses"] for u in run.edge_trials)]
+    (chosen,) = [t for t in run.edge_trials if t["chosen"]]
+    assert chosen["radius_abs_err_pct_median"] == min(t["radius_abs_err_pct_median"] for t in pool)
+    assert run.calib.info["autolabel_edge_weight"] == chosen["edge_weight"]
+
+
+def test_mlp_on_colour_relative_to_the_background_round_trips_and_older_files_load(mini_set, tmp_path):
+    """``mlp_features="rel"`` (colour change / background colour) is stored in the calibration and used at
+    prediction; a calibration without the field (written before it existed) predicts with the raw colour."""
+    import numpy as np
+    import torch
+
+    from vtrack.tactile.calibration import Calibration, TrainOptions, calibrate
+    from vtrack.tactile.pressset import load_press_set
+
+    torch.set_num_threads(1)
+    ps = load_press_set(mini_set)
+    train, img = ps.presses[:3], ps.image(ps.presses[10])
+    small = {"mlp_epochs": 1, "mlp_hidden": 16, "inside_per_press": 800, "flat_per_press": 500}
+    rel = calibrate(ps, "mlp", train, TrainOptions(mlp_features="rel", **small))
+    back = Calibration.load(rel.save(tmp_path / "rel.npz"))
+    assert int(back.params["mlp_features"]) == 1
+    np.testing.assert_array_equal(rel.slopes(img)[0], back.slopes(img)[0])
+    # the same weights read as raw-colour features (what a file without the field gets) give other slopes:
+    # the stored flag is really used
+    old = {k: v for k, v in rel.params.items() if k != "mlp_features"}
+    swapped = Calibration("mlp", rel.sensor, rel.mm_per_px, rel.background, old)
+    assert np.abs(swapped.slopes(img)[0] - rel.slopes(img)[0]).max() > 0.01
+    with pytest.raises(InputError, match="unknown MLP feature set"):
+        calibrate(ps, "mlp", train, TrainOptions(mlp_features="hsv", **small))
