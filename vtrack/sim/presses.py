@@ -22,7 +22,8 @@ import numpy as np
 
 from vtrack.errors import InputError
 
-#: What ``vtrack calibrate`` uses by default (apps/vtrack_apps/commands/tactile.py).
+#: The simulated sensors' calibration model: the MLP, the library default (``vtrack calibrate``'s CLI default is
+#: ``auto``, a cross-validated choice that costs minutes; the simulator calibrates every sensor of every scene).
 DEFAULT_METHOD = "mlp"
 DEFAULT_HOLDOUT = "every:4:3"
 #: Ball radius of the simulated calibration presses per sensor type (mm): a 6 mm ball on the small DIGIT
