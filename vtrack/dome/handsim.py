@@ -3,8 +3,8 @@
 A 12-joint articulated hand holds a dome of 70 mm radius (:data:`HAND_DOME`); the camera inside the dome sees
 
 (a) a visible-light ("RGB") image of the hand through the translucent shell: every shell point takes the skin
-    colour with an opacity that falls off with its distance to the nearest hand part (``exp(-gap / 10 mm)``: the
-    diffusing shell blurs and attenuates what lies behind it; a finger lifted 2 cm is a faint, broad shadow),
+    colour with an opacity that falls off with its distance to the nearest hand part (``exp(-gap / 5 mm)``: the
+    diffusing shell blurs and attenuates what lies behind it; a finger 2 cm off the shell is all but invisible),
     then blur, vignetting, gain and noise;
 (b) the infrared marker image: every hand part that touches the shell is a spherical press
     (:class:`vtrack.dome.simulate.Press`) with a tangential drag along the closing direction of the finger, the
@@ -52,9 +52,9 @@ HAND_DOME = DomeConfig(
     inflation_mm_per_kpa=0.03,
 )
 #: visible-light image side (px); the same fisheye as the IR camera, scaled
-RGB_SIZE = 96
+RGB_SIZE = 64
 #: opacity fall-off (mm) of a hand part seen through the diffusing shell
-GAP_SCALE_MM = 10.0
+GAP_SCALE_MM = 5.0
 #: regressed joint angles (degrees), in output order
 JOINTS = (
     "thumb_cmc_abd",
@@ -80,7 +80,7 @@ GRASPS = {
 #: per-joint uniform variation (deg) of a touching digit around the nominal wrap
 JOINT_VAR_DEG = 5.0
 HAND_YAW_DEG = 8.0
-DATA_VERSION = 2
+DATA_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -302,7 +302,7 @@ def handpose_dataset_path(n: int, seed: int) -> Path:
 
 def make_handpose_dataset(n: int, seed: int, *, cache: bool = True, progress: bool = False) -> dict[str, np.ndarray]:
     """``n`` simulated grasps stacked into arrays (cached .npz in ``vtrack.paths.cache_dir()``): ``rgb``
-    (n, 96, 96, 3), ``ir`` (n, 128, 128) uint8, ``angles_deg`` (n, 12), ``yaw_deg``, ``grasp``, ``n_contacts``
+    (n, 64, 64, 3), ``ir`` (n, 128, 128) uint8, ``angles_deg`` (n, 12), ``yaw_deg``, ``grasp``, ``n_contacts``
     and ``ir_reference`` (128, 128)."""
     path = handpose_dataset_path(n, seed)
     if cache and path.exists():

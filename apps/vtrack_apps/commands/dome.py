@@ -105,9 +105,11 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(12345, "--seed", help="test-set seed (12345 = the held-out set)"),
         markers: bool = typer.Option(True, "--markers/--no-markers", help="marker detection: U-Net vs classic"),
         n_markers: int = typer.Option(100, "--n-markers", min=4, help="held-out simulated frames for markers"),
+        handpose: bool = typer.Option(True, "--handpose/--no-handpose", help="hand-pose nets (S24-S27), 500 grasps"),
     ) -> None:
         """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms); ``force``: the Table S6
-        ablation (with / without pressure, per axis); ``markers``: U-Net vs classic marker detection."""
+        ablation (with / without pressure, per axis; ``oracle_no_p`` = the floor of any estimator blind to P);
+        ``markers``: U-Net vs classic marker detection; ``handpose``: the S24-S27 nets on held-out grasps."""
 
         from vtrack.dome.evaluate import EVAL_KEYS, evaluate, force_table, marker_eval
         from vtrack_apps.output import print_table
@@ -115,6 +117,10 @@ def register(app: typer.Typer) -> None:
         res: dict = evaluate(weights, n_test, seed)
         print_table("dome eval", [{"method": m, **{k: round(r[k], 4) for k in EVAL_KEYS}} for m, r in res.items()])
         res["force"] = force_table(res)
+        if seed == 12345 and n_test == 300:  # floor of any no-pressure estimator blind to P (vtrack.dome.pressure)
+            from vtrack.dome.pressure import oracle_force_floor
+
+            res["force"]["oracle_no_p"] = oracle_force_floor(n_test, seed)["oracle_no_p"]
         print_table(
             "dome force (N)",
             [{"setting": k, **{m: round(v, 4) for m, v in r.items()}} for k, r in res["force"].items()],
@@ -127,6 +133,20 @@ def register(app: typer.Typer) -> None:
             ]
             rows += [{"frames": k, **v} for k, v in res["markers"].get("tactip", {}).items()]
             print_table("dome markers", rows)
+        if handpose:
+            from vtrack.dome.handpose import evaluate_handpose
+
+            res["handpose"] = evaluate_handpose()
+            print_table(
+                "dome hand pose (simulated, deg)",
+                [
+                    {
+                        "modality": m,
+                        **{k: round(res["handpose"][m][k], 3) for k in ("mae_deg", "rmse_deg", "acc1", "acc5")},
+                    }
+                    for m in ("rgb", "ir", "dual")
+                ],
+            )
         if json_out:
             json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
@@ -288,7 +308,7 @@ def register(app: typer.Typer) -> None:
 
     @handpose_app.command("predict")
     def handpose_predict(
-        rgb: Path = typer.Option(None, "--rgb", help="visible-light frame (96 x 96 colour)"),
+        rgb: Path = typer.Option(None, "--rgb", help="visible-light frame (64 x 64 colour)"),
         ir: Path = typer.Option(None, "--ir", help="infrared marker frame (128 x 128 grey)"),
         reference: Path = typer.Option(None, "--reference", help="no-contact IR frame (default: the simulated one)"),
         weights: Path = typer.Option(None, "--weights", help="weights file (default: shipped)"),
