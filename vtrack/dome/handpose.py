@@ -50,6 +50,8 @@ class HandPoseTrainConfig:
     lambda_rmse: float = 1.0
     val_frac: float = 0.1
     feat: int = 128
+    #: dual net: per-sample probability of dropping each modality's features in training (0 = off)
+    modality_dropout: float = 0.0
 
 
 def weights_path() -> Path:
@@ -100,8 +102,18 @@ class HandPoseNet(nn.Module):
         self.register_buffer("mean", torch.as_tensor(np.asarray(mean, np.float32)))
         self.register_buffer("std", torch.as_tensor(np.asarray(std, np.float32)))
 
+    #: training only, dual net: probability of zeroing one modality's features per sample ("modality
+    #: dropout"), so the shared head cannot lean on the IR features for digits the IR camera does not see
+    modality_dropout: float = 0.0
+
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self.head(torch.cat([e(inputs[k]) for k, e in self.enc.items()], 1))
+        feats = [e(inputs[k]) for k, e in self.enc.items()]
+        if self.training and len(feats) == 2 and self.modality_dropout > 0:
+            B = feats[0].shape[0]
+            r = torch.rand(B, 1)
+            feats[0] = feats[0] * (r >= self.modality_dropout).float()  # drop RGB
+            feats[1] = feats[1] * ((r < self.modality_dropout) | (r >= 2 * self.modality_dropout)).float()  # IR
+        return self.head(torch.cat(feats, 1))
 
     def degrees(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         return self.mean + self.std * self(inputs)
@@ -173,6 +185,7 @@ def train_handpose(
     y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
     mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
     model = HandPoseNet(modality, mean, std, tc.feat)
+    model.modality_dropout = tc.modality_dropout if modality == "dual" else 0.0
     for k, enc in model.enc.items():
         if init and k in init and k in init[k].enc:
             enc.load_state_dict(init[k].enc[k].state_dict())
@@ -394,6 +407,13 @@ def train_all(
     tr = make_handpose_dataset(tc.n_train, tc.seed, progress=progress)
     te = make_handpose_dataset(TEST_N, TEST_SEED, progress=progress)
     models, info = {}, {"train": {}, "test": {}}
+    path = Path(out) if out else weights_path()
+    if set(modalities) != set(MODALITIES) and path.is_file():  # keep the settings not retrained in this run
+        old, blob = load_models(path)
+        models = {k: v for k, v in old.items() if k not in modalities}
+        info = {**blob.get("info", {}), **info}
+        info["train"] = {k: v for k, v in blob.get("info", {}).get("train", {}).items() if k not in modalities}
+        info["test"] = {k: v for k, v in blob.get("info", {}).get("test", {}).items() if k not in modalities}
     for m in modalities:
         # the dual net's encoders start from the single-modality ones trained in this run (late fusion of
         # pretrained encoders, then trained end to end with the same loss and budget)
@@ -407,5 +427,5 @@ def train_all(
         }
         log(f"[handpose {m}] held-out: {info['test'][m]}")
     info["angle_range_deg"] = (tr["angles_deg"].min(0).tolist(), tr["angles_deg"].max(0).tolist())
-    save_models(Path(out) if out else weights_path(), models, tc, info)
+    save_models(path, {k: models[k] for k in MODALITIES if k in models}, tc, info)
     return info

@@ -259,10 +259,14 @@ def register(app: typer.Typer) -> None:
         epochs: int = typer.Option(30, "--epochs", min=1),
         modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
         seed: int = typer.Option(0, "--seed"),
+        modality_dropout: float = typer.Option(
+            0.15, "--modality-dropout", min=0.0, max=0.5, help="dual net: per-sample drop probability per modality"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
-        validation checkpoint), report held-out metrics, save all settings in one weights file."""
+        validation checkpoint), report held-out metrics, save all settings in one weights file (settings not
+        listed in --modalities are kept from that file; the dual net starts from the single-modality encoders)."""
         import json
 
         from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, train_all
@@ -272,7 +276,8 @@ def register(app: typer.Typer) -> None:
         bad = [m for m in mods if m not in MODALITIES]
         if bad or not mods:
             raise InputError("unknown modality", field="--modalities", expected="rgb, ir, dual", got=modalities)
-        info = train_all(HandPoseTrainConfig(n_train=n_train, epochs=epochs, seed=seed), out, mods, progress=True)
+        tc = HandPoseTrainConfig(n_train=n_train, epochs=epochs, seed=seed, modality_dropout=modality_dropout)
+        info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
         if json_out:
             json_out.parent.mkdir(parents=True, exist_ok=True)
