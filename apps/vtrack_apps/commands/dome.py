@@ -260,7 +260,7 @@ def register(app: typer.Typer) -> None:
         modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
         seed: int = typer.Option(0, "--seed"),
         modality_dropout: float = typer.Option(
-            0.15, "--modality-dropout", min=0.0, max=0.5, help="dual net: per-sample drop probability per modality"
+            0.0, "--modality-dropout", min=0.0, max=0.5, help="dual net: per-sample drop probability per modality"
         ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
