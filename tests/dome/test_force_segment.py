@@ -167,3 +167,15 @@ def test_garbage_in_is_flagged_and_gives_no_force(kind):
     res = DomeReconstructor("gnn").reconstruct(img, 3.0)
     assert not res.valid and res.summary()["force_n"] is None
     assert np.isfinite(res.force_n).all()
+
+
+def test_unet_splits_touching_pin_pairs_on_real_tactip_frames(shared_data):
+    """Frames 2 and 196 of the real 331-pin TacTip set have two touching pins: 3 erosions left them merged
+    (330 markers), 4 split them (the classic extractor also fails frame 2)."""
+    from vtrack.dome.segment import MarkerSegmenter
+    from vtrack.dome.tactip import SETS, load_set
+
+    pins, mask_r = SETS["tactip_331"]
+    ts = load_set(shared_data / "tactip_frames", "tactip_331")
+    seg = MarkerSegmenter()
+    assert [len(seg.extract(ts.images[i], mask_radius=mask_r)) for i in (2, 196)] == [pins, pins]

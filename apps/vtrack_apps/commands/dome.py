@@ -105,9 +105,11 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(12345, "--seed", help="test-set seed (12345 = the held-out set)"),
         markers: bool = typer.Option(True, "--markers/--no-markers", help="marker detection: U-Net vs classic"),
         n_markers: int = typer.Option(100, "--n-markers", min=4, help="held-out simulated frames for markers"),
+        handpose: bool = typer.Option(True, "--handpose/--no-handpose", help="hand-pose nets (S24-S27), 500 grasps"),
     ) -> None:
         """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms); ``force``: the Table S6
-        ablation (with / without pressure, per axis); ``markers``: U-Net vs classic marker detection."""
+        ablation (with / without pressure, per axis; ``oracle_no_p`` = the floor of any estimator blind to P);
+        ``markers``: U-Net vs classic marker detection; ``handpose``: the S24-S27 nets on held-out grasps."""
 
         from vtrack.dome.evaluate import EVAL_KEYS, evaluate, force_table, marker_eval
         from vtrack_apps.output import print_table
@@ -115,6 +117,10 @@ def register(app: typer.Typer) -> None:
         res: dict = evaluate(weights, n_test, seed)
         print_table("dome eval", [{"method": m, **{k: round(r[k], 4) for k in EVAL_KEYS}} for m, r in res.items()])
         res["force"] = force_table(res)
+        if seed == 12345 and n_test == 300:  # floor of any no-pressure estimator blind to P (vtrack.dome.pressure)
+            from vtrack.dome.pressure import oracle_force_floor
+
+            res["force"]["oracle_no_p"] = oracle_force_floor(n_test, seed)["oracle_no_p"]
         print_table(
             "dome force (N)",
             [{"setting": k, **{m: round(v, 4) for m, v in r.items()}} for k, r in res["force"].items()],
@@ -127,6 +133,20 @@ def register(app: typer.Typer) -> None:
             ]
             rows += [{"frames": k, **v} for k, v in res["markers"].get("tactip", {}).items()]
             print_table("dome markers", rows)
+        if handpose:
+            from vtrack.dome.handpose import evaluate_handpose
+
+            res["handpose"] = evaluate_handpose()
+            print_table(
+                "dome hand pose (simulated, deg)",
+                [
+                    {
+                        "modality": m,
+                        **{k: round(res["handpose"][m][k], 3) for k in ("mae_deg", "rmse_deg", "acc1", "acc5")},
+                    }
+                    for m in ("rgb", "ir", "dual")
+                ],
+            )
         if json_out:
             json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
@@ -200,6 +220,129 @@ def register(app: typer.Typer) -> None:
         if out:
             paths = res.save(out)
             typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
+
+    @dome_app.command("pressure-ablation")
+    def pressure_ablation_cmd(
+        inflation: float = typer.Option(0.0, "--inflation", min=0.0, help="shell inflation, mm per kPa (shipped 0.03)"),
+        n_train: int = typer.Option(2000, "--n-train", min=32),
+        epochs: int = typer.Option(12, "--epochs", min=1),
+        json_out: Path = typer.Option(None, "--json", help="write the with / without pressure rows + oracle floor"),
+    ) -> None:
+        """Is the pressure observable from the image? Retrain the GNN + patch force nets with and without P on
+        data simulated with the given inflation (0 = a double shell that confines it) and compare with the
+        oracle floor of any estimator that cannot see P (``vtrack.dome.pressure``)."""
+        from vtrack.dome.pressure import pressure_ablation
+        from vtrack_apps.output import print_table
+
+        res = pressure_ablation(inflation, n_train=n_train, epochs=epochs)
+        keys = ("gnn_patch_with_p", "gnn_patch_no_p", "oracle_no_p", "zero_force")
+        print_table(
+            f"dome force, inflation {inflation} mm/kPa (N)",
+            [{"setting": k, **{m: round(v, 4) for m, v in res[k].items()}} for k in keys],
+        )
+        typer.echo(f"with pressure {100 * res['gain_with_p']:.0f} % lower MAE than without")
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            write_json(json_out, res, indent=1)
+            typer.echo(f"wrote {json_out}")
+
+    handpose_app = typer.Typer(
+        help="Hand pose (FusionTouch S24-S27): 12 joint angles from the 70 mm dome's RGB and/or IR frame.",
+        no_args_is_help=True,
+    )
+    dome_app.add_typer(handpose_app, name="handpose")
+
+    @handpose_app.command("train")
+    def handpose_train(
+        out: Path = typer.Option(None, "--out", help="weights file (default: the shipped weights/handpose.pt)"),
+        n_train: int = typer.Option(3000, "--n-train", min=32, help="simulated training grasps"),
+        epochs: int = typer.Option(30, "--epochs", min=1),
+        modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
+        seed: int = typer.Option(0, "--seed"),
+        modality_dropout: float = typer.Option(
+            0.0, "--modality-dropout", min=0.0, max=0.5, help="dual net: per-sample drop probability per modality"
+        ),
+        json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
+    ) -> None:
+        """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
+        validation checkpoint), report held-out metrics, save all settings in one weights file (settings not
+        listed in --modalities are kept from that file; the dual net starts from the single-modality encoders)."""
+        import json
+
+        from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, train_all
+        from vtrack.errors import InputError
+
+        mods = tuple(m.strip() for m in modalities.split(",") if m.strip())
+        bad = [m for m in mods if m not in MODALITIES]
+        if bad or not mods:
+            raise InputError("unknown modality", field="--modalities", expected="rgb, ir, dual", got=modalities)
+        tc = HandPoseTrainConfig(n_train=n_train, epochs=epochs, seed=seed, modality_dropout=modality_dropout)
+        info = train_all(tc, out, mods, progress=True)
+        typer.echo(json.dumps(info["test"], indent=1))
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            write_json(json_out, info, indent=1)
+            typer.echo(f"wrote {json_out}")
+
+    @handpose_app.command("eval")
+    def handpose_eval(
+        json_out: Path = typer.Option(None, "--json", help="write {rgb, ir, dual: {mae_deg, rmse_deg, acc1, acc5}}"),
+        weights: Path = typer.Option(None, "--weights", help="weights file (default: shipped)"),
+        n_test: int = typer.Option(500, "--n-test", min=4, help="held-out simulated grasps"),
+        seed: int = typer.Option(4242, "--seed", help="test-set seed (4242 = the held-out set)"),
+    ) -> None:
+        """Overall MAE / RMSE (deg) and Acc@1 / Acc@5 (% of joint angles within 1 / 5 deg) per modality on
+        held-out simulated grasps (Table S7)."""
+        from vtrack.dome.handpose import evaluate_handpose
+        from vtrack_apps.output import print_table
+
+        res = evaluate_handpose(weights, n_test, seed)
+        rows = [
+            {"modality": m, **{k: round(res[m][k], 3) for k in ("mae_deg", "rmse_deg", "acc1", "acc5", "max_deg")}}
+            for m in ("rgb", "ir", "dual")
+            if m in res
+        ]
+        rows.append(
+            {"modality": "mean pose (no image)", **{k: round(v, 3) for k, v in res["mean_pose_baseline"].items()}}
+        )
+        print_table("dome hand pose (simulated, deg)", rows)
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            write_json(json_out, res, indent=1)
+            typer.echo(f"wrote {json_out}")
+
+    @handpose_app.command("predict")
+    def handpose_predict(
+        rgb: Path = typer.Option(None, "--rgb", help="visible-light frame (64 x 64 colour)"),
+        ir: Path = typer.Option(None, "--ir", help="infrared marker frame (128 x 128 grey)"),
+        reference: Path = typer.Option(None, "--reference", help="no-contact IR frame (default: the simulated one)"),
+        weights: Path = typer.Option(None, "--weights", help="weights file (default: shipped)"),
+        json_out: Path = typer.Option(None, "--json", help="write the angles as JSON"),
+    ) -> None:
+        """12 joint angles (deg) from an RGB and/or IR frame (both: the dual-modality net). Frames that do not
+        look like this sensor's are refused."""
+        import json
+
+        from vtrack.dome.handpose import HandPosePredictor
+        from vtrack.errors import InputError
+        from vtrack.io.images import read_image
+
+        def load(path: Path | None, grey: bool):
+            if path is None:
+                return None
+            if grey:
+                return read_image(path, "gray")
+            return read_image(path, "color")[..., ::-1]  # file BGR -> RGB
+
+        ref = load(reference, True)
+        pred = HandPosePredictor(weights, ref)
+        res = pred.predict(load(rgb, False), load(ir, True))
+        if not res.valid:
+            raise InputError(res.reason, path=ir or rgb, field="image", expected="a frame of the 70 mm hand-pose dome")
+        typer.echo(json.dumps(res.summary(), indent=1))
+        if json_out:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            write_json(json_out, res.summary(), indent=1)
 
     @dome_app.command("tactip")
     def tactip(
