@@ -82,6 +82,10 @@ def retrieval(
         "r5_touch2text": obj_i2t[5],
         "instance_r1": 0.5 * (ins_t2i[1] + ins_i2t[1]),
         "instance_r5": 0.5 * (ins_t2i[5] + ins_i2t[5]),
+        "instance_r1_text2touch": ins_t2i[1],
+        "instance_r1_touch2text": ins_i2t[1],
+        "instance_r5_text2touch": ins_t2i[5],
+        "instance_r5_touch2text": ins_i2t[5],
         "silhouette": silhouette(simvec, data.material),
         # the paper's Fig. 6 clusters 20 object categories; our coarse analogue is the texture family
         "silhouette_family": silhouette(simvec, fam) if len(np.unique(fam)) >= 2 else float("nan"),
