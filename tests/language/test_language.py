@@ -203,7 +203,10 @@ def test_cli_eval_json_keys_and_retrieval_above_chance(tmp_path: Path) -> None:
     res = json.loads((tmp_path / "e.json").read_text())
     for k in ("r1", "r5", "r1_steered", "r5_steered", "bleu1", "bleu1_steered", "silhouette", "silhouette_steered"):
         assert np.isfinite(res[k])
-    assert res["chance_r1"] == pytest.approx(1 / 52)
+    from vtrack.language.materials import ycb_available
+
+    # 52 procedural training materials, plus the 6 YCB objects when the shared meshes are here
+    assert res["chance_r1"] == pytest.approx(1 / (58 if ycb_available() else 52))
     assert res["r1"] > 8 * res["chance_r1"] and res["r1_steered"] > 8 * res["chance_r1"]
     assert res["ood_r1"] > 2 * res["ood_chance_r1"]
     assert res["bleu1"] > 0.5

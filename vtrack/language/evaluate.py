@@ -43,17 +43,27 @@ QUERIES: list[tuple[str, Callable, Callable]] = [
 ]
 
 
-def class_texts(data: TactileSet, mats: np.ndarray, mode: int = 2) -> list[str]:
+def class_texts(data: TactileSet, mats: np.ndarray, mode: int = 2, distractor: bool = True) -> list[str]:
     rng = np.random.default_rng(EVAL_SEED + 1)
-    return [description(data.materials[int(m)], None, mode=mode, rng=rng) for m in mats]
+    return [description(data.materials[int(m)], None, mode=mode, rng=rng, distractor=distractor) for m in mats]
 
 
-def retrieval(model, data: TactileSet, *, p1: float | None = None, p2: float | None = None, mode: int = 2) -> dict:
-    """Retrieval metrics on ``data`` (one split) with P1 / P2 steering at the given strengths."""
+def retrieval(
+    model,
+    data: TactileSet,
+    *,
+    p1: float | None = None,
+    p2: float | None = None,
+    p1w: float = 0.0,
+    mode: int = 2,
+    distractor: bool = True,
+) -> dict:
+    """Retrieval metrics on ``data`` (one split) with P1 / P2 / P1w steering at the given strengths
+    (``distractor`` False: the evaluation texts without their non-tactile clause)."""
     V = model.encode_images(data.images, p2)
-    T = model.encode_text(data.texts(mode=mode, seed=EVAL_SEED), p1)
+    T = model.encode_text(data.texts(mode=mode, seed=EVAL_SEED, distractor=distractor), p1, p1w)
     mats = np.unique(data.material)
-    C = model.encode_text(class_texts(data, mats, mode), p1)
+    C = model.encode_text(class_texts(data, mats, mode, distractor), p1, p1w)
     s_ti = T @ V.T
     same = data.material[:, None] == data.material[None]
     eye = np.eye(len(V), dtype=bool)
@@ -61,6 +71,7 @@ def retrieval(model, data: TactileSet, *, p1: float | None = None, p2: float | N
     obj_i2t = recall_at_k(V @ C.T, data.material[:, None] == mats[None])
     ins_t2i = recall_at_k(s_ti, eye)
     ins_i2t = recall_at_k(s_ti.T, eye)
+    fam = np.array([data.materials[int(m)].family for m in data.material])
     simvec = V @ C.T  # Fig. 6: each contact's similarity to every material-level description
     return {
         "r1": 0.5 * (obj_t2i[1] + obj_i2t[1]),
@@ -71,14 +82,60 @@ def retrieval(model, data: TactileSet, *, p1: float | None = None, p2: float | N
         "r5_touch2text": obj_i2t[5],
         "instance_r1": 0.5 * (ins_t2i[1] + ins_i2t[1]),
         "instance_r5": 0.5 * (ins_t2i[5] + ins_i2t[5]),
+        "instance_r1_text2touch": ins_t2i[1],
+        "instance_r1_touch2text": ins_i2t[1],
+        "instance_r5_text2touch": ins_t2i[5],
+        "instance_r5_touch2text": ins_i2t[5],
         "silhouette": silhouette(simvec, data.material),
         # the paper's Fig. 6 clusters 20 object categories; our coarse analogue is the texture family
-        "silhouette_family": silhouette(simvec, np.array([data.materials[int(m)].family for m in data.material])),
+        "silhouette_family": silhouette(simvec, fam) if len(np.unique(fam)) >= 2 else float("nan"),
         "inter_intra": inter_intra_ratio(simvec, data.material),
         "chance_r1": 1.0 / len(mats),
         "n_queries": len(V),
         "n_materials": len(mats),
     }
+
+
+def _query_subset_recall(model, data: TactileSet, rows: np.ndarray, *, mode: int = 2, **kw) -> dict:
+    """Object-level R@1 / R@5 (both directions averaged) of the queries ``rows`` against the whole split."""
+    V = model.encode_images(data.images, kw.get("p2"))
+    T = model.encode_text(data.texts(mode=mode, seed=EVAL_SEED), kw.get("p1"), kw.get("p1w", 0.0))
+    mats = np.unique(data.material)
+    C = model.encode_text(class_texts(data, mats, mode), kw.get("p1"), kw.get("p1w", 0.0))
+    same = data.material[:, None] == data.material[None]
+    t2i = recall_at_k((T @ V.T)[rows], same[rows])
+    i2t = recall_at_k((V @ C.T)[rows], (data.material[:, None] == mats[None])[rows])
+    return {k: 0.5 * (t2i[k] + i2t[k]) for k in (1, 5)}
+
+
+def distractor_effect(model, data: TactileSet, *, split: str = "test") -> dict:
+    """Do the non-tactile words hurt? Object-level R@1 of the same model with the evaluation texts' distractor
+    clause, without it, and in Mode 3 (the material name in front: a distractor never seen in training), plus
+    the share of the text pooling's attention that falls on colour / shape words."""
+    from vtrack.language.materials import COLOURS, SHAPES
+    from vtrack.language.text import token_arrays, tokenize
+
+    torch = __import__("torch")
+    sub = data.subset(data.split == split)
+    out = {
+        "r1_with_distractors": retrieval(model, sub, p1=0.0, p2=0.0)["r1"],
+        "r1_without_distractors": retrieval(model, sub, p1=0.0, p2=0.0, distractor=False)["r1"],
+        "r1_mode3_names": retrieval(model, sub, p1=0.0, p2=0.0, mode=3)["r1"],
+    }
+    texts = sub.texts(mode=2, seed=EVAL_SEED)
+    tok, mask, sign = (torch.as_tensor(a) for a in token_arrays(texts, signs=True))
+    dist = set(COLOURS) | set(SHAPES)
+    words = [[w for w, _ in tokenize(t)][: tok.shape[1]] for t in texts]
+    is_d = torch.zeros_like(mask)
+    for i, ws in enumerate(words):
+        for j, w in enumerate(ws):
+            is_d[i, j] = float(w in dist)
+    with torch.no_grad():
+        for name, beta in (("attention_on_distractors", 0.0), ("attention_on_distractors_p1w_0.5", 0.5)):
+            w = model.net.word_weights(tok, mask, beta, sign)
+            out[name] = float((w * is_d).sum(1).mean())
+    out["distractor_token_share"] = float((is_d.sum(1) / mask.sum(1)).mean())
+    return out
 
 
 def generation(model, data: TactileSet, *, p3: float | None = None, p4: float | None = None) -> dict:
@@ -118,6 +175,16 @@ def evaluate(model, data: TactileSet, *, split: str = "test", mode: int = 2, ste
     kw = {} if steer else {"p1": 0.0, "p2": 0.0}
     sub = data.subset(data.split == split)
     res = retrieval(model, sub, mode=mode, **kw)
+    ycb = np.array([data.materials[int(m)].family == "ycb" for m in sub.material])
+    if ycb.any():
+        # the YCB patches alone (their own pool of objects) and the procedural materials alone
+        ry = retrieval(model, sub.subset(ycb), mode=mode, **kw)
+        rp = retrieval(model, sub.subset(~ycb), mode=mode, **kw)
+        res |= {f"ycb_{k}": ry[k] for k in ("r1", "r5", "r1_text2touch", "r1_touch2text", "chance_r1", "n_queries")}
+        res |= {f"procedural_{k}": rp[k] for k in ("r1", "r5", "chance_r1")}
+        # YCB queries against the whole test gallery (every material of the split)
+        full = _query_subset_recall(model, sub, ycb, mode=mode, **kw)
+        res |= {"ycb_r1_in_full_pool": full[1], "ycb_r5_in_full_pool": full[5]}
     res |= generation(model, sub, **({} if steer else {"p3": 0.0, "p4": 0.0}))
     res |= selection(model, sub, **({} if steer else {"p1": 0.0}))
     ood = retrieval(model, data.subset(data.split == "ood"), mode=mode, **kw)
@@ -132,16 +199,16 @@ def sweep(
     the model's own steering is switched off except at the swept position."""
     sub = data.subset(data.split == split)
     rows = []
-    for pos in ("p1", "p2", "p3", "p4"):
+    for pos in ("p1", "p2", "p1w", "p3", "p4"):
         for a in alphas:
-            kw = {"p1": 0.0, "p2": 0.0}
+            kw = {"p1": 0.0, "p2": 0.0, "p1w": 0.0}
             g = {"p3": 0.0, "p4": 0.0}
             if pos in kw:
                 kw[pos] = a
             else:
                 g[pos] = a
             r = retrieval(model, sub, **kw)
-            b = generation(model, sub, **g)
+            b = generation(model, sub, **g) if pos in ("p3", "p4") or a == 0 else {"bleu1": float("nan")}
             rows.append(
                 {
                     "position": pos.upper(),
@@ -156,9 +223,9 @@ def sweep(
 
 
 def select_on_val(rows: list[dict]) -> dict:
-    """From a :func:`sweep` on the validation split: the retrieval position/strength (P1 or P2) with the best
-    object R@1 and the generation one (P3 or P4) with the best BLEU-1 (ties: the weaker strength)."""
-    ret = max((r for r in rows if r["position"] in ("P1", "P2")), key=lambda r: (r["r1"], -r["alpha"]))
+    """From a :func:`sweep` on the validation split: the retrieval position/strength (P1, P2 or P1w) with the
+    best object R@1 and the generation one (P3 or P4) with the best BLEU-1 (ties: the weaker strength)."""
+    ret = max((r for r in rows if r["position"] in ("P1", "P2", "P1W")), key=lambda r: (r["r1"], -r["alpha"]))
     gen = max((r for r in rows if r["position"] in ("P3", "P4")), key=lambda r: (r["bleu1"], -r["alpha"]))
     return {"retrieval": (ret["position"].lower(), ret["alpha"]), "generation": (gen["position"].lower(), gen["alpha"])}
 
@@ -176,7 +243,7 @@ def evaluate_inference_steering(model, data: TactileSet, chosen: dict, *, split:
     try:
         for name, neg in (("A-N", LEXICON_N), ("A", None)):
             model.net.s_hat.copy_(torch.as_tensor(steering_vector(LEXICON_A, neg)))
-            kw = {"p1": 0.0, "p2": 0.0}
+            kw = {"p1": 0.0, "p2": 0.0, "p1w": 0.0}
             kw[rp] = ra
             g = {"p3": 0.0, "p4": 0.0}
             g[gp] = ga
@@ -184,6 +251,35 @@ def evaluate_inference_steering(model, data: TactileSet, chosen: dict, *, split:
             b = generation(model, sub, **g)
             out[name] = {k: r[k] for k in ("r1", "r5", "instance_r1", "silhouette", "silhouette_family", "inter_intra")}
             out[name] |= {"bleu1": b["bleu1"], "attr_f1": b["attr_f1"]}
+    finally:
+        model.net.s_hat.copy_(saved)
+    return out
+
+
+def per_position_on_test(model, data: TactileSet, rows: list[dict], *, split: str = "test") -> dict:
+    """For each retrieval position (P1, P2, P1w) on its own: the non-zero strength with the best validation R@1 (from
+    the :func:`sweep` ``rows``), then test object / instance R@1 and silhouette of the A-N and A-only vectors
+    at that strength, beside no steering."""
+    from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector
+
+    torch = __import__("torch")
+    sub = data.subset(data.split == split)
+    keys = ("r1", "r5", "instance_r1", "silhouette", "inter_intra")
+    base = retrieval(model, sub, p1=0.0, p2=0.0)
+    out: dict = {"none": {k: base[k] for k in keys}}
+    saved = model.net.s_hat.clone()
+    try:
+        for pos in ("P1", "P2", "P1W"):
+            # the best non-zero strength: this table compares steering with no steering
+            cand = [r for r in rows if r["position"] == pos and r["alpha"] > 0]
+            best = max(cand, key=lambda r: (r["r1"], -r["alpha"]))
+            row: dict = {"alpha_chosen_on_val": best["alpha"], "val_r1": best["r1"]}
+            for name, neg in (("A-N", LEXICON_N), ("A", None)):
+                model.net.s_hat.copy_(torch.as_tensor(steering_vector(LEXICON_A, neg)))
+                kw = {"p1": 0.0, "p2": 0.0, "p1w": 0.0, pos.lower(): best["alpha"]}
+                r = retrieval(model, sub, **kw)
+                row[name] = {k: r[k] for k in keys}
+            out[pos] = row
     finally:
         model.net.s_hat.copy_(saved)
     return out

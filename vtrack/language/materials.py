@@ -15,6 +15,11 @@ name in front), e.g. ``"feels soft, finely ridged and shallow; not hard, not smo
 centred. it looks red and square."``. Descriptions come from the true attributes: the model never reads
 the height map.
 
+YCB surface patches (:mod:`vtrack.language.ycb`, when the shared meshes are present) join the library as
+six more "materials", one per object: the contact presses a random spot of the object's mesh, and its
+description says hard, smooth, the curvature of the object and of the contact, with the object's true colour,
+shape and name as distractors.
+
 Splits: 10 materials are held out entirely (OOD: each family's (medium, deep, soft) and (coarse, shallow,
 hard) combination, so every attribute value is still seen in other families); of the others, contacts 0-15
 train, 16-17 validate (choose the steering strength) and 18-23 test.
@@ -40,7 +45,7 @@ CONTACTS_PER_MATERIAL = 24
 TRAIN_CONTACTS, VAL_CONTACTS = range(0, 16), range(16, 18)
 TEST_CONTACTS = range(18, 24)
 SENSOR_UNITS = 4
-DATA_VERSION = 1
+DATA_VERSION = 2
 
 FAMILY_WORD = {
     "ridges": "ridged",
@@ -85,6 +90,7 @@ ATTRIBUTE_WORDS = frozenset(
     + list(AMP_WORD.values())
     + list(SOFTNESS)
     + ["lightly", "firmly", "horizontal", "vertical", "diagonal", "aligned", "centred", "edge"]
+    + ["flat", "curved", "sharply"]
 )
 #: OOD materials: (family, wavelength, amplitude, softness)
 OOD_COMBOS = {("medium", "deep", "soft"), ("coarse", "shallow", "hard")}
@@ -100,13 +106,20 @@ class Material:
     amplitude: str  # shallow | deep ("-" for smooth)
     softness: str  # soft | hard
     ood: bool
+    obj: str = ""  # YCB file stem (family "ycb")
 
     @property
     def name(self) -> str:
+        if self.family == "ycb":
+            from vtrack.language.ycb import YCB_OBJECTS
+
+            return YCB_OBJECTS[self.obj][0]
         return NAMES[(self.family, self.softness)]
 
     @property
     def key(self) -> str:
+        if self.family == "ycb":
+            return f"ycb-{self.obj}"
         return f"{self.family}-{self.wavelength}-{self.amplitude}-{self.softness}"
 
 
@@ -122,10 +135,13 @@ class Contact:
     position: str  # centred | edge
     radius_mm: float
     unit: int
+    curvature: str = "-"  # YCB: flat | curved | sharply curved at the contact
+    pose: tuple = ()  # YCB: T_object_sensor (4 x 4, metres) row-major
 
 
-def materials() -> list[Material]:
-    """The material library: 5 textured families x 3 wavelengths x 2 amplitudes x 2 softnesses + 2 smooth."""
+def materials(ycb: bool = True) -> list[Material]:
+    """The material library: 5 textured families x 3 wavelengths x 2 amplitudes x 2 softnesses + 2 smooth
+    (indices 0-61), then the YCB objects (62-67; ``ycb`` False leaves them out)."""
     out: list[Material] = []
     for fam in FAMILIES:
         if fam == "smooth":
@@ -136,6 +152,11 @@ def materials() -> list[Material]:
             for a in AMPLITUDE_MM:
                 for s in SOFTNESS:
                     out.append(Material(len(out), fam, w, a, s, (w, a, s) in OOD_COMBOS))
+    if ycb:
+        from vtrack.language.ycb import YCB_OBJECTS
+
+        for stem in YCB_OBJECTS:
+            out.append(Material(len(out), "ycb", "-", "-", "hard", False, stem))
     return out
 
 
@@ -173,6 +194,8 @@ def _texture(m: Material, u: np.ndarray, v: np.ndarray, rng: np.random.Generator
 def draw_contact(m: Material, rng: np.random.Generator) -> Contact:
     """Draw one contact's press force, orientation, position, curvature and sensor unit."""
     force = "firm" if rng.random() < 0.5 else "light"
+    if m.family == "ycb":
+        return _draw_ycb_contact(m, force, rng)
     base = {"light": 0.35, "firm": 0.65}[force] * (0.45 if m.softness == "soft" else 1.0)
     depth = base * float(rng.uniform(0.85, 1.15))
     k = int(rng.integers(0, 4))
@@ -204,8 +227,33 @@ def draw_contact(m: Material, rng: np.random.Generator) -> Contact:
     )
 
 
+def _draw_ycb_contact(m: Material, force: str, rng: np.random.Generator) -> Contact:
+    """A press of a random spot of the YCB object (rigid: the gel takes the full depth)."""
+    from vtrack.language.ycb import curvature_word, sensor_pose
+
+    depth = {"light": 0.35, "firm": 0.65}[force] * float(rng.uniform(0.85, 1.15))
+    angle = float(rng.uniform(0.0, 360.0))
+    edge = rng.random() < 0.4
+    off = (0.0, 0.0)
+    if edge:
+        ang = rng.uniform(0, 2 * np.pi)
+        off = (float(np.cos(ang) * IMAGE_W * 0.3), float(np.sin(ang) * IMAGE_H * 0.3))
+    T, radius = sensor_pose(m.obj, rng, depth, angle, off, MM_PER_PX)
+    centre = (IMAGE_W / 2 + off[0], IMAGE_H / 2 + off[1])
+    unit = int(rng.integers(0, SENSOR_UNITS))
+    pose = tuple(float(x) for x in T.ravel())
+    rad = float(min(radius, 1e6))
+    position = "edge" if edge else "centred"
+    return Contact(force, depth, angle, "-", centre, position, rad, unit, curvature_word(radius), pose)
+
+
 def contact_height(m: Material, c: Contact, rng: np.random.Generator) -> np.ndarray:
     """Gel indentation (mm, (IMAGE_H, IMAGE_W) float32) of contact ``c`` on material ``m``."""
+    if m.family == "ycb":
+        from vtrack.language.ycb import press_height
+
+        T = np.asarray(c.pose, np.float64).reshape(4, 4)
+        return press_height(m.obj, T, IMAGE_W, IMAGE_H, MM_PER_PX, c.depth_mm)
     yy, xx = np.mgrid[0:IMAGE_H, 0:IMAGE_W].astype(np.float32)
     x = (xx - c.centre_px[0]) * MM_PER_PX
     y = (yy - c.centre_px[1]) * MM_PER_PX
@@ -246,8 +294,13 @@ def description(
     p = 0.3 if augment else 0.0
     r = rng if augment else None
     soft = _pick(m.softness, SOFT_SYNONYMS, r, p)
-    fam = _pick(FAMILY_WORD[m.family], FAMILY_SYNONYMS, r, p)
-    if m.family == "smooth":
+    fam = _pick(FAMILY_WORD.get(m.family, "smooth"), FAMILY_SYNONYMS, r, p)
+    if m.family == "ycb":
+        from vtrack.language.ycb import dominant_curvature
+
+        present = [soft, _pick("smooth", FAMILY_SYNONYMS, r, p), dominant_curvature(m.obj)]
+        absent = ["rough"]
+    elif m.family == "smooth":
         present = [soft, fam]
         absent = ["rough", "bumpy", "ridged"]
     else:
@@ -264,6 +317,8 @@ def description(
         extra = ["pressed " + ("firmly" if c.force == "firm" else "lightly")]
         if c.orientation != "-":
             extra.append(c.orientation)
+        if c.curvature != "-":
+            extra.append(c.curvature)
         extra.append(c.position)
         if augment and rng is not None:
             rng.shuffle(extra)
@@ -273,7 +328,12 @@ def description(
     if distractor:
         if rng is None:
             raise InputError("a distractor clause needs a random generator", field="rng")
-        txt += f". it looks {rng.choice(COLOURS)} and {rng.choice(SHAPES)}"
+        colour, shape = rng.choice(COLOURS), rng.choice(SHAPES)
+        if m.family == "ycb":
+            from vtrack.language.ycb import YCB_OBJECTS
+
+            _, colour, shape = YCB_OBJECTS[m.obj]  # the object's true colour and shape (correlated distractors)
+        txt += f". it looks {colour} and {shape}"
     return txt + "."
 
 
@@ -333,23 +393,40 @@ def render_contact(m: Material, c: Contact, rng: np.random.Generator, models=Non
     return model.render(contact_height(m, c, rng), MM_PER_PX, bg, rng, 1.0)
 
 
-def _cache_path() -> Path:
+def _cache_path(ycb: bool) -> Path:
     from vtrack.paths import cache_dir
     from vtrack.sim.tactile_optics import optics_fingerprint
 
-    src = hashlib.sha1(Path(__file__).read_bytes()).hexdigest()[:10]
-    return cache_dir() / "language" / f"materials_v{DATA_VERSION}_{src}_{optics_fingerprint()}.npz"
+    h = hashlib.sha1(Path(__file__).read_bytes())
+    h.update(Path(__file__).with_name("ycb.py").read_bytes())
+    tag = "ycb" if ycb else "noycb"
+    return cache_dir() / "language" / f"materials_v{DATA_VERSION}_{h.hexdigest()[:10]}_{optics_fingerprint()}_{tag}.npz"
 
 
-def generate(seed: int = 0, *, use_cache: bool = True, quick: bool = False) -> TactileSet:
-    """Render every material's contacts (1488 frames, about 30 s on one core); cached in ``cache_dir()``.
+def ycb_available() -> bool:
+    """Whether every YCB mesh of the library is in the shared data folder."""
+    from vtrack.language.ycb import YCB_OBJECTS, ycb_dir
+
+    try:
+        d = ycb_dir()
+    except Exception:  # no shared data folder configured
+        return False
+    return all((d / f"{s}.ply").exists() for s in YCB_OBJECTS)
+
+
+def generate(seed: int = 0, *, use_cache: bool = True, quick: bool = False, ycb: bool | None = None) -> TactileSet:
+    """Render every material's contacts (1632 frames with the YCB patches, about 40 s on one core); cached in
+    ``cache_dir()``.
 
     ``quick`` renders only the first 2 test contacts of each training material and the first 2 contacts of
-    each OOD material (124 frames, a few seconds, not cached): the same draws, for smoke tests."""
+    each OOD material (136 frames, a few seconds, not cached): the same draws, for smoke tests. ``ycb`` None
+    includes the YCB patches when the shared meshes are present (False: the 62 procedural materials only;
+    True: an InputError naming the missing mesh if they are absent)."""
     from vtrack.sim.tactile_optics import OpticalModel
 
-    mats = materials()
-    path = _cache_path().with_name(_cache_path().stem + f"_s{seed}.npz")
+    ycb = ycb_available() if ycb is None else ycb
+    mats = materials(ycb=ycb)
+    path = _cache_path(ycb).with_name(_cache_path(ycb).stem + f"_s{seed}.npz")
     rng = np.random.default_rng(seed)
     contacts: list[Contact] = []
     material, index, split = [], [], []

@@ -6,6 +6,10 @@ Spaces: ``g(T)`` and ``s_hat`` live in the 50-d GloVe space; the CNN gives ``f(I
 projected into the shared, unit-norm retrieval space (``D_SHARED`` = 64). Steering positions:
 
 - P1: ``t~ = normalize(W_text g(T) + a * s_proj)``, ``s_proj = normalize(W_text s_hat)`` (paper eq. for P1);
+- P1w (ours, not in the paper): ``s_hat`` scores every word of the text, ``e(w) . s_hat``, and the pooling's
+  attention logit of the word gets ``+ a * e(w) . s_hat``: words near the N end (colours, shapes) lose weight
+  and tactile ones gain, so the steering acts per text (a constant offset like P1 cannot: see
+  docs/language.md, "Why P1 cannot suppress a distractor");
 - P2: ``v~ = normalize(v + a * s_proj)`` (the tactile embedding, same space);
 - P3: the describer's input word vectors (frozen GloVe, so ``s_hat`` itself) get ``+ a * s_hat``;
 - P4: the describer's conditioning input. The paper's decoder cross-attends to the ViT features; ours is a
@@ -42,8 +46,16 @@ def _torch():
     return torch
 
 
-def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray):
-    """The torch module (created lazily so importing this file does not import torch)."""
+POOLINGS = ("attention", "mean")
+
+
+def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: str = "attention"):
+    """The torch module (created lazily so importing this file does not import torch).
+
+    ``pooling`` "attention" learns a weight per word vector (it can learn to ignore distractor words);
+    "mean" is the plain signed mean of the frozen word vectors (it cannot: only ``W_text`` is trained)."""
+    if pooling not in POOLINGS:
+        raise InputError("unknown text pooling", field="pooling", expected=" | ".join(POOLINGS), got=pooling)
     torch = _torch()
     nn = torch.nn
 
@@ -95,14 +107,21 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray):
                 v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)
             return v
 
-        def pool(self, tok, mask):
-            """g(T): attention-weighted mean of the (signed) word vectors (B, L, 50) -> (B, 50)."""
-            a = self.att(tok)[..., 0].masked_fill(mask <= 0, -1e4)
-            w = torch.softmax(a, 1)
-            return (w[..., None] * tok).sum(1)
+        def word_weights(self, tok, mask, beta_w: float = 0.0, sign=None):
+            """(B, L) pooling weights of the (signed) word vectors ``tok`` (B, L, 50); ``beta_w`` > 0 adds P1w
+            steering (``beta_w * e(w) . s_hat`` to each word's logit; ``sign`` (B, L) undoes the negation sign
+            so "not hard" scores as the tactile word it is)."""
+            a = self.att(tok)[..., 0] if pooling == "attention" else torch.zeros_like(mask)
+            if beta_w:
+                a = a + beta_w * (tok @ self.s_hat) * (sign if sign is not None else 1.0)
+            return torch.softmax(a.masked_fill(mask <= 0, -1e4), 1)
 
-        def text_embed(self, tok, mask, alpha_p1: float = 0.0):
-            t = self.w_text(self.pool(tok, mask))
+        def pool(self, tok, mask, beta_w: float = 0.0, sign=None):
+            """g(T): weighted mean of the (signed) word vectors (B, L, 50) -> (B, 50)."""
+            return (self.word_weights(tok, mask, beta_w, sign)[..., None] * tok).sum(1)
+
+        def text_embed(self, tok, mask, alpha_p1: float = 0.0, beta_w: float = 0.0, sign=None):
+            t = self.w_text(self.pool(tok, mask, beta_w, sign))
             # the paper adds a * s_proj to the projected (unnormalised) text embedding; ours is normalised
             # first so a means the same for every text (a fraction of the unit length)
             t = t / t.norm(dim=1, keepdim=True).clamp_min(1e-9)
@@ -138,7 +157,9 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray):
                 outs.append(tok)
             return torch.stack(outs, 1)
 
-    return TouchSteerNet()
+    net = TouchSteerNet()
+    net.pooling = pooling
+    return net
 
 
 @dataclass
@@ -165,15 +186,17 @@ class TouchSteer:
     meta: dict = field(default_factory=dict)
 
     # ------------------------------------------------------------------ helpers
-    def encode_text(self, texts: list[str], alpha: float | None = None) -> np.ndarray:
-        """(N, D_SHARED) unit text embeddings (P1 steering at ``alpha``; default the model's own)."""
+    def encode_text(self, texts: list[str], alpha: float | None = None, beta_w: float = 0.0) -> np.ndarray:
+        """(N, D_SHARED) unit text embeddings (P1 steering at ``alpha``, default the model's own; P1w at
+        ``beta_w``, inference only)."""
         from vtrack.language.text import token_arrays
 
         torch = _torch()
         a = self.steering.p1 if alpha is None else alpha
-        tok, mask = token_arrays(texts)
+        tok, mask, sign = token_arrays(texts, signs=True)
         with torch.no_grad():
-            return self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a).numpy()
+            t = self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign))
+            return t.numpy()
 
     def encode_images(self, images: np.ndarray, alpha: float | None = None, batch: int = 256) -> np.ndarray:
         """(N, D_SHARED) unit tactile embeddings of network inputs (N, 3, H, W) (P2 at ``alpha``)."""
@@ -208,7 +231,7 @@ class TouchSteer:
         }
         state.pop("word_emb")  # rebuilt from the GloVe wheel on load (the wheel is a dependency, not shipped)
         tmp = path.with_suffix(".tmp")
-        blob = {"version": MODEL_VERSION, "state": state, "vocab": self.vocab}
+        blob = {"version": MODEL_VERSION, "state": state, "vocab": self.vocab, "pooling": self.net.pooling}
         torch.save(blob | {"steering": self.steering.__dict__, "meta": self.meta}, tmp)
         tmp.replace(path)
         return path
@@ -236,7 +259,8 @@ class TouchSteer:
                 got=blob.get("version"),
             )
         vocab = list(blob["vocab"])
-        net = build(vocab, vocab_vectors(vocab, word_vectors), blob["state"]["s_hat"].float().numpy())
+        s_hat = blob["state"]["s_hat"].float().numpy()
+        net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, str(blob.get("pooling", "attention")))
         state = {k: v.float() if v.is_floating_point() else v for k, v in blob["state"].items()}
         state["word_emb"] = net.word_emb
         net.load_state_dict(state)
@@ -306,6 +330,7 @@ def train(
     lm_weight: float = 0.5,
     mode: int = 2,
     seed: int = 0,
+    pooling: str = "attention",
     log=None,
 ) -> TouchSteer:
     """Train on the ``train`` split of a :class:`~vtrack.language.materials.TactileSet`.
@@ -335,7 +360,7 @@ def train(
         steering = steering.off()
     else:
         s_hat = steering_vector(LEXICON_A, LEXICON_N if steering.design == "A-N" else None)
-    net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat)
+    net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, pooling)
     opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=lr, weight_decay=1e-4)
     steps = epochs * int(np.ceil(n / batch))
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
@@ -382,5 +407,6 @@ def train(
                 f"({time.perf_counter() - t0:.0f} s)"
             )
     net.eval()
-    meta = {"epochs": epochs, "mode": mode, "seed": seed, "train_s": round(time.perf_counter() - t0, 1), "n_train": n}
+    meta = {"epochs": epochs, "mode": mode, "seed": seed, "pooling": pooling, "n_train": n}
+    meta["train_s"] = round(time.perf_counter() - t0, 1)
     return TouchSteer(net, vocab, steering, meta)

@@ -169,9 +169,10 @@ def steering_vector(
     return (s / n).astype(np.float32)
 
 
-def token_arrays(texts: list[str], max_len: int = 32) -> tuple[np.ndarray, np.ndarray]:
+def token_arrays(texts: list[str], max_len: int = 32, signs: bool = False):
     """Per-token input of the trainable text pooling: ((N, L, 50) float32 signed word vectors, (N, L) float32
-    mask). Unknown words are skipped; a text with no known word (or an empty one) is an InputError."""
+    mask[, (N, L) float32 negation signs when ``signs``]). Unknown words are skipped; a text with no known word
+    (or an empty one) is an InputError."""
     index, vecs = _glove()
     rows_all = []
     for t in texts:
@@ -184,9 +185,11 @@ def token_arrays(texts: list[str], max_len: int = 32) -> tuple[np.ndarray, np.nd
     L = max((len(r) for r in rows_all), default=1)
     out = np.zeros((len(texts), L, WORD_DIM), np.float32)
     mask = np.zeros((len(texts), L), np.float32)
+    sign = np.ones((len(texts), L), np.float32)
     for i, rs in enumerate(rows_all):
         ids = np.asarray([r for r, _ in rs], np.int64)
         sg = np.asarray([s for _, s in rs], np.float32)
         out[i, : len(rs)] = np.asarray(vecs[ids], np.float32) * sg[:, None]
         mask[i, : len(rs)] = 1.0
-    return out, mask
+        sign[i, : len(rs)] = sg
+    return (out, mask, sign) if signs else (out, mask)

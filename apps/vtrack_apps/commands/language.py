@@ -26,6 +26,9 @@ def register(app: typer.Typer) -> None:
         epochs: int = typer.Option(60, "--epochs", help="training epochs per steering design"),
         seed: int = typer.Option(0, "--seed", help="data and training seed"),
         design: list[str] = typer.Option(None, "--design", help="none | A | A-N (repeatable; default all three)"),
+        pooling: str = typer.Option(
+            "attention", "--pooling", help="text pooling: attention (learned word weights) | mean (frozen mean)"
+        ),
     ) -> None:
         """Generate the procedural materials (cached) and train no-steering, A-only and A-N models alike."""
         import torch
@@ -33,7 +36,8 @@ def register(app: typer.Typer) -> None:
         from vtrack.language.api import DESIGNS, train_all
 
         torch.set_num_threads(1)
-        folder = train_all(out, epochs=epochs, seed=seed, designs=tuple(design) if design else DESIGNS, log=typer.echo)
+        designs = tuple(design) if design else DESIGNS
+        folder = train_all(out, epochs=epochs, seed=seed, designs=designs, pooling=pooling, log=typer.echo)
         typer.echo(f"models written to {folder}")
 
     @lang.command("eval")
