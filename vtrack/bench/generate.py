@@ -17,12 +17,15 @@ Rows:
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 
 import numpy as np
 
 from vtrack.bench.harness import BenchTable
+
+log = logging.getLogger(__name__)
 
 
 def throughput(threads: int, n: int = 128, mode: str = "two_stage", batch: int = 32) -> float:
@@ -258,7 +261,7 @@ def _train_depth_cnn(
 
 
 def force_study(
-    quick: bool = False, press_dir: str | Path | None = None, steps: int = 1500, seeds: int = 3, n_per_ref: int = 20
+    quick: bool = False, press_dir: str | Path | None = None, steps: int = 800, seeds: int = 3, n_per_ref: int = 20
 ) -> list[dict]:
     """Force (indentation-depth) regression with and without generated augmentation, on REAL presses
     (paper Table 8 analogue).
@@ -271,6 +274,8 @@ def force_study(
     - ``real + generated``: half of every batch from ``n_per_ref`` images generated from EACH training press
       (two-stage generator, random target centre within the real presses' range, random depth within the
       training depths; label = the requested depth);
+    - ``real + generated, moved only`` (diagnostic): the same, but every generated image keeps its reference's
+      depth (only the position changes), which separates the generator's depth control from the rest;
     - ``real + simulated``: half of every batch from as many presses of a 2 mm sphere rendered by the
       independent optical model (GelSight preset) on the real background at 320x240;
     - ``mean`` (predict the training mean) as the floor, and ``footprint geometry`` (no training: the detected
@@ -302,7 +307,7 @@ def force_study(
     def feats(imgs: list[np.ndarray], background: np.ndarray) -> np.ndarray:
         bgf = background.astype(np.float32)
         out = [
-            cv2.resize(im.astype(np.float32) - bgf, (160, 120), interpolation=cv2.INTER_AREA).transpose(2, 0, 1) / 32.0
+            cv2.resize(im.astype(np.float32) - bgf, (80, 60), interpolation=cv2.INTER_AREA).transpose(2, 0, 1) / 32.0
             for im in imgs
         ]
         return np.ascontiguousarray(np.stack(out), np.float32)
@@ -318,25 +323,31 @@ def force_study(
     n_per_ref = 8 if quick else n_per_ref
     # generated: n_per_ref targets from each training press (its labelled disc as the reference footprint)
     gen = TactileGenerator(threads=0)
-    g_imgs, g_d = [], []
-    for p in train:
-        ref = ps.image(p)
-        m = gd.disc_mask((H, W), p.center_xy_px, p.contact_radius_px)
-        D = rng.uniform(lo, hi, n_per_ref)
-        reqs = [
-            gen.prepare(
-                ref,
-                bg,
-                ref_depth_mm=depth(p),
-                target_depth_mm=float(d),
-                target_pose=gd.Pose(float(rng.uniform(min(cx), max(cx))), float(rng.uniform(min(cy), max(cy)))),
-                ref_mask=m,
-            )
-            for d in D
-        ]
-        g_imgs += gen.generate_many(reqs, bg)
-        g_d += list(D)
-    gen_set = (feats(g_imgs, bg), np.array(g_d, np.float32))
+
+    def generated(same_depth: bool) -> tuple[np.ndarray, np.ndarray]:
+        imgs, ds = [], []
+        for p in train:
+            ref = ps.image(p)
+            m = gd.disc_mask((H, W), p.center_xy_px, p.contact_radius_px)
+            D = np.full(n_per_ref, depth(p)) if same_depth else rng.uniform(lo, hi, n_per_ref)
+            reqs = [
+                gen.prepare(
+                    ref,
+                    bg,
+                    ref_depth_mm=depth(p),
+                    target_depth_mm=float(d),
+                    target_pose=gd.Pose(float(rng.uniform(min(cx), max(cx))), float(rng.uniform(min(cy), max(cy)))),
+                    ref_mask=m,
+                )
+                for d in D
+            ]
+            imgs += gen.generate_many(reqs, bg)
+            ds += list(D)
+        return feats(imgs, bg), np.array(ds, np.float32)
+
+    gen_set = generated(False)
+    moved_set = generated(True)  # diagnostic: position augmentation only, each press at its own depth
+    g_d = gen_set[1]
     # simulated: a 2 mm sphere by the independent optical model at half resolution (same field of view)
     bgs = cv2.resize(bg, (W // 2, H // 2), interpolation=cv2.INTER_AREA)
     model = OpticalModel.for_sensor("gelsight", seed=1000)
@@ -370,6 +381,11 @@ def force_study(
     for name, extra, desc in (
         ("CNN real only", None, f"{len(train)} real"),
         ("CNN real + generated", gen_set, f"{len(train)} real + {len(g_d)} generated ({n_per_ref} per real press)"),
+        (
+            "CNN real + generated, moved only",
+            moved_set,
+            f"{len(train)} real + {len(g_d)} generated at the reference's own depth (position only)",
+        ),
         ("CNN real + simulated", sim_set, f"{len(train)} real + {len(s_d)} simulated (optical model)"),
     ):
         per_seed = []
@@ -379,6 +395,7 @@ def force_study(
                 per_seed.append(errs(net(Xt).numpy()))
         row = {k: float(np.mean([r[k] for r in per_seed])) for k in per_seed[0]}
         row["depth_mae_std_mm"] = float(np.std([r["depth_mae_mm"] for r in per_seed]))
+        log.info("force study %s: depth MAE %.3f mm", name, row["depth_mae_mm"])
         rows.append({"method": name, "train": f"{desc}, {steps} steps", "seeds": seeds} | row)
     for r in rows:
         r["test"] = f"{len(test)} held-out real presses, depth {Yte.min():.2f}-{Yte.max():.2f} mm"
