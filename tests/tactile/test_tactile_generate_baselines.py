@@ -53,6 +53,13 @@ def test_flow_sampler_and_loss_follow_the_rectified_flow_convention():
     flow.velocity = _exact_velocity(-y)
     assert float(flow.loss(x, cond, y, torch.ones(1, 1, 16, 16))) > 0.01
     assert not torch.allclose(flow(x, cond, torch.zeros(2, 5)), y, atol=1e-2)
+    # x0 (target) parametrisation: a net that outputs the target gives loss 0 and lands on it
+    fx = Flow(sigma=0.3, predict="target")
+    fx._out = lambda x, cond, z, t: y
+    assert float(fx.loss(x, cond, y, torch.ones(1, 1, 16, 16))) == pytest.approx(0.0, abs=1e-8)
+    for steps in (1, 3, 8):
+        fx.steps = steps
+        assert torch.allclose(fx(x, cond, torch.zeros(2, 5)), y, atol=1e-5)
 
 
 def test_position_pairs_are_same_depth_other_pose_same_group():
@@ -81,10 +88,10 @@ def test_shipped_weights_hold_the_baselines_trained_at_matched_steps():
     from vtrack.tactile.generate import default_weights_path
 
     state = torch.load(default_weights_path(), map_location="cpu", weights_only=True)
-    assert {"base", "control", "hybrid", "position", "flow"} <= set(state)
+    assert {"base", "control", "hybrid", "position", "flow", "flowx"} <= set(state)
     steps = {r["stage"]: r["steps"] for r in state["meta"]["log"]}
     # per-compute comparisons: flow vs stage 1 and position vs hybrid got the same optimiser steps
-    assert steps["flow"] == steps["stage1"] and steps["position"] == steps["hybrid"]
+    assert steps["flow"] == steps["flowx"] == steps["stage1"] and steps["position"] == steps["hybrid"]
     assert state["meta"]["data"]["position_pairs"] > state["meta"]["data"]["position_real_pairs"] > 0
 
 
@@ -131,11 +138,27 @@ def test_missing_baseline_in_weights_is_a_clear_error(tmp_path):
     from vtrack.tactile.generate.generator import TactileGenerator
 
     state = torch.load(default_weights_path(), map_location="cpu", weights_only=True)
-    for k in ("position", "flow"):
+    for k in ("position", "flow", "flowx"):
         state.pop(k, None)
     p = tmp_path / "old.pt"
     torch.save(state, p)
-    for mode in ("separate", "flow4"):
+    for mode in ("separate", "flow4", "flowx2"):
         with pytest.raises(InputError, match="baseline"):
             TactileGenerator(p, mode=mode)
     assert TactileGenerator(p).available == {"base", "control", "hybrid"}
+
+
+def test_generate_train_refuses_bad_extras(tmp_path):
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    from vtrack.tactile.generate import default_weights_path
+    from vtrack.tactile.generate.train import TrainConfig, train
+
+    runner = CliRunner()
+    r = runner.invoke(app, ["tactile", "generate-train", "--update", str(default_weights_path())])
+    assert r.exit_code != 0 and isinstance(r.exception, InputError) and "--extras" in str(r.exception)
+    r = runner.invoke(app, ["tactile", "generate-train", "--update", str(tmp_path / "no.pt"), "--extras", "flow"])
+    assert r.exit_code != 0 and isinstance(r.exception, InputError)
+    with pytest.raises(InputError, match="extra"):
+        train(TrainConfig(extras=("diffusion",)), out=tmp_path / "x.pt")

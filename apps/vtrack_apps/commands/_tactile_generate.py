@@ -124,7 +124,8 @@ def register_generate(tac: typer.Typer) -> None:
             "",
             "--extras",
             help="extra baselines, comma-separated: separate (position-only model after stage 1), flow "
-            "(few-step rectified-flow stage 1); adds ~9 min to a full run",
+            "(few-step rectified-flow stage 1), flowx (the same, predicting the clean target); "
+            "each adds 3-6 min to a full run",
         ),
         update: Path = typer.Option(
             None,

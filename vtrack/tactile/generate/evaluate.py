@@ -77,6 +77,7 @@ def generate_eval(
         modes = ("two_stage", "stage1")
         modes += ("hybrid",) * ("hybrid" in avail) + ("separate",) * ("position" in avail)
         modes += tuple(f"flow{k}" for k in FLOW_STEPS) * ("flow" in avail)
+        modes += tuple(f"flowx{k}" for k in FLOW_STEPS) * ("flowx" in avail)
     gens = {m: TactileGenerator(weights, mode=m, threads=threads) for m in modes}
     first = next(iter(gens.values()))
     if holdout is None:

@@ -25,7 +25,17 @@ from vtrack.tactile.generate import data as gd
 _TAPER = gd.crop_taper()
 #: ``flowK``: the few-step rectified-flow stage 1 sampled with K Euler steps.
 FLOW_STEPS = (1, 2, 4, 8)
-MODES = ("two_stage", "stage1", "hybrid", "separate", *(f"flow{k}" for k in FLOW_STEPS), "shift", "shift_denoised")
+#: ``flowxK``: the same flow predicting the clean correction (x0 parametrisation).
+MODES = (
+    "two_stage",
+    "stage1",
+    "hybrid",
+    "separate",
+    *(f"flow{k}" for k in FLOW_STEPS),
+    *(f"flowx{k}" for k in FLOW_STEPS),
+    "shift",
+    "shift_denoised",
+)
 
 
 @dataclass
@@ -83,7 +93,9 @@ class TactileGenerator:
             self.available = {k for k in state if k != "meta"}  # networks in this file
             ch = tuple(self.meta["channels"])
             f32 = {k: ({n: t.float() for n, t in v.items()} if k != "meta" else v) for k, v in state.items()}
-            key = {"hybrid": "hybrid", "separate": "position"}.get(mode, "flow" if mode.startswith("flow") else None)
+            key = {"hybrid": "hybrid", "separate": "position"}.get(mode)
+            if mode.startswith("flow"):
+                key = "flowx" if mode.startswith("flowx") else "flow"
             if key is not None and key not in f32:
                 raise InputError(
                     f"these weights have no {mode} baseline (train it: `vtrack tactile generate-train --extras`)",
@@ -94,8 +106,8 @@ class TactileGenerator:
                 net = Hybrid(ch)
                 net.load_state_dict(f32["hybrid"])
             elif mode.startswith("flow"):
-                net = Flow(ch, steps=int(mode[4:]))
-                net.load_state_dict(f32["flow"])
+                net = Flow(ch, steps=int(mode[len(key) :]), predict="target" if key == "flowx" else "velocity")
+                net.load_state_dict(f32[key])
             else:
                 base = UNet(ch=ch)
                 base.load_state_dict(f32["base"])

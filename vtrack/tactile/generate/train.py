@@ -53,8 +53,9 @@ class TrainConfig:
     seed: int = 0
     threads: int = 2
     train_hybrid: bool = True
-    #: extra baselines (:data:`EXTRAS`): "separate" (a position-only model after stage 1) and "flow" (few-step
-    #: rectified-flow stage 1); not in the default run, which keeps ``generate-train`` within 15 minutes
+    #: extra baselines (:data:`EXTRAS`): "separate" (a position-only model after stage 1), "flow" (few-step
+    #: rectified-flow stage 1, velocity prediction) and "flowx" (the same, predicting the clean target); not in
+    #: the default run, which keeps ``generate-train`` within 15 minutes
     extras: tuple[str, ...] = ()
     position_seconds: float = 200.0
     #: position-only pairs: same indenter and unit, different poses, depths within this (mm)
@@ -68,7 +69,7 @@ class TrainConfig:
 
 
 #: Extra baselines :func:`train` can add (``extras``), each stored under its own key in the weights.
-EXTRAS = ("separate", "flow")
+EXTRAS = ("separate", "flow", "flowx")
 
 
 def _pairs(
@@ -293,6 +294,10 @@ def train(
         flow = Flow(cfg.channels, sigma=sigma)
         _fit(flow, flow.parameters(), d1, cfg.flow_seconds, cfg, rng, "flow", max_steps=cfg.flow_max_steps)
         state["flow"] = flow.state_dict()
+    if "flowx" in cfg.extras:  # the same flow, predicting the clean correction (x0 / DDIM-style)
+        flowx = Flow(cfg.channels, sigma=float(d1["y"].float().std()), predict="target")
+        _fit(flowx, flowx.parameters(), d1, cfg.flow_seconds, cfg, rng, "flowx", max_steps=cfg.flow_max_steps)
+        state["flowx"] = flowx.state_dict()
     meta = {k: v for k, v in asdict(cfg).items() if k != "log"} | {"log": cfg.log, "data": info}
     if old is not None:  # keep the budgets the shipped nets were trained with
         meta = old["meta"] | {k: meta[k] for k in meta if k not in old["meta"] or k in ("log", "data")}
