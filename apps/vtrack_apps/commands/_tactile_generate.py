@@ -46,7 +46,9 @@ def register_generate(tac: typer.Typer) -> None:
         mm_per_px: float = typer.Option(
             None, "--mm-per-px", help="pixel pitch, mm (default: GelSight 0.0295 at 640 px wide, scaled)"
         ),
-        mode: str = typer.Option("two_stage", "--mode", help="two_stage | stage1 | hybrid | shift"),
+        mode: str = typer.Option(
+            "two_stage", "--mode", help="two_stage | stage1 | hybrid | separate | flow1|2|4|8 | flowx1|2|4|8 | shift"
+        ),
         weights: Path = typer.Option(None, "--weights", help="generator weights .pt (default: shipped)"),
     ) -> None:
         """Generate the tactile image of the reference contact at another force/depth and pose."""
