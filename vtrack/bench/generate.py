@@ -3,22 +3,29 @@
 Rows:
 - ``generate-eval`` of the shipped weights on the held-out half of the shared real press set (odd indices,
   never trained on): the two-stage generator, stage 1 alone (force control only; the position is then the
-  geometric move of the reference alone), the hybrid single-model baseline, and the ``shift``, ``copy`` and
-  ``background`` baselines (see :mod:`vtrack.tactile.generate.evaluate`);
+  geometric move of the reference alone), the hybrid single-model baseline, the separate force-then-position
+  baseline, the few-step rectified-flow stage 1 at 1/2/4/8 steps (deterministic regressor vs diffusion per
+  CPU millisecond), and the ``shift``, ``copy`` and ``background`` baselines (see
+  :mod:`vtrack.tactile.generate.evaluate`);
 - mask-perturbation robustness (the paper's Table 6/7 analogue): the target mask translated by 2/4/6 px
   (full-resolution px, direction +x) or scaled by 0.8/1.2 before generation, two-stage model;
 - throughput: images/s of 320x240 generation (prepare + network + compose, batches of 32) at 1 and 2 torch
-  threads, on simulated 320x240 references.
+  threads, on simulated 320x240 references;
+- the downstream studies: contact pose on SIMULATED presses (:func:`pose_study`) and force/depth regression
+  on REAL presses with and without generated augmentation (:func:`force_study`).
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 
 import numpy as np
 
 from vtrack.bench.harness import BenchTable
+
+log = logging.getLogger(__name__)
 
 
 def throughput(threads: int, n: int = 128, mode: str = "two_stage", batch: int = 32) -> float:
@@ -89,8 +96,9 @@ def _pose_errors(pred: np.ndarray, poses: np.ndarray, W: int, H: int, sym: int) 
     }
 
 
-def _train_pose_cnn(imgs: np.ndarray, targets: np.ndarray, seconds: float, seed: int = 0):
-    """Small CNN regressor (x, y, cos k*theta, sin k*theta) on colour-change images, Adam, wall-clock budget."""
+def _train_pose_cnn(imgs: np.ndarray, targets: np.ndarray, seconds: float, seed: int = 0, steps: int = 0):
+    """Small CNN regressor (x, y, cos k*theta, sin k*theta) on colour-change images, Adam, wall-clock budget
+    (or exactly ``steps`` > 0 steps: on a loaded machine a wall-clock budget buys fewer steps)."""
     import torch
 
     torch.manual_seed(seed)
@@ -100,18 +108,18 @@ def _train_pose_cnn(imgs: np.ndarray, targets: np.ndarray, seconds: float, seed:
     Y = torch.from_numpy(targets)
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
-    steps = 0
-    while time.perf_counter() - t0 < seconds:
+    n_done = 0
+    while (steps > 0 and n_done < steps) or (steps <= 0 and time.perf_counter() - t0 < seconds):
         idx = torch.from_numpy(rng.integers(0, len(X), 32))
         loss = ((net(X[idx]) - Y[idx]) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
-        steps += 1
-    return net.eval(), steps
+        n_done += 1
+    return net.eval(), n_done
 
 
-def pose_study(quick: bool = False, seconds: float = 60.0) -> list[dict]:
+def pose_study(quick: bool = False, seconds: float = 60.0, steps: int = 0) -> list[dict]:
     """Contact-pose (x, y, theta) regression on SIMULATED presses (paper Table 2 analogue; stated as such).
 
     The "real" sensor is a unit of the independent optical model never used in generator training (seed
@@ -199,16 +207,206 @@ def pose_study(quick: bool = False, seconds: float = 60.0) -> list[dict]:
         ),
     ]
     for name, train, X, P in budgets:
-        net, steps = _train_pose_cnn(X, _pose_targets(P, W, H, sym), seconds)
+        net, done = _train_pose_cnn(X, _pose_targets(P, W, H, sym), seconds, steps=steps)
         with torch.inference_mode():
             pred = net(Xt).numpy()
-        rows.append({"method": name, "train": f"{train}, {steps} steps"} | _pose_errors(pred, test_P, W, H, sym))
+        rows.append({"method": name, "train": f"{train}, {done} steps"} | _pose_errors(pred, test_P, W, H, sym))
+    return rows
+
+
+def _depth_net():
+    import torch
+    from torch import nn
+
+    def blk(i: int, o: int) -> nn.Module:
+        return nn.Sequential(nn.Conv2d(i, o, 3, stride=2, padding=1), nn.BatchNorm2d(o), nn.ReLU(inplace=True))
+
+    # global average pooling: the depth of a press does not depend on where it is
+    return nn.Sequential(
+        blk(3, 16), blk(16, 32), blk(32, 48), blk(48, 48), nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(48, 32),
+        nn.ReLU(inplace=True), nn.Linear(32, 1),
+    ).to(torch.float32)  # fmt: skip
+
+
+def _train_depth_cnn(
+    real: tuple[np.ndarray, np.ndarray], extra: tuple[np.ndarray, np.ndarray] | None, steps: int, seed: int
+):
+    """Depth regressor (mm) on colour-change images, Adam, a fixed number of steps of batch 32; with ``extra``
+    (augmentation) half of every batch is drawn from it, half from the real images."""
+    import torch
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    net = _depth_net()
+    opt = torch.optim.Adam(net.parameters(), lr=2e-3)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    # a standardised target: the depths span a few tenths of a mm around ~1 mm
+    mu, sd = float(real[1].mean()), float(real[1].std()) + 1e-6
+    Xr, Yr = torch.from_numpy(real[0]), torch.from_numpy((real[1] - mu) / sd)
+    for _ in range(steps):
+        if extra is None:
+            idx = torch.from_numpy(rng.integers(0, len(Xr), 32))
+            x, y = Xr[idx], Yr[idx]
+        else:
+            i = torch.from_numpy(rng.integers(0, len(Xr), 16))
+            j = torch.from_numpy(rng.integers(0, len(extra[0]), 16))
+            x = torch.cat([Xr[i], torch.from_numpy(extra[0][j.numpy()])])
+            y = torch.cat([Yr[i], torch.from_numpy((extra[1][j.numpy()] - mu) / sd)])
+        loss = ((net(x)[:, 0] - y) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+    net.eval()
+    return lambda x: net(x)[:, 0] * sd + mu
+
+
+def force_study(
+    quick: bool = False, press_dir: str | Path | None = None, steps: int = 800, seeds: int = 3, n_per_ref: int = 20
+) -> list[dict]:
+    """Force (indentation-depth) regression with and without generated augmentation, on REAL presses
+    (paper Table 8 analogue).
+
+    Train: the generator's real training half of the shared GelSight ball presses (even indices, 24; depth
+    from the labelled contact radius through the 2 mm ball geometry); test: the held-out odd half (24, never
+    seen by the generator either). Rows, each a small CNN trained for the same ``steps`` (batch 32), means
+    over ``seeds``:
+    - ``real only``: the 24 training presses;
+    - ``real + generated``: half of every batch from ``n_per_ref`` images generated from EACH training press
+      (two-stage generator, random target centre within the real presses' range, random depth within the
+      training depths; label = the requested depth);
+    - ``real + generated, moved only`` (diagnostic): the same, but every generated image keeps its reference's
+      depth (only the position changes), which separates the generator's depth control from the rest;
+    - ``real + simulated``: half of every batch from as many presses of a 2 mm sphere rendered by the
+      independent optical model (GelSight preset) on the real background at 320x240;
+    - ``mean`` (predict the training mean) as the floor, and ``footprint geometry`` (no training: the detected
+      contact's area as the ball's contact circle).
+    The force is the Hertz proxy of the depth (:func:`~vtrack.tactile.generate.data.hertz_force_n`, assumed
+    E*), so its error is reported beside the depth error, not measured against a force sensor.
+    """
+    import cv2
+    import torch
+
+    from vtrack.paths import shared_data_dir
+    from vtrack.sim.presses import press_depth_mm
+    from vtrack.sim.tactile_optics import OpticalModel
+    from vtrack.tactile.generate import data as gd
+    from vtrack.tactile.generate.generator import TactileGenerator
+    from vtrack.tactile.generate.train import REAL_HOLDOUT
+    from vtrack.tactile.pressset import load_press_set
+
+    root = Path(press_dir) if press_dir is not None else shared_data_dir() / "gelsight_ball_presses"
+    ps = load_press_set(root)
+    train, test = ps.split(REAL_HOLDOUT)
+    bg = ps.background()
+    H, W = bg.shape[:2]
+    R = ps.ball_radius_mm
+
+    def depth(p) -> float:
+        return press_depth_mm(R, p.contact_radius_px * ps.mm_per_px)
+
+    def feats(imgs: list[np.ndarray], background: np.ndarray) -> np.ndarray:
+        bgf = background.astype(np.float32)
+        out = [
+            cv2.resize(im.astype(np.float32) - bgf, (80, 60), interpolation=cv2.INTER_AREA).transpose(2, 0, 1) / 32.0
+            for im in imgs
+        ]
+        return np.ascontiguousarray(np.stack(out), np.float32)
+
+    Xtr = feats([ps.image(p) for p in train], bg)
+    Ytr = np.array([depth(p) for p in train], np.float32)
+    Xte = feats([ps.image(p) for p in test], bg)
+    Yte = np.array([depth(p) for p in test], np.float32)
+    lo, hi = float(Ytr.min()), float(Ytr.max())
+    cx = [p.center_xy_px[0] for p in train]
+    cy = [p.center_xy_px[1] for p in train]
+    rng = np.random.default_rng(11)
+    n_per_ref = 8 if quick else n_per_ref
+    # generated: n_per_ref targets from each training press (its labelled disc as the reference footprint)
+    gen = TactileGenerator(threads=0)
+
+    def generated(same_depth: bool) -> tuple[np.ndarray, np.ndarray]:
+        imgs, ds = [], []
+        for p in train:
+            ref = ps.image(p)
+            m = gd.disc_mask((H, W), p.center_xy_px, p.contact_radius_px)
+            D = np.full(n_per_ref, depth(p)) if same_depth else rng.uniform(lo, hi, n_per_ref)
+            reqs = [
+                gen.prepare(
+                    ref,
+                    bg,
+                    ref_depth_mm=depth(p),
+                    target_depth_mm=float(d),
+                    target_pose=gd.Pose(float(rng.uniform(min(cx), max(cx))), float(rng.uniform(min(cy), max(cy)))),
+                    ref_mask=m,
+                )
+                for d in D
+            ]
+            imgs += gen.generate_many(reqs, bg)
+            ds += list(D)
+        return feats(imgs, bg), np.array(ds, np.float32)
+
+    gen_set = generated(False)
+    moved_set = generated(True)  # diagnostic: position augmentation only, each press at its own depth
+    g_d = gen_set[1]
+    # simulated: a 2 mm sphere by the independent optical model at half resolution (same field of view)
+    bgs = cv2.resize(bg, (W // 2, H // 2), interpolation=cv2.INTER_AREA)
+    model = OpticalModel.for_sensor("gelsight", seed=1000)
+    s_imgs, s_d = [], []
+    for _ in range(len(g_d)):
+        d = float(rng.uniform(lo, hi))
+        pose = gd.Pose(float(rng.uniform(min(cx), max(cx))) / 2, float(rng.uniform(min(cy), max(cy))) / 2)
+        h = gd.indenter_height("sphere_2", (H // 2, W // 2), pose, d, ps.mm_per_px * 2)
+        s_imgs.append(model.render(h, ps.mm_per_px * 2, bgs, rng, noise=1.0))
+        s_d.append(d)
+    sim_set = (feats(s_imgs, bgs), np.array(s_d, np.float32))
+
+    def errs(pred: np.ndarray) -> dict[str, float]:
+        f = np.array([gd.hertz_force_n(float(max(d, 0.0)), R) for d in pred])
+        ft = np.array([gd.hertz_force_n(float(d), R) for d in Yte])
+        return {"depth_mae_mm": float(np.mean(np.abs(pred - Yte))), "force_mae_n": float(np.mean(np.abs(f - ft)))}
+
+    steps = 400 if quick else steps
+    seeds = 1 if quick else seeds
+    rows = [{"method": "train mean", "train": f"{len(train)} real", "seeds": 1} | errs(np.full_like(Yte, Ytr.mean()))]
+    # no learning: the detected footprint's area as a sphere's contact circle (what `vtrack tactile generate`
+    # does for an unknown reference depth)
+    geo = [
+        press_depth_mm(R, min(float(np.sqrt(gd.detect_contact(ps.image(p), bg).sum() / np.pi)) * ps.mm_per_px, R))
+        for p in test
+    ]
+    rows.append(
+        {"method": "footprint geometry (detected area, 2 mm ball)", "train": "none", "seeds": 1} | errs(np.array(geo))
+    )
+    Xt = torch.from_numpy(Xte)
+    for name, extra, desc in (
+        ("CNN real only", None, f"{len(train)} real"),
+        ("CNN real + generated", gen_set, f"{len(train)} real + {len(g_d)} generated ({n_per_ref} per real press)"),
+        (
+            "CNN real + generated, moved only",
+            moved_set,
+            f"{len(train)} real + {len(g_d)} generated at the reference's own depth (position only)",
+        ),
+        ("CNN real + simulated", sim_set, f"{len(train)} real + {len(s_d)} simulated (optical model)"),
+    ):
+        per_seed = []
+        for s in range(seeds):
+            net = _train_depth_cnn((Xtr, Ytr), extra, steps, seed=s)
+            with torch.inference_mode():
+                per_seed.append(errs(net(Xt).numpy()))
+        row = {k: float(np.mean([r[k] for r in per_seed])) for k in per_seed[0]}
+        row["depth_mae_std_mm"] = float(np.std([r["depth_mae_mm"] for r in per_seed]))
+        log.info("force study %s: depth MAE %.3f mm", name, row["depth_mae_mm"])
+        rows.append({"method": name, "train": f"{desc}, {steps} steps", "seeds": seeds} | row)
+    for r in rows:
+        r["test"] = f"{len(test)} held-out real presses, depth {Yte.min():.2f}-{Yte.max():.2f} mm"
     return rows
 
 
 def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
     from vtrack.paths import shared_data_dir
     from vtrack.tactile.generate.evaluate import generate_eval
+    from vtrack.tactile.generate.generator import FLOW_STEPS
 
     root = Path(press_dir) if press_dir is not None else shared_data_dir() / "gelsight_ball_presses"
     table = BenchTable(stage="generate", error_key="crop_mse")
@@ -218,12 +416,16 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
         "generator": "two-stage (stage 1 + ControlNet branch)",
         "stage1": "stage 1 only (force control)",
         "hybrid": "hybrid single model",
+        "separate": "separate force-then-position models",
+        **{f"flow{k}": f"rectified-flow stage 1, {k} step{'s' * (k > 1)}" for k in FLOW_STEPS},
         "shift": "shift baseline",
         "copy": "copy baseline",
         "background": "background baseline",
+        "shift_denoised": "shift of the smoothed patch (no network; ablation)",
     }
-    names["shift_denoised"] = "shift of the smoothed patch (no network; ablation)"
     for key, label in names.items():
+        if key not in res:
+            continue
         r = res[key]
         ms = res["ms_per_image"] if key == "generator" else r.get("ms_per_image", 0.0)
         table.add(
@@ -255,6 +457,14 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
             y_err_px=r["y_err_px"],
             angle_err_deg=r["angle_err_deg"],
         )
+    for r in force_study(quick, root):
+        table.add(
+            method=f"force study: {r['method']}",
+            setting=f"REAL presses; train {r['train']}; test {r['test']}; {r['seeds']} seed(s)",
+            ms=0.0,
+            depth_mae_mm=r["depth_mae_mm"],
+            force_mae_n=r["force_mae_n"],
+        )
     table.notes += [
         f"Real set {root.name}: reference {res['reference']}, targets = the other held-out (odd-index) presses; "
         "crop = +-2 labelled contact radii; MSE grey levels^2, SSIM Gaussian sigma 1.5 px; means over presses.",
@@ -265,6 +475,13 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
         "Pose-study rows (paper Table 2 analogue) are on SIMULATED data: an unseen optical-model unit (seed 4242), "
         "cross indenter (angle mod 90 deg), 150 test presses, 24 labelled training presses; errors are means "
         "(px at 320x240, deg); see `vtrack.bench.generate.pose_study`.",
+        "Force-study rows (paper Table 8 analogue) are on REAL presses: train = the generator's 24 training "
+        "presses, test = the 24 held-out ones; depth from the labelled radius (labels are integer px radii, i.e. "
+        "depth steps of ~0.06 mm); force = Hertz proxy of the depth (assumed E*); see "
+        "`vtrack.bench.generate.force_study`.",
+        "Flow rows: the few-step rectified-flow variant of stage 1 (same U-Net size, same optimiser steps as stage "
+        "1), position by the geometric move like the stage-1 row; separate: stage 1 at the reference's pose, then "
+        "a position-only U-Net (from scratch, the hybrid's steps) moves its output.",
         "Command: `vtrack bench generate` (`--quick`: 8 targets, one perturbation, smaller pose study).",
     ]
     return table

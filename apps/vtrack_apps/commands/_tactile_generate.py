@@ -46,7 +46,9 @@ def register_generate(tac: typer.Typer) -> None:
         mm_per_px: float = typer.Option(
             None, "--mm-per-px", help="pixel pitch, mm (default: GelSight 0.0295 at 640 px wide, scaled)"
         ),
-        mode: str = typer.Option("two_stage", "--mode", help="two_stage | stage1 | hybrid | shift"),
+        mode: str = typer.Option(
+            "two_stage", "--mode", help="two_stage | stage1 | hybrid | separate | flow1|2|4|8 | flowx1|2|4|8 | shift"
+        ),
         weights: Path = typer.Option(None, "--weights", help="generator weights .pt (default: shipped)"),
     ) -> None:
         """Generate the tactile image of the reference contact at another force/depth and pose."""
@@ -120,6 +122,19 @@ def register_generate(tac: typer.Typer) -> None:
         no_hybrid: bool = typer.Option(False, "--no-hybrid", help="skip the hybrid baseline"),
         threads: int = typer.Option(2, "--train-threads", help="torch threads for training"),
         seed: int = typer.Option(0, "--seed"),
+        extras: str = typer.Option(
+            "",
+            "--extras",
+            help="extra baselines, comma-separated: separate (position-only model after stage 1), flow "
+            "(few-step rectified-flow stage 1), flowx (the same, predicting the clean target); "
+            "each adds 3-6 min to a full run",
+        ),
+        update: Path = typer.Option(
+            None,
+            "--update",
+            help="existing weights: train only --extras (step counts matched to its stage 1 / hybrid) and add "
+            "them to a copy of it (written to --out, default the same file)",
+        ),
     ) -> None:
         """Train the generator: stage 1 (depth/force), stage 2 (position ControlNet), hybrid baseline."""
         import math
@@ -131,6 +146,11 @@ def register_generate(tac: typer.Typer) -> None:
         if not (math.isfinite(minutes) and minutes > 0):
             raise InputError("training budget must be a positive number of minutes", field="--minutes", got=minutes)
         total = minutes * 60.0
+        ex = tuple(e.strip() for e in extras.split(",") if e.strip())
+        if update is not None and not ex:
+            raise InputError("--update needs --extras", field="--extras", expected="separate,flow")
+        if update is not None and not update.is_file():
+            raise InputError("weights to update not found", path=update, field="--update")
         parts = (9, 5, 0 if no_hybrid else 5)
         s = total / sum(parts)
         cfg = TrainConfig(
@@ -140,8 +160,11 @@ def register_generate(tac: typer.Typer) -> None:
             train_hybrid=not no_hybrid,
             threads=threads,
             seed=seed,
+            extras=ex,
         )
-        path = train(cfg, out, pressset)
+        if update is not None:  # the step counts decide; the minutes only cap each extra
+            cfg.position_seconds = cfg.flow_seconds = total / len(ex)
+        path = train(cfg, out if out is not None or update is None else update, pressset, update=update)
         print_table("generate-train", cfg.log)
         typer.echo(f"wrote {path}")
 
@@ -155,13 +178,21 @@ def register_generate(tac: typer.Typer) -> None:
         ),
         reference: str = typer.Option(None, "--reference", help="reference press file (default: first scored press)"),
         max_presses: int = typer.Option(0, "--max-presses", help="> 0: score only that many targets"),
+        modes: str = typer.Option(
+            "",
+            "--modes",
+            help="generator modes, comma-separated (default: two_stage, stage1 and every baseline in the weights)",
+        ),
     ) -> None:
         """Generate every held-out press from one reference; crop/full MSE, SSIM, PSNR vs three baselines."""
         from vtrack.tactile.generate.evaluate import METRICS, generate_eval
         from vtrack_apps.output import print_table, write_json
 
-        res = generate_eval(pressset, weights=weights, holdout=holdout, reference=reference, max_presses=max_presses)
-        names = ["generator", *(k for k in ("stage1", "hybrid") if k in res), "shift", "copy", "background"]
+        md = tuple(m.strip() for m in modes.split(",") if m.strip()) or None
+        res = generate_eval(
+            pressset, weights=weights, holdout=holdout, reference=reference, max_presses=max_presses, modes=md
+        )
+        names = ["generator", *res["modes"][1:], "shift", "copy", "background"]
         print_table(
             f"generate-eval {Path(pressset).name}: {res['n']} presses from {res['reference']} "
             f"(generator {res['ms_per_image']:.1f} ms/image)",

@@ -47,7 +47,7 @@ def generate_eval(
     weights: str | Path | None = None,
     holdout: str | None = None,
     reference: str | None = None,
-    modes: tuple[str, ...] = ("two_stage", "stage1", "hybrid"),
+    modes: tuple[str, ...] | None = None,
     max_presses: int = 0,
     threads: int = 0,
     perturb: tuple[float, float] = (0.0, 1.0),
@@ -59,6 +59,8 @@ def generate_eval(
         weights: generator weights (default: the shipped ones).
         holdout: presses to evaluate (default: the weights' real hold-out, i.e. never trained on).
         reference: file name of the reference press (default: the first evaluated press).
+        modes: generator modes to score (default: two-stage, stage 1, and every baseline the weights hold:
+            hybrid, separate, flow1/2/4/8).
         max_presses: > 0 keeps that many targets (quick runs).
         perturb: (dx px, scale): the target pose moved ``dx`` px along +x and the reference footprint
             scaled about its centre (mask-robustness study; (0, 1) = none).
@@ -66,10 +68,16 @@ def generate_eval(
     from vtrack.bench.simreal import _crop_box
     from vtrack.sim.presses import press_depth_mm
     from vtrack.tactile.generate import data as gd
-    from vtrack.tactile.generate.generator import TactileGenerator
+    from vtrack.tactile.generate.generator import FLOW_STEPS, TactileGenerator
     from vtrack.tactile.pressset import load_press_set
 
     ps = load_press_set(press_dir)
+    if modes is None:
+        avail = TactileGenerator(weights, threads=threads).available
+        modes = ("two_stage", "stage1")
+        modes += ("hybrid",) * ("hybrid" in avail) + ("separate",) * ("position" in avail)
+        modes += tuple(f"flow{k}" for k in FLOW_STEPS) * ("flow" in avail)
+        modes += tuple(f"flowx{k}" for k in FLOW_STEPS) * ("flowx" in avail)
     gens = {m: TactileGenerator(weights, mode=m, threads=threads) for m in modes}
     first = next(iter(gens.values()))
     if holdout is None:
@@ -140,6 +148,7 @@ def generate_eval(
     res |= {
         "n": len(targets),
         "ms_per_image": ms[modes[0]],
+        "modes": list(modes),
         "press_set": str(ps.root),
         "reference": ref.file,
         "holdout": holdout,

@@ -23,7 +23,19 @@ from vtrack.errors import InputError
 from vtrack.tactile.generate import data as gd
 
 _TAPER = gd.crop_taper()
-MODES = ("two_stage", "stage1", "hybrid", "shift", "shift_denoised")
+#: ``flowK``: the few-step rectified-flow stage 1 sampled with K Euler steps.
+FLOW_STEPS = (1, 2, 4, 8)
+#: ``flowxK``: the same flow predicting the clean correction (x0 parametrisation).
+MODES = (
+    "two_stage",
+    "stage1",
+    "hybrid",
+    "separate",
+    *(f"flow{k}" for k in FLOW_STEPS),
+    *(f"flowx{k}" for k in FLOW_STEPS),
+    "shift",
+    "shift_denoised",
+)
 
 
 @dataclass
@@ -35,6 +47,7 @@ class Request:
     cond: np.ndarray  # (3,) depths
     pose: np.ndarray  # (5,) position condition
     crop: np.ndarray  # (2, 3) full-frame -> crop affine
+    then: dict | None = None  # "separate" mode: the position step run on this request's output
 
 
 class TactileGenerator:
@@ -43,7 +56,9 @@ class TactileGenerator:
     Args:
         weights: ``.pt`` from :func:`vtrack.tactile.generate.train.train` (default: the shipped weights).
         mode: ``two_stage`` (stage 1 + control branch), ``stage1`` (force control only), ``hybrid``
-            (single-model baseline), ``shift`` (no network: the reference patch moved) or ``shift_denoised``
+            (single-model baseline), ``separate`` (baseline: stage 1 at the reference's pose, then a separate
+            position-only model moves its output), ``flow1|2|4|8`` (few-step rectified-flow stage 1 with that
+            many sampling steps), ``shift`` (no network: the reference patch moved) or ``shift_denoised``
             (no network: the smoothed reference patch moved, i.e. what the network corrects).
         threads: torch threads (0 = leave as set, e.g. by `vtrack --threads`).
     """
@@ -52,7 +67,7 @@ class TactileGenerator:
         import torch
 
         from vtrack.tactile.generate import default_weights_path
-        from vtrack.tactile.generate.model import ControlBranch, Hybrid, Stage1, TwoStage, UNet
+        from vtrack.tactile.generate.model import ControlBranch, Flow, Hybrid, Position, Stage1, TwoStage, UNet
 
         if mode not in MODES:
             raise InputError("unknown generator mode", field="mode", expected=" | ".join(MODES), got=mode)
@@ -61,7 +76,9 @@ class TactileGenerator:
         self.mode = mode
         self.path = Path(weights) if weights is not None else default_weights_path()
         self.net = None
+        self.net2 = None  # "separate": the position-only model
         self.meta: dict = {}
+        self.available: set[str] = set()
         self._cache: tuple | None = None
         if mode in ("shift", "shift_denoised"):
             return
@@ -73,18 +90,33 @@ class TactileGenerator:
             # weights_only: a weights file is data; it must never be able to run code when unpickled
             state = torch.load(self.path, map_location="cpu", weights_only=True)
             self.meta = state["meta"]
+            self.available = {k for k in state if k != "meta"}  # networks in this file
             ch = tuple(self.meta["channels"])
             f32 = {k: ({n: t.float() for n, t in v.items()} if k != "meta" else v) for k, v in state.items()}
+            key = {"hybrid": "hybrid", "separate": "position"}.get(mode)
+            if mode.startswith("flow"):
+                key = "flowx" if mode.startswith("flowx") else "flow"
+            if key is not None and key not in f32:
+                raise InputError(
+                    f"these weights have no {mode} baseline (train it: `vtrack tactile generate-train --extras`)",
+                    path=self.path,
+                    field="mode",
+                )
             if mode == "hybrid":
-                if "hybrid" not in f32:
-                    raise InputError("these weights have no hybrid baseline", path=self.path, field="mode")
                 net = Hybrid(ch)
                 net.load_state_dict(f32["hybrid"])
+            elif mode.startswith("flow"):
+                net = Flow(ch, steps=int(mode[len(key) :]), predict="target" if key == "flowx" else "velocity")
+                net.load_state_dict(f32[key])
             else:
                 base = UNet(ch=ch)
                 base.load_state_dict(f32["base"])
-                if mode == "stage1":
+                if mode in ("stage1", "separate"):
                     net = Stage1(base)
+                    if mode == "separate":
+                        pos = Position(ch)
+                        pos.load_state_dict(f32["position"])
+                        self.net2 = pos.eval().to(memory_format=torch.channels_last)
                 else:
                     ctrl = ControlBranch(base)
                     ctrl.load_state_dict(f32["control"])
@@ -132,8 +164,10 @@ class TactileGenerator:
         target_mask: np.ndarray | None = None,
         ref_mask: np.ndarray | None = None,
         rotation_deg: float = 0.0,
+        _second: bool = False,
     ) -> Request:
-        """Validate and prepare one request (see :meth:`generate`)."""
+        """Validate and prepare one request (see :meth:`generate`; ``_second``: internal, the position step of
+        the ``separate`` baseline)."""
         ref = np.asarray(reference)
         bg = np.asarray(background)
         for name, v in (("ref_depth_mm", ref_depth_mm), ("target_depth_mm", target_depth_mm)):
@@ -157,35 +191,34 @@ class TactileGenerator:
         else:
             tp = gd.Pose(rp.x, rp.y, rp.theta_deg + rotation_deg)
         gd.check_pose_in_gel(tp, (H, W))
+        _check_moved(ref_mask, gd.relative_transform(rp, tp))
+        then = None
+        if self.mode == "separate" and not _second:
+            # step 1 = force only, at the reference's own pose; step 2 (in generate_many) moves its output
+            then = {"target_pose": tp, "ref_mask": ref_mask, "depth": float(target_depth_mm)}
+            tp = rp
         x, A, M = gd.crop_inputs(patch, ref_mask, rp, tp, radius)
         if self.mode == "shift":  # the baseline moves the patch as it is, noise included
             delta = ref.astype(np.float32) - bg.astype(np.float32)
             patch = gd.reference_patch(delta, gd.contact_window(ref_mask), radius, denoise=False)
         aligned = gd.warp(patch, M)
-        moved = gd.warp(ref_mask.astype(np.uint8), M)
-        if moved.sum() < 0.25 * ref_mask.sum():
-            raise InputError(
-                "target contact lies (mostly) outside the gel",
-                field="position",
-                expected="at least a quarter of the footprint inside the image",
-                got=f"{int(moved.sum())} of {int(ref_mask.sum())} px",
-            )
-        return Request(
-            aligned, x, gd.cond_vector(float(ref_depth_mm), float(target_depth_mm)), gd.pose_vector(rp, tp, (H, W)), A
-        )
+        cond = gd.cond_vector(float(ref_depth_mm), float(target_depth_mm))
+        return Request(aligned, x, cond, gd.pose_vector(rp, tp, (H, W)), A, then)
 
     # ------------------------------------------------------------------ generation
-    def corrections(self, requests: list[Request]) -> np.ndarray:
-        """(B, CROP_PX, CROP_PX, 3) float32 colour-change corrections (grey levels) in the target crops."""
+    def corrections(self, requests: list[Request], net=None) -> np.ndarray:
+        """(B, CROP_PX, CROP_PX, 3) float32 colour-change corrections (grey levels) in the target crops
+        (``net``: another network than the generator's own, e.g. the separate position model)."""
         import torch
 
-        if self.net is None:
+        net = net if net is not None else self.net
+        if net is None:
             return np.zeros((len(requests), gd.CROP_PX, gd.CROP_PX, 3), np.float32)
         with torch.inference_mode():
             x = torch.from_numpy(np.stack([r.x for r in requests])).contiguous(memory_format=torch.channels_last)
             c = torch.from_numpy(np.stack([r.cond for r in requests]))
             p = torch.from_numpy(np.stack([r.pose for r in requests]))
-            out = self.net(x, c, p).numpy().transpose(0, 2, 3, 1) * gd.DELTA_SCALE
+            out = net(x, c, p).numpy().transpose(0, 2, 3, 1) * gd.DELTA_SCALE
         if not np.isfinite(out).all():
             raise InputError("generator produced non-finite values", path=self.path, field="weights")
         return out
@@ -206,6 +239,26 @@ class TactileGenerator:
             chunk = requests[i : i + batch]
             for r, c in zip(chunk, self.corrections(chunk), strict=True):
                 out.append(self.compose(r, background, c))
+        if self.net2 is not None:  # "separate": move each force-step output with the position model
+            second = []
+            for img, r in zip(out, requests, strict=True):
+                t = r.then
+                second.append(
+                    self.prepare(
+                        img,
+                        background,
+                        ref_depth_mm=t["depth"],
+                        target_depth_mm=t["depth"],
+                        target_pose=t["target_pose"],
+                        ref_mask=t["ref_mask"],
+                        _second=True,
+                    )
+                )
+            out = []
+            for i in range(0, len(second), batch):
+                chunk = second[i : i + batch]
+                for r, c in zip(chunk, self.corrections(chunk, self.net2), strict=True):
+                    out.append(self.compose(r, background, c))
         return out
 
     def generate(self, reference: np.ndarray, background: np.ndarray, **kw) -> np.ndarray:
@@ -222,7 +275,21 @@ class TactileGenerator:
             ref_mask: the reference footprint (default: detected).
         """
         req = self.prepare(reference, background, **kw)
+        if self.net2 is not None:
+            return self.generate_many([req], np.asarray(background))[0]
         return self.compose(req, np.asarray(background), self.corrections([req])[0])
+
+
+def _check_moved(ref_mask: np.ndarray, M: np.ndarray) -> None:
+    """The reference footprint moved by ``M`` must keep at least a quarter of itself inside the image."""
+    moved = gd.warp(ref_mask.astype(np.uint8), M)
+    if moved.sum() < 0.25 * ref_mask.sum():
+        raise InputError(
+            "target contact lies (mostly) outside the gel",
+            field="position",
+            expected="at least a quarter of the footprint inside the image",
+            got=f"{int(moved.sum())} of {int(ref_mask.sum())} px",
+        )
 
 
 def _axis_delta(d: float) -> float:

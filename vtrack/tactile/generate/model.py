@@ -153,3 +153,66 @@ class Stage1(nn.Module):
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
         return self.base(x[:, :N_IMG], cond)
+
+
+class Position(nn.Module):
+    """Separate position generator (the paper's "separate force-then-position" baseline, second model): one
+    :class:`UNet` with the reference, mask and position maps but NO force/depth input, trained from scratch on
+    pairs at (nearly) the same depth across poses. At inference it moves the output of stage 1 (run at the
+    reference's own pose) to the target pose; the two models share nothing."""
+
+    def __init__(self, ch: tuple[int, int, int] = (12, 24, 32)) -> None:
+        super().__init__()
+        self.net = UNet(N_IMG + N_HINT - 1, N_POSE, ch)
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([x[:, :N_IMG], pose_maps(x, pose)[:, 1:]], 1), pose)
+
+
+class Flow(nn.Module):
+    """Few-step rectified-flow variant of stage 1 (same U-Net size): the net sees the stage-1 input plus the
+    noisy correction ``z_t = t y + (1 - t) sigma eps`` and predicts the velocity ``y - sigma eps``; ``t`` joins
+    the depth condition. Sampling: ``steps`` Euler steps from ``z_0 = sigma eps`` (noise from a fixed seed, so
+    a batch's output is reproducible). ``sigma`` is the correction's training std (in DELTA_SCALE units).
+
+    ``predict="target"`` is the x0 (DDIM-style) parametrisation: the net predicts the clean correction ``y``
+    and the velocity is ``(y_hat - z) / (1 - t)``; its loss is the plain MSE of ``y_hat``, and the last Euler
+    step lands exactly on ``y_hat`` (no leftover noise)."""
+
+    def __init__(
+        self, ch: tuple[int, int, int] = (12, 24, 32), sigma: float = 0.1, steps: int = 4, predict: str = "velocity"
+    ) -> None:
+        super().__init__()
+        self.net = UNet(N_IMG + 3, N_COND + 1, ch)
+        self.register_buffer("sigma", torch.tensor(float(sigma)))
+        self.steps = steps
+        self.predict = predict
+
+    def _out(self, x: torch.Tensor, cond: torch.Tensor, z: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([x[:, :N_IMG], z], 1), torch.cat([cond, t[:, None]], 1))
+
+    def velocity(self, x: torch.Tensor, cond: torch.Tensor, z: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        out = self._out(x, cond, z, t)
+        if self.predict == "target":
+            return (out - z) / (1 - t)[:, None, None, None].clamp_min(1e-3)
+        return out
+
+    def loss(self, x: torch.Tensor, cond: torch.Tensor, y: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Weighted flow-matching loss on a batch (``w``: the crop's loss weights, broadcast)."""
+        B = x.shape[0]
+        t = torch.rand(B)
+        eps = torch.randn_like(y) * self.sigma
+        z = t[:, None, None, None] * y + (1 - t[:, None, None, None]) * eps
+        z = z.contiguous(memory_format=torch.channels_last)
+        if self.predict == "target":
+            return (w * (self._out(x, cond, z, t) - y) ** 2).mean()
+        return (w * (self.velocity(x, cond, z, t) - (y - eps)) ** 2).mean()
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+        B, _, H, W = x.shape
+        g = torch.Generator().manual_seed(0)
+        z = (torch.randn((B, 3, H, W), generator=g) * self.sigma).contiguous(memory_format=torch.channels_last)
+        dt = 1.0 / self.steps
+        for k in range(self.steps):
+            z = z + dt * self.velocity(x, cond, z, torch.full((B,), k * dt))
+        return z

@@ -53,7 +53,23 @@ class TrainConfig:
     seed: int = 0
     threads: int = 2
     train_hybrid: bool = True
+    #: extra baselines (:data:`EXTRAS`): "separate" (a position-only model after stage 1), "flow" (few-step
+    #: rectified-flow stage 1, velocity prediction) and "flowx" (the same, predicting the clean target); not in
+    #: the default run, which keeps ``generate-train`` within 15 minutes
+    extras: tuple[str, ...] = ()
+    position_seconds: float = 200.0
+    #: position-only pairs: same indenter and unit, different poses, depths within this (mm)
+    position_max_dd_mm: float = 0.1
+    flow_seconds: float = 360.0
+    #: > 0 caps the flow's optimiser steps (to match stage 1's step count for a per-compute comparison)
+    flow_max_steps: int = 0
+    #: > 0 caps the position model's steps (to match the hybrid's, also trained from scratch)
+    position_max_steps: int = 0
     log: list = field(default_factory=list)
+
+
+#: Extra baselines :func:`train` can add (``extras``), each stored under its own key in the weights.
+EXTRAS = ("separate", "flow", "flowx")
 
 
 def _pairs(
@@ -80,6 +96,20 @@ def _pairs(
     return np.array(s1, int), np.array(s2, int)
 
 
+def _position_pairs(bank: gd.PressBank, max_dd_mm: float) -> np.ndarray:
+    """(K, 2) pairs for the separate position-only model: within a group (indenter, unit), different sites
+    (poses), depths within ``max_dd_mm`` (the paper's position data: same force, another position). Real
+    presses are all one group, each its own site, so the real pairs are those of near-equal depth."""
+    out = []
+    for g in np.unique(bank.group):
+        idx = np.flatnonzero(bank.group == g)
+        for i in idx:
+            for j in idx:
+                if bank.site[i] != bank.site[j] and abs(bank.depth[i] - bank.depth[j]) <= max_dd_mm:
+                    out.append((i, j))
+    return np.array(out, int).reshape(-1, 2)
+
+
 def _precompute(bank: gd.PressBank, pairs: np.ndarray, contact_weight: float) -> dict[str, Any]:
     """Network inputs/targets of all ``pairs`` once (float16; the crops are small), plus the loss weights."""
     import torch
@@ -104,8 +134,12 @@ def _precompute(bank: gd.PressBank, pairs: np.ndarray, contact_weight: float) ->
     }
 
 
-def _fit(net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rng, name: str) -> dict[str, float]:
-    """Adam with cosine decay over a wall-clock budget; half of every batch from real pairs (when any)."""
+def _fit(
+    net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rng, name: str, max_steps: int = 0
+) -> dict[str, float]:
+    """Adam with cosine decay over a wall-clock budget (or ``max_steps`` > 0 steps, whichever ends first; the
+    decay then follows the steps); half of every batch from real pairs (when any). A net with a ``loss``
+    method (the flow) computes its own loss."""
     import torch
 
     net.to(memory_format=torch.channels_last)  # ~2x faster small convolutions on CPU
@@ -116,10 +150,11 @@ def _fit(net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rn
     step, losses = 0, []
     while True:
         el = time.perf_counter() - t0
-        if el >= seconds:
+        if el >= seconds or (max_steps > 0 and step >= max_steps):
             break
+        frac = max(el / seconds, step / max_steps if max_steps > 0 else 0.0)
         for g in opt.param_groups:
-            g["lr"] = cfg.lr * 0.5 * (1 + np.cos(np.pi * min(1.0, el / seconds)))
+            g["lr"] = cfg.lr * 0.5 * (1 + np.cos(np.pi * min(1.0, frac)))
         nr = cfg.batch // 2 if len(real) and len(sim) else (cfg.batch if len(real) else 0)
         idx = np.concatenate(
             [rng.choice(real, nr), rng.choice(sim, cfg.batch - nr)] if len(sim) else [rng.choice(real, nr)]
@@ -127,8 +162,11 @@ def _fit(net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rn
         ti = torch.from_numpy(idx)
         x = data["x"][ti].float().contiguous(memory_format=torch.channels_last)
         y = data["y"][ti].float()
-        pred = net(x, data["cond"][ti], data["pose"][ti])
-        loss = (data["w"] * (pred - y) ** 2).mean()
+        if hasattr(net, "loss"):
+            loss = net.loss(x, data["cond"][ti], y, data["w"])
+        else:
+            pred = net(x, data["cond"][ti], data["pose"][ti])
+            loss = (data["w"] * (pred - y) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -171,36 +209,99 @@ def build_bank(cfg: TrainConfig, press_dir: str | Path | None = None) -> tuple[g
     return gd.PressBank.concat([sim, real]), info
 
 
-def train(cfg: TrainConfig | None = None, out: str | Path | None = None, press_dir: str | Path | None = None) -> Path:
-    """Train stage 1, stage 2 (and the hybrid baseline) and save the weights (``.pt``, a few hundred kB)."""
+def train(
+    cfg: TrainConfig | None = None,
+    out: str | Path | None = None,
+    press_dir: str | Path | None = None,
+    update: str | Path | None = None,
+) -> Path:
+    """Train stage 1, stage 2 (and the hybrid baseline, and ``cfg.extras``) and save the weights (``.pt``, a
+    few hundred kB).
+
+    With ``update`` (an existing weights file) only ``cfg.extras`` are trained (on a bank rebuilt with the
+    file's own data settings and seed) and added to a copy of that file's networks, so the baselines can be
+    added without retraining (and changing) the shipped models.
+    """
     import torch
 
-    from vtrack.tactile.generate.model import ControlBranch, Hybrid, Stage1, TwoStage, UNet
+    from vtrack.tactile.generate.model import ControlBranch, Flow, Hybrid, Position, Stage1, TwoStage, UNet
 
     cfg = cfg or TrainConfig()
+    bad = [e for e in cfg.extras if e not in EXTRAS]
+    if bad:
+        from vtrack.errors import InputError
+
+        raise InputError("unknown extra baseline", field="extras", expected=" | ".join(EXTRAS), got=",".join(bad))
     torch.set_num_threads(max(1, cfg.threads))
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
+    old: dict[str, Any] | None = None
+    if update is not None:
+        old = torch.load(Path(update), map_location="cpu", weights_only=True)
+        om = old["meta"]
+        for k in ("sim_units", "sim_poses", "sim_depths", "stage1_sim_pairs", "stage2_sim_pairs", "seed"):
+            setattr(cfg, k, om[k])
+        cfg.channels = tuple(om["channels"])
+        cfg.log = list(om.get("log", []))
+        # per-compute comparisons: by default an extra gets the optimiser steps of its counterpart in the file
+        # (the flow those of stage 1, the position model those of the hybrid, both trained from scratch)
+        done = {r["stage"]: r["steps"] for r in cfg.log}
+        cfg.flow_max_steps = cfg.flow_max_steps or done.get("stage1", 0)
+        cfg.position_max_steps = cfg.position_max_steps or done.get("hybrid", 0)
+        if press_dir is None and om.get("data", {}).get("press_set"):
+            press_dir = om["data"]["press_set"]
     bank, info = build_bank(cfg, press_dir)
     s1, s2 = _pairs(bank, rng, cfg.stage2_sim_pairs, cfg.stage1_sim_pairs)
     info |= {"stage1_pairs": len(s1), "stage2_pairs": len(s2)}
 
     t0 = time.perf_counter()
     d1 = _precompute(bank, s1, cfg.contact_weight)
-    d2 = _precompute(bank, s2, cfg.contact_weight)
+    d2 = _precompute(bank, s2, cfg.contact_weight) if old is None else None
     info["pair_seconds"] = round(time.perf_counter() - t0, 1)
-    base = UNet(ch=cfg.channels)
-    _fit(Stage1(base), base.parameters(), d1, cfg.stage1_seconds, cfg, rng, "stage1")
-    for p in base.parameters():
-        p.requires_grad_(False)
-    two = TwoStage(base, ControlBranch(base))
-    _fit(two, two.control.parameters(), d2, cfg.stage2_seconds, cfg, rng, "stage2")
-    state: dict[str, Any] = {"base": base.state_dict(), "control": two.control.state_dict()}
-    if cfg.train_hybrid:
-        hyb = Hybrid(cfg.channels)
-        _fit(hyb, hyb.parameters(), d2, cfg.hybrid_seconds, cfg, rng, "hybrid")
-        state["hybrid"] = hyb.state_dict()
+    if old is None:
+        base = UNet(ch=cfg.channels)
+        _fit(Stage1(base), base.parameters(), d1, cfg.stage1_seconds, cfg, rng, "stage1")
+        for p in base.parameters():
+            p.requires_grad_(False)
+        two = TwoStage(base, ControlBranch(base))
+        _fit(two, two.control.parameters(), d2, cfg.stage2_seconds, cfg, rng, "stage2")
+        state: dict[str, Any] = {"base": base.state_dict(), "control": two.control.state_dict()}
+        if cfg.train_hybrid:
+            hyb = Hybrid(cfg.channels)
+            _fit(hyb, hyb.parameters(), d2, cfg.hybrid_seconds, cfg, rng, "hybrid")
+            state["hybrid"] = hyb.state_dict()
+    else:
+        state = {k: v for k, v in old.items() if k != "meta"}
+        info = old["meta"]["data"] | {k: v for k, v in info.items() if k.endswith("_pairs")}
+    if "separate" in cfg.extras:
+        sp = _position_pairs(bank, cfg.position_max_dd_mm)
+        info["position_pairs"] = len(sp)
+        info["position_real_pairs"] = int(bank.real[sp[:, 1]].sum())
+        pos = Position(cfg.channels)
+        _fit(
+            pos,
+            pos.parameters(),
+            _precompute(bank, sp, cfg.contact_weight),
+            cfg.position_seconds,
+            cfg,
+            rng,
+            "position",
+            max_steps=cfg.position_max_steps,
+        )
+        state["position"] = pos.state_dict()
+    if "flow" in cfg.extras:
+        sigma = float(d1["y"].float().std())
+        flow = Flow(cfg.channels, sigma=sigma)
+        _fit(flow, flow.parameters(), d1, cfg.flow_seconds, cfg, rng, "flow", max_steps=cfg.flow_max_steps)
+        state["flow"] = flow.state_dict()
+    if "flowx" in cfg.extras:  # the same flow, predicting the clean correction (x0 / DDIM-style)
+        flowx = Flow(cfg.channels, sigma=float(d1["y"].float().std()), predict="target")
+        _fit(flowx, flowx.parameters(), d1, cfg.flow_seconds, cfg, rng, "flowx", max_steps=cfg.flow_max_steps)
+        state["flowx"] = flowx.state_dict()
     meta = {k: v for k, v in asdict(cfg).items() if k != "log"} | {"log": cfg.log, "data": info}
+    if old is not None:  # keep the budgets the shipped nets were trained with
+        meta = old["meta"] | {k: meta[k] for k in meta if k not in old["meta"] or k in ("log", "data")}
+        meta["extras"] = tuple(sorted(set(old["meta"].get("extras", ())) | set(cfg.extras)))
     meta["crop_px"], meta["crop_k"] = gd.CROP_PX, gd.CROP_K
     meta["delta_scale"] = gd.DELTA_SCALE
     state["meta"] = meta
