@@ -43,7 +43,13 @@ def test_write_results_files(tmp_path: Path) -> None:
 
     im = np.asarray(Image.open(paths["png"]).convert("L"))
     assert im.shape[0] > 200 and im.std() > 5  # a real plot, not a blank image
-    assert "demo_stage" in (tmp_path / "README.md").read_text()
+    index = tmp_path / "README.md"
+    assert "demo_stage" in index.read_text()
+    # a hand-written note after a stage's links survives the next run of any stage
+    index.write_text(index.read_text().replace("[plot](demo_stage.png)", "[plot](demo_stage.png) (the 20 s run)"))
+    write_results(BenchTable("other", error_key="err", rows=[dict(method="m", setting="s", ms=1.0, err=0.5)]), tmp_path)
+    text = index.read_text()
+    assert "[plot](demo_stage.png) (the 20 s run)" in text and "[other](other.md)" in text
 
 
 def test_add_group_means():

@@ -221,5 +221,11 @@ def _update_index(out_dir: Path) -> None:
         "git revision). Each stage: CSV, markdown table and Pareto plot (error against time).",
         "",
     ]
-    lines += [f"- [{s}]({s}.md) — [csv]({s}.csv), [plot]({s}.png)" for s in stages]
-    (out_dir / "README.md").write_text("\n".join(lines) + "\n")
+    index = out_dir / "README.md"
+    old = index.read_text().splitlines() if index.is_file() else []
+    for s in stages:
+        line = f"- [{s}]({s}.md) — [csv]({s}.csv), [plot]({s}.png)"
+        # a note written after a stage's links (e.g. which session a page is from) survives a re-run
+        note = next((o[len(line) :] for o in old if o.startswith(line)), "")
+        lines.append(line + note)
+    index.write_text("\n".join(lines) + "\n")
