@@ -31,7 +31,26 @@ def _expand(value: str, base: Path) -> str:
         .replace("${assets}", str(assets_dir()))
     )
     p = Path(s).expanduser()
-    return str(p if p.is_absolute() else (base / p).resolve())
+    if not p.is_absolute():
+        return str((base / p).resolve())
+    if not p.exists() and "vtrack/assets/" in p.as_posix():
+        # a session written by another vtrack install (older sessions stored the package's assets by absolute
+        # path): the same file of this install's assets, if it is there
+        mine = assets_dir() / p.as_posix().rsplit("vtrack/assets/", 1)[1]
+        if mine.exists():
+            return str(mine)
+    return str(p)
+
+
+def abbreviate_path(value: str) -> str:
+    """``value`` with this install's assets folder and the shared folder written as ``${assets}`` / ``${shared}``,
+    so a scene stored in a session does not point into one machine's checkout (the inverse of loading)."""
+    for root, name in ((assets_dir(), "${assets}"), (shared_dir(), "${shared}")):
+        try:
+            return name + "/" + Path(value).resolve().relative_to(root.resolve()).as_posix()
+        except ValueError:
+            continue
+    return value
 
 
 def _walk(data: Any, parts: list[str], fn) -> None:

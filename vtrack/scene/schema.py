@@ -313,5 +313,12 @@ class Scene(_Model):
         return out
 
     def to_dict(self) -> dict:
-        """JSON-able dict (paths as absolute strings) for embedding in a session manifest."""
-        return self.model_dump(mode="json")
+        """JSON-able dict for embedding in a session manifest: paths absolute, except files of the package's
+        assets and of the shared folder, written ``${assets}/...`` / ``${shared}/...`` (portable across
+        installs; :func:`vtrack.scene.load.scene_from_dict` expands them)."""
+        from vtrack.scene.load import _PATH_FIELDS, _walk, abbreviate_path
+
+        d = self.model_dump(mode="json")
+        for f in _PATH_FIELDS:
+            _walk(d, f.split("."), abbreviate_path)
+        return d
