@@ -193,7 +193,8 @@ def test_hidden_spin_follows_the_motion_prior_not_world_fixed_data():
     w, th0 = 1.0, -0.6  # rad/s about the mug's axis (object z = world z), start angle
 
     def final_spin_error_deg(mode: str) -> float:
-        tr = WindowTracker(grid, se3.make_transform(se3.so3_exp(np.array([0.0, 0.0, th0]))), {"degenerate_mode": mode})
+        opts = {"degenerate_mode": mode, "project_ratio": 0.02}  # SLAM's setting
+        tr = WindowTracker(grid, se3.make_transform(se3.so3_exp(np.array([0.0, 0.0, th0]))), opts)
         for k in range(75):
             t = k / 30.0
             T = se3.make_transform(se3.so3_exp(np.array([0.0, 0.0, th0 + w * t])))
@@ -207,7 +208,8 @@ def test_hidden_spin_follows_the_motion_prior_not_world_fixed_data():
     # SLAM (whose map is such an imperfect SDF) projects by default; known shape keeps lifting
     from vtrack.tracking.slam import SLAMOptions
 
-    assert SLAMOptions.split({})[2].degenerate_mode == "project"
+    slam_opts = SLAMOptions.split({})[2]
+    assert slam_opts.degenerate_mode == "project" and 0 < slam_opts.project_ratio < 0.1
     assert TrackerOptions().degenerate_mode == "lift"
     with pytest.raises(InputError):
         TrackerOptions.from_dict({"degenerate_mode": "freeze"})

@@ -81,6 +81,9 @@ class TrackerOptions:
     #: SLAM's default, where the map is built from the same views and its errors are world-fixed: a spinning mug's
     #: body looks the same every frame from a fixed camera and would hold the spin back
     degenerate_mode: str = "lift"
+    #: ``project`` only the weak directions below this fraction of the strongest one (0: every weak one); the
+    #: others are lifted: a frame with few points is weak everywhere, and there the data still informs
+    project_ratio: float = 0.0
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
@@ -469,8 +472,9 @@ class WindowTracker:
         Sinv = np.linalg.inv(S)
         n_weak = int(weak.sum()) if lam_max > 0 else 6
         proj = None
-        if o.degenerate_mode == "project":
-            Uw = U[:, weak]
+        pw = weak & (lam < o.project_ratio * lam_max) if o.project_ratio > 0 else weak
+        if o.degenerate_mode == "project" and pw.any():
+            Uw = U[:, pw]
             # twist delta = S delta_s; its strong part is S (I - Uw Uw^T) S^-1 delta
             proj = S @ (np.eye(6) - Uw @ Uw.T) @ Sinv
         return Sinv @ Rs @ Sinv, n_weak, proj
