@@ -27,7 +27,7 @@ def _open_ended_box(n: int = 3000, L: float = 0.06, W: float = 0.015):
     return obs, near_end
 
 
-@pytest.mark.parametrize("opts", [{"prior": "hull"}, {"hull_weight": 1.0}])
+@pytest.mark.parametrize("opts", [{"prior": "hull"}, {"prior": "sphere", "hull_weight": 1.0}])
 def test_hull_prior_keeps_an_unobserved_end_solid(opts):
     """The sphere prior lets the unobserved ends of a long object sag in (about a quarter of the points 12 mm
     inside an end come out outside); the convex-hull prior / hull bound keep them inside."""
@@ -36,7 +36,7 @@ def test_hull_prior_keeps_an_unobserved_end_solid(opts):
     torch.set_num_threads(1)
     obs, near_end = _open_ended_box()
     inside = {}
-    for name, kw in (("sphere", {}), ("hull", opts)):
+    for name, kw in (("sphere", {"prior": "sphere"}), ("hull", opts)):
         r = NeuralSDFReconstructor(seed=0, **kw)
         r.fit(obs, n_iters=100)
         s, _ = r.query(near_end, with_grad=False)
@@ -51,7 +51,7 @@ def test_largest_cluster_drops_stray_points():
     rng = np.random.default_rng(1)
     body = rng.uniform(-0.02, 0.02, (2000, 3))
     stray = np.array([[0.06, 0.0, 0.0], [0.061, 0.001, 0.0], [0.0, -0.07, 0.01]])
-    kept = largest_cluster(np.concatenate([body, stray]), 0.004)
+    kept = largest_cluster(np.concatenate([body, stray]), 0.004)  # 3 points of 2003: < 2 %
     assert len(kept) == 2000 and np.abs(kept).max() <= 0.02
     assert len(largest_cluster(np.zeros((0, 3)), 0.004)) == 0
 
@@ -96,3 +96,11 @@ def test_carving_keeps_the_surface_and_empties_seen_space(soup_obs):
     side = np.abs(Gn[:, 2]) < 0.3  # the can's side: 15 mm outside it the ring of cameras saw empty space
     assert np.mean(cg.sample(G[side] + 0.015 * Gn[side]) > 0) > 0.8
     assert carve([o for o in obs if o.modality == 1], b[0], 0.1) is None  # no free-space evidence
+
+
+def test_unknown_prior_is_an_input_error():
+    from vtrack.errors import InputError
+    from vtrack.fusion.neural_sdf import NeuralSDFReconstructor
+
+    with pytest.raises(InputError, match="prior"):
+        NeuralSDFReconstructor(prior="cube")

@@ -50,6 +50,9 @@ def _torch():
 #: 300, 0.902 at 600 iterations).
 OFFLINE_ITERS = 400
 
+#: Shape priors of the neural SDF (:attr:`NeuralSDFConfig.prior`).
+PRIORS = ("sphere", "hull", "blend")
+
 
 class _SDFNet:
     """Dense multires grid + MLP (built lazily so importing this module does not import torch)."""
@@ -121,6 +124,12 @@ class NeuralSDFConfig:
     truncation band (m) for the ray samples. normal_offset: max along-normal offset (m). sdf_scale (m),
     eikonal_weight, normal_weight, free_weight: loss terms. mesh_cell_mm: marching-cubes cell (mm).
     max_points: replay-buffer capacity (points). keep_largest: keep the mesh's largest component. seed: RNG.
+    prior (offline :meth:`~NeuralSDFReconstructor.fit`; online it is always the sphere): ``sphere`` (radius 0.45 x
+    the box half-size at its centre), ``hull`` (signed distance to the convex hull of the observed points: an
+    unobserved side spans the observed parts instead of sagging towards the centre) or ``blend`` (their mean);
+    hull_cluster_mm: the hull is built from the 26-connected clusters of this cell size holding >= 2 % of the
+    points (stray points dropped). hull_weight, hull_margin (m): optional loss ``sdf <= hull SDF + margin``
+    deeper than the margin inside the hull (0 = off).
     carve (offline :meth:`~NeuralSDFReconstructor.fit` only): space carving from the cameras' free-space images
     (:mod:`vtrack.fusion.carve`); carve_cell_mm voxel (mm), carve_margin (m) in front of the free depth,
     carve_votes frames that must see a voxel empty; carve_band (m): carved voxels within this distance of the
@@ -179,6 +188,10 @@ class NeuralSDFReconstructor:
         from vtrack.config import build_config
 
         self.config = build_config(NeuralSDFConfig, opts, "neural SDF", base=config)
+        if self.config.prior not in PRIORS:
+            raise InputError(
+                "unknown neural SDF prior", field="prior", expected=" | ".join(PRIORS), got=self.config.prior
+            )
         self.opts = asdict(self.config)
         seed = self.config.seed
         if threads:
@@ -337,10 +350,11 @@ class NeuralSDFReconstructor:
         torch = _torch()
         u = ((x - torch.as_tensor(self.lo, dtype=x.dtype)) / self.size).clamp(0.0, 1.0)
         h = torch.cat([self.net.features(u), u * 2 - 1], dim=1)
+        prior = torch.linalg.norm(x - self._center, dim=1) - self._r0
         if self._hull_prior is not None and self.opts["prior"] == "hull":
             prior = self._hull_t(u)
-        else:
-            prior = torch.linalg.norm(x - self._center, dim=1) - self._r0
+        elif self._hull_prior is not None and self.opts["prior"] == "blend":
+            prior = 0.5 * (prior + self._hull_t(u))
         return prior + self.net.mlp(h)[:, 0] * (0.5 * self.size)
 
     def _hull_t(self, u):
@@ -602,7 +616,7 @@ class NeuralSDFReconstructor:
         for ob in obs:
             self.integrate_observation(ob)
         self._recent_from = self.n_points  # offline: uniform replay
-        if (self.opts["prior"] == "hull" or self.opts["hull_weight"] > 0) and self.iterations == 0:
+        if (self.opts["prior"] in ("hull", "blend") or self.opts["hull_weight"] > 0) and self.iterations == 0:
             self.set_hull_prior(self._buf["p"])
         t_c = time.perf_counter()
         if self.opts["carve"]:
@@ -696,9 +710,10 @@ class NeuralSDFReconstructor:
         }
 
 
-def largest_cluster(points: np.ndarray, voxel: float) -> np.ndarray:
-    """The points (N, 3) of the largest 26-connected cluster of ``voxel``-sized occupied cells (m): drops the
-    few stray points (a segmentation leak on a finger, a wrong contact) that would blow up a convex hull."""
+def largest_cluster(points: np.ndarray, voxel: float, min_share: float = 0.02) -> np.ndarray:
+    """The points (N, 3) of the 26-connected clusters of ``voxel``-sized occupied cells (m) that hold at least
+    ``min_share`` of the points: drops the few stray points (a segmentation leak on a finger, a wrong contact)
+    that would blow up a convex hull, and keeps every substantial part of a sparsely sampled object."""
     from scipy import ndimage
 
     P = np.asarray(points, np.float64).reshape(-1, 3)
@@ -710,8 +725,9 @@ def largest_cluster(points: np.ndarray, voxel: float) -> np.ndarray:
     lab, n = ndimage.label(occ, structure=np.ones((3, 3, 3)))
     if n <= 1:
         return P
-    big = 1 + int(np.argmax(np.bincount(lab.ravel())[1:]))
-    return P[lab[tuple(ijk.T)] == big]
+    pl = lab[tuple(ijk.T)]
+    share = np.bincount(pl, minlength=n + 1) / len(P)
+    return P[share[pl] >= min_share]
 
 
 def marching_cubes(
