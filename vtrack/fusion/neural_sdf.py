@@ -157,7 +157,7 @@ class NeuralSDFConfig:
     max_points: int = 300_000
     keep_largest: bool = True
     seed: int = 0
-    prior: str = "sphere"
+    prior: str = "hull"
     hull_weight: float = 0.0
     hull_cluster_mm: float = 4.0
     hull_margin: float = 0.004
