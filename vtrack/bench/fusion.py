@@ -149,6 +149,12 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
     return so.observations, Vg, Fg, time.perf_counter() - t0, info
 
 
+def _default_prior() -> str:
+    from vtrack.fusion.neural_sdf import NeuralSDFConfig
+
+    return NeuralSDFConfig().prior
+
+
 def _full(table: BenchTable, seconds: float) -> None:
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
 
@@ -175,6 +181,10 @@ def _full(table: BenchTable, seconds: float) -> None:
                 run(method="tsdf", mods=mods, setting="voxel=2mm" + tag, voxel_size=0.002)
                 if (main or mods != "touch") and (blind or mods == "vision+touch"):
                     run(method="neural_sdf", mods=mods, setting="iters=400" + tag, n_iters=400)
+            # ablation: the neural SDF's shape prior (default: NeuralSDFConfig.prior) against the others
+            for prior in ("sphere", "hull", "blend"):
+                if prior != _default_prior():
+                    run(method="neural_sdf", mods="vision+touch", setting=f"iters=400 prior={prior}" + tag, prior=prior)
             if blind and "observations_frontend" in info:
                 # ablation: the same fusion with the SLAM front end's poses (before the keyframe pose graph)
                 _run(

@@ -50,6 +50,9 @@ def _torch():
 #: 300, 0.902 at 600 iterations).
 OFFLINE_ITERS = 400
 
+#: Shape priors of the neural SDF (:attr:`NeuralSDFConfig.prior`).
+PRIORS = ("sphere", "hull", "blend")
+
 
 class _SDFNet:
     """Dense multires grid + MLP (built lazily so importing this module does not import torch)."""
@@ -83,25 +86,29 @@ class _SDFNet:
 
     def features(self, u):
         """u (N, 3) in [0, 1] -> concatenated trilinear features (N, L*C)."""
-        torch = _torch()
-        out = []
-        for r, table in zip(self.res, self.tables, strict=True):
-            g = u * r
-            i0 = torch.clamp(torch.floor(g.detach()), 0, r - 1)
-            f = g - i0  # (N, 3) in [0, 1]; carries the gradient w.r.t. u
-            ii = i0.long()[:, None, :] + self.corners[None]  # (N, 8, 3)
-            R = r + 1
-            idx = (ii[..., 0] * R + ii[..., 1]) * R + ii[..., 2]
-            # corner weights as an outer product (cheaper than prod(), esp. its double backward)
-            wx = torch.stack([1 - f[:, 0], f[:, 0]], 1)
-            wy = torch.stack([1 - f[:, 1], f[:, 1]], 1)
-            wz = torch.stack([1 - f[:, 2], f[:, 2]], 1)
-            w = (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(-1, 8)
-            out.append((table[idx] * w[..., None]).sum(1))
-        return torch.cat(out, dim=1)
+        feats = [trilinear(table, r, u, self.corners) for r, table in zip(self.res, self.tables, strict=True)]
+        return _torch().cat(feats, 1)
 
     def state_dict(self) -> dict:
         return {"tables": [t.detach().clone() for t in self.tables], "mlp": self.mlp.state_dict()}
+
+
+def trilinear(table, r: int, u, corners):
+    """Trilinear interpolation of a dense ``(r + 1)^3 x C`` table at u (N, 3) in [0, 1] -> (N, C), written by hand
+    so that it has a double backward (the eikonal term)."""
+    torch = _torch()
+    g = u * r
+    i0 = torch.clamp(torch.floor(g.detach()), 0, r - 1)
+    f = g - i0  # (N, 3) in [0, 1]; carries the gradient w.r.t. u
+    ii = i0.long()[:, None, :] + corners[None]  # (N, 8, 3)
+    R = r + 1
+    idx = (ii[..., 0] * R + ii[..., 1]) * R + ii[..., 2]
+    # corner weights as an outer product (cheaper than prod(), esp. its double backward)
+    wx = torch.stack([1 - f[:, 0], f[:, 0]], 1)
+    wy = torch.stack([1 - f[:, 1], f[:, 1]], 1)
+    wz = torch.stack([1 - f[:, 2], f[:, 2]], 1)
+    w = (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(-1, 8)
+    return (table[idx] * w[..., None]).sum(1)
 
 
 @dataclass
@@ -117,6 +124,17 @@ class NeuralSDFConfig:
     truncation band (m) for the ray samples. normal_offset: max along-normal offset (m). sdf_scale (m),
     eikonal_weight, normal_weight, free_weight: loss terms. mesh_cell_mm: marching-cubes cell (mm).
     max_points: replay-buffer capacity (points). keep_largest: keep the mesh's largest component. seed: RNG.
+    prior (offline :meth:`~NeuralSDFReconstructor.fit`; online it is always the sphere): ``sphere`` (radius 0.45 x
+    the box half-size at its centre), ``hull`` (signed distance to the convex hull of the observed points: an
+    unobserved side spans the observed parts instead of sagging towards the centre) or ``blend`` (their mean);
+    hull_cluster_mm: the hull is built from the 26-connected clusters of this cell size holding >= 2 % of the
+    points (stray points dropped). hull_weight, hull_margin (m): optional loss ``sdf <= hull SDF + margin``
+    deeper than the margin inside the hull (0 = off).
+    carve (offline :meth:`~NeuralSDFReconstructor.fit` only): space carving from the cameras' free-space images
+    (:mod:`vtrack.fusion.carve`); carve_cell_mm voxel (mm), carve_margin (m) in front of the free depth,
+    carve_votes frames that must see a voxel empty; carve_band (m): carved voxels within this distance of the
+    uncarved region are sampled each iteration with the loss ``relu(bound - sdf)`` (weight carve_weight);
+    carve_crop: the mesh is cut to the carved hull grown by one cell.
     """
 
     extent: float = 0.12
@@ -139,6 +157,17 @@ class NeuralSDFConfig:
     max_points: int = 300_000
     keep_largest: bool = True
     seed: int = 0
+    prior: str = "hull"
+    hull_weight: float = 0.0
+    hull_cluster_mm: float = 4.0
+    hull_margin: float = 0.004
+    carve: bool = False
+    carve_cell_mm: float = 2.0
+    carve_margin: float = 0.003
+    carve_votes: int = 2
+    carve_band: float = 0.02
+    carve_weight: float = 1.0
+    carve_crop: bool = True
 
 
 class NeuralSDFReconstructor:
@@ -159,6 +188,10 @@ class NeuralSDFReconstructor:
         from vtrack.config import build_config
 
         self.config = build_config(NeuralSDFConfig, opts, "neural SDF", base=config)
+        if self.config.prior not in PRIORS:
+            raise InputError(
+                "unknown neural SDF prior", field="prior", expected=" | ".join(PRIORS), got=self.config.prior
+            )
         self.opts = asdict(self.config)
         seed = self.config.seed
         if threads:
@@ -180,6 +213,11 @@ class NeuralSDFReconstructor:
         self.iterations = 0
         self.train_seconds = 0.0
         self.last_loss: dict[str, float] = {}
+        self._carve: Any = None  # vtrack.fusion.carve.CarveGrid once fit() carved the box
+        self._hull_prior: Any = None  # ((r + 1)^3, 1) torch table of the convex-hull prior over the box
+        self._hull_res = 0
+        self._carve_idx: np.ndarray | None = None
+        self.carve_seconds = 0.0
         if bounds is not None:
             self.set_bounds(bounds)
 
@@ -313,7 +351,15 @@ class NeuralSDFReconstructor:
         u = ((x - torch.as_tensor(self.lo, dtype=x.dtype)) / self.size).clamp(0.0, 1.0)
         h = torch.cat([self.net.features(u), u * 2 - 1], dim=1)
         prior = torch.linalg.norm(x - self._center, dim=1) - self._r0
+        if self._hull_prior is not None and self.opts["prior"] == "hull":
+            prior = self._hull_t(u)
+        elif self._hull_prior is not None and self.opts["prior"] == "blend":
+            prior = 0.5 * (prior + self._hull_t(u))
         return prior + self.net.mlp(h)[:, 0] * (0.5 * self.size)
+
+    def _hull_t(self, u):
+        """Signed distance (N,) m to the convex hull of the observations at box coordinates u (N, 3) in [0, 1]."""
+        return trilinear(self._hull_prior, self._hull_res, u, self.net.corners)[:, 0]
 
     def _pools(self) -> tuple[np.ndarray, np.ndarray]:
         """Sorted buffer indices of touch and vision points (cached until the buffer changes)."""
@@ -410,12 +456,15 @@ class NeuralSDFReconstructor:
             ray_tgt_hi = sdist
             is_near = np.concatenate([np.ones(nb, bool), np.zeros(nb, bool)])
         Xe = (self.lo + self.size * rng.random((B // 2, 3))).astype(np.float32)
+        Xc, lb_c = self._carve_samples(B // 2 if self._carve_idx is not None else 0)
+        use_hull = self._hull_prior is not None and o["hull_weight"] > 0
+        Xh = (self.lo + self.size * rng.random((B // 2 if use_hull else 0, 3))).astype(np.float32)
         # Points that need the spatial gradient (normal + eikonal terms): surface and uniform samples.
         x = torch.from_numpy(np.concatenate([P, Xe]).astype(np.float32)).requires_grad_(True)
         f = self._sdf_t(x)
         (g,) = torch.autograd.grad(f.sum(), x, create_graph=True)
         # Value-only points: along-normal offsets and ray samples.
-        fv = self._sdf_t(torch.from_numpy(np.concatenate([Xn, Xr]).astype(np.float32)))
+        fv = self._sdf_t(torch.from_numpy(np.concatenate([Xn, Xr, Xc, Xh]).astype(np.float32)))
         sc = o["sdf_scale"]
         wt = torch.from_numpy(W.astype(np.float32))
         i0 = B
@@ -426,8 +475,22 @@ class NeuralSDFReconstructor:
         l_norm = (wt * hn * (1 - cosg)).sum() / max(1, int(has_n.sum()))
         l_off = (wt * hn * (fv[:B] - torch.from_numpy(d)).abs()).sum() / max(1, int(has_n.sum())) / sc
         l_free = torch.zeros(())
+        l_carve = torch.zeros(())
+        i_c = B + len(Xr)
+        if len(Xc):
+            l_carve = torch.relu(torch.from_numpy(lb_c) - fv[i_c : i_c + len(Xc)]).mean() / sc
+        l_hull = torch.zeros(())
+        if len(Xh):
+            # inside the convex hull of the observations the object is solid: sdf <= the hull's (negative) SDF
+            with torch.no_grad():
+                xh = torch.from_numpy(Xh)
+                hv = self._hull_t(((xh - torch.as_tensor(self.lo, dtype=xh.dtype)) / self.size).clamp(0.0, 1.0))
+            m = o["hull_margin"]  # the hull's vertices are the noisiest outermost points: bound only deeper in
+            inside = hv < -m
+            if bool(inside.any()):
+                l_hull = torch.relu(fv[i_c + len(Xc) :] - (hv + m))[inside].mean() / sc
         if len(Xr):
-            fr = fv[B:]
+            fr = fv[B : B + len(Xr)]
             lo_t, hi_t = torch.from_numpy(ray_tgt_lo), torch.from_numpy(ray_tgt_hi)
             nm = torch.from_numpy(is_near)
             near_l = (fr - lo_t).abs()
@@ -435,7 +498,15 @@ class NeuralSDFReconstructor:
             l_free = torch.where(nm, near_l, far_l).mean() / sc
         gn = torch.linalg.norm(g, dim=1)
         l_eik = ((gn - 1) ** 2).mean()
-        loss = l_surf + o["normal_weight"] * l_norm + l_off + o["free_weight"] * l_free + o["eikonal_weight"] * l_eik
+        loss = (
+            l_surf
+            + o["normal_weight"] * l_norm
+            + l_off
+            + o["free_weight"] * l_free
+            + o["eikonal_weight"] * l_eik
+            + o["carve_weight"] * l_carve
+            + o["hull_weight"] * l_hull
+        )
         if not torch.isfinite(loss):
             # Never let a bad batch poison the model: skip it.
             self._opt.zero_grad(set_to_none=True)
@@ -454,8 +525,77 @@ class NeuralSDFReconstructor:
                 ("offset", l_off),
                 ("free", l_free),
                 ("eikonal", l_eik),
+                ("carve", l_carve),
+                ("hull", l_hull),
             )
         }
+
+    def set_hull_prior(self, points: np.ndarray) -> bool:
+        """Use the convex hull of ``points`` (object frame, m) as the SDF prior instead of the sphere: where
+        nothing was observed the surface spans the observed parts (flat caps, no shrinking towards the
+        centre). Returns False (sphere kept) when the points span no volume."""
+        from scipy.spatial import ConvexHull, QhullError
+
+        P = np.asarray(points, np.float64).reshape(-1, 3)
+        P = P[np.isfinite(P).all(1)]
+        if len(P) < 4:
+            return False
+        P = largest_cluster(P, self.opts["hull_cluster_mm"] * 1e-3)
+        # voxel-thin the points first (qhull time, and duplicates)
+        _, first = np.unique(np.floor((P - P.min(0)) / 2e-3).astype(np.int64), axis=0, return_index=True)
+        if len(first) < 4:
+            return False
+        try:
+            eq = ConvexHull(P[first]).equations  # (F, 4): n . x + d <= 0 inside, n unit outward
+        except (QhullError, ValueError):
+            return False
+        # the hull's SDF (max over facets of the plane distance: exact inside, a lower bound outside) on a
+        # dense grid over the box, interpolated like the feature grids (cheaper than the facets per sample)
+        r = int(np.clip(math.ceil(self.size / (self.opts["cell_mm"] * 1e-3)), 16, 64))
+        ax = self.lo[0] + np.arange(r + 1) * (self.size / r), self.lo[1] + np.arange(r + 1) * (self.size / r)
+        ax = (*ax, self.lo[2] + np.arange(r + 1) * (self.size / r))
+        X, Y, Z = np.meshgrid(*ax, indexing="ij")
+        G = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+        val = np.full(len(G), -np.inf, np.float32)
+        G32, eq32 = G.astype(np.float32), eq.astype(np.float32)
+        for a in range(0, len(eq), 128):
+            np.maximum(val, (G32 @ eq32[a : a + 128, :3].T + eq32[a : a + 128, 3]).max(1), out=val)
+        torch = _torch()
+        self._hull_prior = torch.tensor(val[:, None], dtype=torch.float32)
+        self._hull_res = r
+        return True
+
+    def set_carving(self, observations: list) -> None:
+        """Carve the box with the observations' free-space images (:func:`vtrack.fusion.carve.carve`); the
+        observed surface points in the buffer are protected. No free-space evidence: carving stays off."""
+        from vtrack.fusion.carve import carve
+
+        o = self.opts
+        self._carve = carve(
+            observations,
+            self.lo,
+            self.size,
+            cell=o["carve_cell_mm"] * 1e-3,
+            margin=o["carve_margin"],
+            min_votes=o["carve_votes"],
+            protect=self._buf["p"],
+        )
+        self._carve_idx = None
+        if self._carve is not None:
+            b = self._carve.bound
+            idx = np.argwhere(np.isfinite(b) & (b <= o["carve_band"]))
+            self._carve_idx = idx if len(idx) else None
+
+    def _carve_samples(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """``k`` points jittered within carved voxels of the band and their SDF lower bounds (m)."""
+        cg, idx = self._carve, self._carve_idx
+        if cg is None or idx is None or k <= 0:
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+        pick = idx[self._rng.integers(0, len(idx), k)]
+        # jitter within +-half a cell: the bound already leaves one cell of slack
+        x = cg.centres(pick) + (self._rng.random((k, 3)) - 0.5) * cg.cell
+        lb = cg.bound[pick[:, 0], pick[:, 1], pick[:, 2]]
+        return x.astype(np.float32), lb.astype(np.float32)
 
     # -- offline -----------------------------------------------------------------------------
     def fit(
@@ -476,6 +616,12 @@ class NeuralSDFReconstructor:
         for ob in obs:
             self.integrate_observation(ob)
         self._recent_from = self.n_points  # offline: uniform replay
+        if (self.opts["prior"] in ("hull", "blend") or self.opts["hull_weight"] > 0) and self.iterations == 0:
+            self.set_hull_prior(self._buf["p"])
+        t_c = time.perf_counter()
+        if self.opts["carve"]:
+            self.set_carving(obs)
+        self.carve_seconds = time.perf_counter() - t_c
         t0 = time.perf_counter()
         torch = _torch()
         sched = (
@@ -545,6 +691,14 @@ class NeuralSDFReconstructor:
         if self.net is None:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
         vol, origin, h = self.sdf_grid(cell_mm)
+        cg = self._carve
+        if cg is not None and self.opts["carve_crop"]:
+            # cut away surface in carved space: intersection with the carved hull grown by one cell
+            n = vol.shape[0]
+            ax = origin[0] + np.arange(n) * h, origin[1] + np.arange(n) * h, origin[2] + np.arange(n) * h
+            X, Y, Z = np.meshgrid(*ax, indexing="ij")
+            hull = cg.sample(np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)).reshape(vol.shape)
+            vol = np.maximum(vol, hull)
         return marching_cubes(vol, origin, h, keep_largest=self.opts["keep_largest"])
 
     def state_dict(self) -> dict[str, Any]:
@@ -554,6 +708,26 @@ class NeuralSDFReconstructor:
             "size": self.size,
             "net": None if self.net is None else self.net.state_dict(),
         }
+
+
+def largest_cluster(points: np.ndarray, voxel: float, min_share: float = 0.02) -> np.ndarray:
+    """The points (N, 3) of the 26-connected clusters of ``voxel``-sized occupied cells (m) that hold at least
+    ``min_share`` of the points: drops the few stray points (a segmentation leak on a finger, a wrong contact)
+    that would blow up a convex hull, and keeps every substantial part of a sparsely sampled object."""
+    from scipy import ndimage
+
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(P) == 0 or voxel <= 0:
+        return P
+    ijk = np.floor((P - P.min(0)) / voxel).astype(np.int64)
+    occ = np.zeros(ijk.max(0) + 1, bool)
+    occ[tuple(ijk.T)] = True
+    lab, n = ndimage.label(occ, structure=np.ones((3, 3, 3)))
+    if n <= 1:
+        return P
+    pl = lab[tuple(ijk.T)]
+    share = np.bincount(pl, minlength=n + 1) / len(P)
+    return P[share[pl] >= min_share]
 
 
 def marching_cubes(

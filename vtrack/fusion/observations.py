@@ -35,6 +35,10 @@ class Observation:
         confidence: (N,) in [0, 1]. tactile_value: (N,) penetration mm (touch) or 0.
         T_view_object: 4x4 camera (or tactile sensor) frame from the object frame.
         depth_m, K: vision only, masked float32 depth (m, 0 = invalid) and 3x3 intrinsics (TSDF input).
+        free_depth: vision only, free-space evidence of every pixel (float32 (H / s, W / s), camera z, m): the ray
+            is empty up to that depth (measured depth of any surface, object or not; ``inf`` where the sensor got
+            no return and the pixel is clear of the object mask; 0 = unknown), min-pooled over ``s x s``
+            blocks (``free_stride``) so the subsampled image never claims more than the full one.
     """
 
     t: float
@@ -48,6 +52,8 @@ class Observation:
     T_view_object: np.ndarray
     depth_m: np.ndarray | None = None
     K: np.ndarray | None = None
+    free_depth: np.ndarray | None = None
+    free_stride: int = 1
 
     @property
     def origin(self) -> np.ndarray:
@@ -95,6 +101,35 @@ def _cloud_to_object(c: UnifiedCloud, T_world_object: np.ndarray) -> UnifiedClou
     return c.transform(se3.invert(T_world_object), frame="object")
 
 
+def free_depth_image(
+    z: np.ndarray, mask: np.ndarray, stride: int = 2, mask_margin_px: int = 3, no_return_free: bool = True
+) -> np.ndarray:
+    """Free-space depth per pixel (see :attr:`Observation.free_depth`) from a depth image and its object mask.
+
+    Args:
+        z: (H, W) depth, m (0 / non-finite = no return). mask: (H, W) bool object mask.
+        stride: output block size (min-pooled). mask_margin_px: no-return pixels this close to the mask stay
+            unknown (a dropout on the object, or a mask that is a few pixels short, must not carve it).
+        no_return_free: a no-return pixel away from the mask is free along the whole ray (a sensor that
+            returns nothing beyond its range; set False for sensors with dropouts on dark surfaces).
+    """
+    import cv2
+
+    z = np.asarray(z, np.float32)
+    ok = np.isfinite(z) & (z > 0)
+    out = np.where(ok, z, 0.0).astype(np.float32)
+    if no_return_free:
+        k = 2 * int(mask_margin_px) + 1
+        near = cv2.dilate(np.asarray(mask, np.uint8), np.ones((k, k), np.uint8)) > 0 if mask_margin_px > 0 else mask
+        out[~ok & ~near] = np.inf
+    s = max(1, int(stride))
+    if s > 1:
+        H, W = out.shape
+        h, w = H // s, W // s
+        out = out[: h * s, : w * s].reshape(h, s, w, s).min(axis=(1, 3))
+    return out
+
+
 def observations_from_frames(
     frames: Any,
     built: list[tuple[int, Any]],
@@ -103,6 +138,7 @@ def observations_from_frames(
     vision_stride: int = 4,
     max_vision_points: int = 4000,
     keep_depth: bool = True,
+    free_stride: int = 2,
 ) -> SessionObservations:
     """Object-frame observations of already built frames.
 
@@ -113,6 +149,7 @@ def observations_from_frames(
         vision_stride: pixel stride of the vision points (normals use full resolution).
         max_vision_points: random cap on points per camera frame (seeded).
         keep_depth: keep masked full-resolution depth images (TSDF input).
+        free_stride: block size of the free-space images (:func:`free_depth_image`; 0 = none kept).
     """
     from vtrack.frames.session import upsample_mask
 
@@ -139,11 +176,13 @@ def observations_from_frames(
             )
             if len(cl) > max_vision_points:
                 cl = cl.select(np.sort(rng.choice(len(cl), max_vision_points, replace=False)))
-            dm = None
-            if keep_depth:
+            dm = fd = None
+            if keep_depth or free_stride:
                 z = c.cam.depth_to_meters(depth, c.depth_scale).astype(np.float32)
-                ok = np.isfinite(z) & (z > 0.05) & full
-                dm = np.where(ok, z, 0.0).astype(np.float32)
+                if keep_depth:
+                    dm = np.where(np.isfinite(z) & (z > 0.05) & full, z, 0.0).astype(np.float32)
+                if free_stride:
+                    fd = free_depth_image(z, full, int(free_stride))
             if len(cl) == 0 and (dm is None or not dm.any()):
                 continue
             co = _cloud_to_object(cl, T_wo)
@@ -160,6 +199,8 @@ def observations_from_frames(
                     se3.invert(c.T_wc) @ T_wo,
                     dm,
                     c.cam.K,
+                    fd,
+                    max(1, int(free_stride)),
                 )
             )
             counts[f"camera/{c.name}"] = counts.get(f"camera/{c.name}", 0) + 1
