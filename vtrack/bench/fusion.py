@@ -168,6 +168,9 @@ def _full(table: BenchTable, seconds: float) -> None:
         for item in env.split(";"):
             name, occ, sess = (item.split("|") + ["", ""])[:3]
             cases.append((name, occ, Path(sess) if sess else None))
+    # "headline": only the neural SDF, vision + touch, blind (pose graph and front end) and oracle — the issue's
+    # figures, in about a third of the time of the full ablation
+    headline = os.environ.get("VTRACK_BENCH_FUSION_ROWS", "all") == "headline"
     for name, occ, sess in cases:
         path = sess or ycb_session(name, occ, seconds)
         short = name.split("_", 1)[1]
@@ -177,12 +180,13 @@ def _full(table: BenchTable, seconds: float) -> None:
             tag = "" if blind else " [oracle: GT poses, masks, height maps]"
             n0 = len(table.rows)
             run = partial(_run, table, obs, Vg, Fg, object_name=short, occlusion=occ, load_s=load_s)
-            for mods in MODS:
-                run(method="tsdf", mods=mods, setting="voxel=2mm" + tag, voxel_size=0.002)
+            for mods in ("vision+touch",) if headline else MODS:
+                if not headline:
+                    run(method="tsdf", mods=mods, setting="voxel=2mm" + tag, voxel_size=0.002)
                 if (main or mods != "touch") and (blind or mods == "vision+touch"):
                     run(method="neural_sdf", mods=mods, setting="iters=400" + tag, n_iters=400)
             # ablation: the neural SDF's shape prior (default: NeuralSDFConfig.prior) against the others
-            for prior in ("sphere", "hull", "blend"):
+            for prior in () if headline else ("sphere", "hull", "blend"):
                 if prior != _default_prior():
                     run(method="neural_sdf", mods="vision+touch", setting=f"iters=400 prior={prior}" + tag, prior=prior)
             if blind and "observations_frontend" in info:
@@ -200,7 +204,7 @@ def _full(table: BenchTable, seconds: float) -> None:
                     load_s=load_s,
                     n_iters=400,
                 )
-            if blind and main and occ == "none":
+            if blind and main and occ == "none" and not headline:
                 _operating_points(run, (0.0015, 0.003), (300, 600))
             for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
                 r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
@@ -251,6 +255,11 @@ def run(quick: bool = False) -> BenchTable:
             "segmentation and touch from the raw streams; scored after first-frame alignment); "
             "rows tagged [oracle] use GT poses, masks and height maps; every 2nd frame; cases: "
             + (os.environ.get("VTRACK_BENCH_FUSION_CASES") or f"default sweep, {seconds:g} s")
+            + (
+                "; rows: headline (VTRACK_BENCH_FUSION_ROWS=headline)"
+                if os.environ.get("VTRACK_BENCH_FUSION_ROWS") == "headline"
+                else ""
+            )
         )
     table.notes.append(
         "ms = reconstruction ms per frame (camera and tactile frames); s_session includes loading "
