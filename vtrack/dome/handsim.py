@@ -319,8 +319,7 @@ def make_handpose_dataset(n: int, seed: int, *, cache: bool = True, progress: bo
     arrs = {k: np.stack(v) if k != "grasp" else np.array(v) for k, v in out.items()}
     arrs["ir_reference"] = sim.ir_reference()
     if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez_compressed(tmp, **arrs)
-        tmp.replace(path)
+        from vtrack.io.jsonio import atomic_savez
+
+        atomic_savez(path, **arrs)
     return arrs

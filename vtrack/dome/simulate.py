@@ -289,8 +289,7 @@ def make_dataset(
     else:
         arrs["reference_image"] = sim.reference_image()
     if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez_compressed(tmp, **arrs)
-        tmp.replace(path)
+        from vtrack.io.jsonio import atomic_savez
+
+        atomic_savez(path, **arrs)
     return arrs

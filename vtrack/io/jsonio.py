@@ -55,6 +55,20 @@ def atomic_write_text(path: str | Path, text: str, *, fsync: bool = False) -> Pa
     return path
 
 
+def atomic_savez(path: str | Path, **arrays: Any) -> Path:
+    """``np.savez_compressed(path, **arrays)`` via a uniquely named temporary file and rename (creates the parent
+    folder): a reader never sees a half-written cache file, and two writers of the same key do not collide."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:6]}.tmp.npz")
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
 def write_json(path: str | Path, data: Any, *, indent: int = 2, fsync: bool = False) -> Path:
     """Write ``data`` (through :func:`to_jsonable`) as JSON, atomically (see :func:`atomic_write_text`)."""
     return atomic_write_text(path, json.dumps(to_jsonable(data), indent=indent, allow_nan=False), fsync=fsync)

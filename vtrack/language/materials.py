@@ -456,10 +456,9 @@ def generate(seed: int = 0, *, use_cache: bool = True, quick: bool = False, ycb:
         frames = [render_contact(mats[mi], c, rng, models, bg) for mi, c in zip(material, contacts, strict=True)]
         images = np.stack([to_input(f, bg) for f in frames]).astype(np.float32)
         if use_cache:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".tmp.npz")
-            np.savez_compressed(tmp, images=images)
-            tmp.replace(path)
+            from vtrack.io.jsonio import atomic_savez
+
+            atomic_savez(path, images=images)
     return TactileSet(images, np.asarray(material), np.asarray(index), np.asarray(split), contacts, mats)
 
 

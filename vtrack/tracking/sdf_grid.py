@@ -111,12 +111,9 @@ class SDFGrid:
 
     # -- persistence --------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez_compressed(tmp, values=self.values, origin=self.origin, voxel=self.voxel)
-        tmp.replace(path)
-        return path
+        from vtrack.io.jsonio import atomic_savez
+
+        return atomic_savez(path, values=self.values, origin=self.origin, voxel=self.voxel)
 
     @classmethod
     def load(cls, path: str | Path) -> SDFGrid:
