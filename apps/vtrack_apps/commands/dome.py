@@ -148,7 +148,6 @@ def register(app: typer.Typer) -> None:
                 ],
             )
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")
 
@@ -184,7 +183,6 @@ def register(app: typer.Typer) -> None:
             res["tactip"] = evaluate_tactip(seg)
             print_table("markers, real TacTip", list(res["tactip"].values()))
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")
 
@@ -242,7 +240,6 @@ def register(app: typer.Typer) -> None:
         )
         typer.echo(f"with pressure {100 * res['gain_with_p']:.0f} % lower MAE than without")
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")
 
@@ -280,7 +277,6 @@ def register(app: typer.Typer) -> None:
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, info, indent=1)
             typer.echo(f"wrote {json_out}")
 
@@ -307,7 +303,6 @@ def register(app: typer.Typer) -> None:
         )
         print_table("dome hand pose (simulated, deg)", rows)
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")
 
@@ -341,7 +336,6 @@ def register(app: typer.Typer) -> None:
             raise InputError(res.reason, path=ir or rgb, field="image", expected="a frame of the 70 mm hand-pose dome")
         typer.echo(json.dumps(res.summary(), indent=1))
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res.summary(), indent=1)
 
     @dome_app.command("tactip")
@@ -361,6 +355,5 @@ def register(app: typer.Typer) -> None:
         res = analyse_all(root, epochs=epochs)
         print_table("dome tactip", res)
         if json_out:
-            json_out.parent.mkdir(parents=True, exist_ok=True)
             write_json(json_out, res, indent=1)
             typer.echo(f"wrote {json_out}")
