@@ -9,6 +9,13 @@ import typer
 from vtrack.io.jsonio import write_json
 
 
+def _write_json_out(json_out: Path | None, data: object) -> None:
+    """``--json OUT`` of the dome commands: write ``data`` there (if given) and say so."""
+    if json_out:
+        write_json(json_out, data, indent=1)
+        typer.echo(f"wrote {json_out}")
+
+
 def register(app: typer.Typer) -> None:
     dome_app = typer.Typer(
         help="Dome (TacTip/FusionTouch-style) marker sensor: simulate, train, eval, reconstruct.", no_args_is_help=True
@@ -147,9 +154,7 @@ def register(app: typer.Typer) -> None:
                     for m in ("rgb", "ir", "dual")
                 ],
             )
-        if json_out:
-            write_json(json_out, res, indent=1)
-            typer.echo(f"wrote {json_out}")
+        _write_json_out(json_out, res)
 
     @dome_app.command("segment")
     def segment(
@@ -182,9 +187,7 @@ def register(app: typer.Typer) -> None:
         if (shared_data_dir() / "tactip_frames").exists():
             res["tactip"] = evaluate_tactip(seg)
             print_table("markers, real TacTip", list(res["tactip"].values()))
-        if json_out:
-            write_json(json_out, res, indent=1)
-            typer.echo(f"wrote {json_out}")
+        _write_json_out(json_out, res)
 
     @dome_app.command("reconstruct")
     def reconstruct(
@@ -239,9 +242,7 @@ def register(app: typer.Typer) -> None:
             [{"setting": k, **{m: round(v, 4) for m, v in res[k].items()}} for k in keys],
         )
         typer.echo(f"with pressure {100 * res['gain_with_p']:.0f} % lower MAE than without")
-        if json_out:
-            write_json(json_out, res, indent=1)
-            typer.echo(f"wrote {json_out}")
+        _write_json_out(json_out, res)
 
     handpose_app = typer.Typer(
         help="Hand pose (FusionTouch S24-S27): 12 joint angles from the 70 mm dome's RGB and/or IR frame.",
@@ -276,9 +277,7 @@ def register(app: typer.Typer) -> None:
         tc = HandPoseTrainConfig(n_train=n_train, epochs=epochs, seed=seed, modality_dropout=modality_dropout)
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
-        if json_out:
-            write_json(json_out, info, indent=1)
-            typer.echo(f"wrote {json_out}")
+        _write_json_out(json_out, info)
 
     @handpose_app.command("eval")
     def handpose_eval(
@@ -302,9 +301,7 @@ def register(app: typer.Typer) -> None:
             {"modality": "mean pose (no image)", **{k: round(v, 3) for k, v in res["mean_pose_baseline"].items()}}
         )
         print_table("dome hand pose (simulated, deg)", rows)
-        if json_out:
-            write_json(json_out, res, indent=1)
-            typer.echo(f"wrote {json_out}")
+        _write_json_out(json_out, res)
 
     @handpose_app.command("predict")
     def handpose_predict(
@@ -354,6 +351,4 @@ def register(app: typer.Typer) -> None:
         torch.set_num_threads(1)
         res = analyse_all(root, epochs=epochs)
         print_table("dome tactip", res)
-        if json_out:
-            write_json(json_out, res, indent=1)
-            typer.echo(f"wrote {json_out}")
+        _write_json_out(json_out, res)
