@@ -95,7 +95,7 @@ def _robust_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, f
 def _blank_reason(img: np.ndarray) -> str:
     """Why a constant frame is unusable, naming an all-white (over-exposed) or all-black (dark) one."""
     m = float(np.mean(img))
-    what = ": saturated, over-exposed" if m >= 250 else ": black, no light" if m <= 5 else ""
+    what = ": saturated / over-exposed" if m >= 250 else ": black frame / no light" if m <= 5 else ""
     return f"blank image (constant colour {m:.0f}{what})"
 
 
