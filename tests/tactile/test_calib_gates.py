@@ -65,7 +65,7 @@ def test_cross_validated_gate_without_holdout_is_not_written(shared_data, tmp_pa
     same for the MLPs.)"""
     import vtrack.tactile.calibrate_set as cs
 
-    root = _subset(shared_data / "gelsight_ball_presses", tmp_path / "p", 9, labels=True)
+    root = _subset(shared_data / "gelsight_ball_presses", tmp_path / "p", 6, labels=True)  # 2 per fold
     rows = list(csv.reader(open(root / "labels.csv")))
     perm = np.random.default_rng(0).permutation(len(rows) - 1)
     with open(root / "labels.csv", "w", newline="") as fh:  # shuffled and mirrored circles
