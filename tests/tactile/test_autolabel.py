@@ -75,6 +75,33 @@ def test_two_contacts_no_contact_blank_saturated_and_too_large_are_dropped():
     assert "larger than the ball" in detect_contact(img, bg, 0.6 * a_px).reason
 
 
+def test_one_press_split_into_two_lobes_is_one_contact():
+    """A DIGIT press near the border: its lit and shadowed sides are two separate blobs at 0.3 of the peak
+    change (areas 1431 and 783 px). They were called "more than one contact", which dropped 3 of 40 presses of
+    a simulated DIGIT set; they are one contact, found within 1 px, while two presses 7 radii apart stay
+    refused (test above)."""
+    import cv2
+
+    from vtrack.sim.presses import ball_height, press_depth_mm
+    from vtrack.sim.tactile_optics import OpticalModel
+    from vtrack.tactile.autolabel import change_magnitude
+    from vtrack.tactile.sensors import default_background
+
+    model, s, R = OpticalModel.for_sensor("digit", 3), 0.09, 3.0
+    bg = default_background("digit", 240, 320)
+    rng = np.random.default_rng(0)
+    back = model.render(np.zeros((320, 240), np.float32), s, bg, rng)
+    c, a = (31.0, 266.26), 27.0
+    img = model.render(ball_height((320, 240), c, R, press_depth_mm(R, a * s), s), s, bg, rng)
+    mag, _ = change_magnitude(img, back, R / s / 60.0)
+    n, _, st, _ = cv2.connectedComponentsWithStats((mag > 0.3 * np.percentile(mag, 99.9)).astype(np.uint8))
+    big = sorted(st[1:, cv2.CC_STAT_AREA])[::-1]
+    assert len(big) >= 2 and big[1] > 0.35 * big[0]  # the precondition: two large lobes
+    d = detect_contact(img, back, R / s)
+    assert d.ok, d.reason
+    assert np.hypot(d.center_x_px - c[0], d.center_y_px - c[1]) < 1.5 and abs(d.contact_radius_px / a - 1) < 0.05
+
+
 def test_auto_labels_agree_with_hand_labels_on_shared_gelsight(shared_data):
     """Measured: 48/48 used; centre median 2.0 px (hand labels are integers); radius median +5 %."""
     ps = load_press_set(shared_data / "gelsight_ball_presses", labels="hand")

@@ -6,8 +6,9 @@ itself, the way a person would click it:
 
 1. colour change against the background, corrected for the global drift of the frame
    (:func:`vtrack.tactile.calibration.drift_offset`), summed over channels and slightly blurred;
-2. a rough blob: the largest connected region above ``blob_frac`` of the change's peak (its centroid and
-   area-radius seed the next step);
+2. a rough blob: the largest connected region above ``blob_frac`` of the change's peak, joined by the large
+   regions within twice their joint area-radius (lobes of the same press; farther ones are a second
+   contact); its centroid and area-radius seed the next step;
 3. the edge: along rays from the centre, the radius where the change FALLS fastest (the ball's rim: inside it
    the gel follows the steep sphere, outside it relaxes to flat); rays that leave the image are skipped,
    so presses cut by the image border still get a circle from their visible arc;
@@ -91,6 +92,13 @@ def _robust_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, f
     return cx, cy, r, float(np.sqrt(np.mean(res * res))), keep
 
 
+def _blank_reason(img: np.ndarray) -> str:
+    """Why a constant frame is unusable, naming an all-white (over-exposed) or all-black (dark) one."""
+    m = float(np.mean(img))
+    what = ": saturated / over-exposed" if m >= 250 else ": black frame / no light" if m <= 5 else ""
+    return f"blank image (constant colour {m:.0f}{what})"
+
+
 def change_magnitude(image: np.ndarray, background: np.ndarray, blur_px: float) -> tuple[np.ndarray, float]:
     """Drift-corrected total colour change |image - background| (grey levels, (H, W) float32), blurred with a
     Gaussian of ``blur_px``, and the frame's noise level (grey levels, see ``drift_offset``)."""
@@ -124,7 +132,7 @@ def detect_contact(
     det = Detection(file)
     img = np.asarray(image)
     if float(img.std()) < 2.0:
-        det.reason = "blank image (constant colour)"
+        det.reason = _blank_reason(img)
         return det
     bg = np.asarray(background)
     sat = float(((img == 0) | (img == 255)).any(axis=2).mean() - ((bg == 0) | (bg == 255)).any(axis=2).mean())
@@ -143,14 +151,25 @@ def detect_contact(
     if n < 2:
         det.reason = "no contact region"
         return det
-    areas = st[1:, cv2.CC_STAT_AREA]
+    areas = st[1:, cv2.CC_STAT_AREA].astype(np.float64)
     order = np.argsort(areas)[::-1]
-    k = 1 + int(order[0])
-    if len(order) > 1 and areas[order[1]] > o.second_blob_frac * areas[order[0]] and areas[order[1]] > 30:
-        det.reason = "more than one contact"
-        return det
-    cx, cy = (float(v) for v in cen[k])
-    r = float(np.sqrt(areas[order[0]] / np.pi))
+    k = int(order[0])
+    # One press can split into lobes: with LEDs at a low elevation (DIGIT) the lit and the shadowed side of
+    # the dent change strongly and its flat middle little, so at blob_frac of the peak the two sides are
+    # separate blobs about one contact radius apart. A large blob counts as a second contact only when it
+    # lies farther from the main one than twice the radius of their joint area (two presses of the same
+    # ball are at least two contact radii apart); nearer ones are lobes of this press (a merged pair of
+    # touching contacts is then refused by the roundness check below).
+    A, c = areas[k], cen[1 + k] * areas[k]
+    for j in order[1:]:
+        if areas[j] <= o.second_blob_frac * areas[k] or areas[j] <= 30:
+            break
+        if np.hypot(*(cen[1 + j] - cen[1 + k])) > 2.0 * np.sqrt((areas[k] + areas[j]) / np.pi):
+            det.reason = "more than one contact"
+            return det
+        A, c = A + areas[j], c + cen[1 + j] * areas[j]
+    cx, cy = (float(v) for v in c / A)
+    r = float(np.sqrt(A / np.pi))
     th = np.linspace(0.0, 2.0 * np.pi, o.n_rays, endpoint=False)
     cos, sin = np.cos(th)[:, None], np.sin(th)[:, None]
     idx = np.arange(o.n_rays)
@@ -241,7 +260,7 @@ def auto_label(
             raw = cv2.imread(str(root / f), cv2.IMREAD_UNCHANGED)
             # an all-black/white frame is refused by read_bgr as colourless; name the real problem
             blank = raw is not None and float(raw.std()) < 2.0
-            out.append(Detection(f, reason="blank image (constant colour)" if blank else f"unreadable ({e})"))
+            out.append(Detection(f, reason=_blank_reason(raw) if blank else f"unreadable ({e})"))
             continue
         if img.shape != bg.shape:
             out.append(Detection(f, reason=f"size {img.shape[1]}x{img.shape[0]} differs from the background"))
