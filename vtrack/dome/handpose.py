@@ -486,6 +486,7 @@ def evaluate_handpose(path: Path | None = None, n_test: int = TEST_N, seed: int 
     te = make_handpose_dataset(n_test, seed)
     res: dict = {}
     touching = touching_joints(te["grasp"])
+    unobs = unobservable_joints(te["grasp"])
     for m in MODALITIES:
         if m not in models:
             continue
@@ -494,7 +495,8 @@ def evaluate_handpose(path: Path | None = None, n_test: int = TEST_N, seed: int 
         ms = (time.perf_counter() - t0) * 1e3 / len(pred)
         res[m] = {**pose_metrics(pred, te["angles_deg"]), "ms_per_frame_batched": ms}
         e = np.abs(pred - te["angles_deg"])
-        for part, sel in (("touching", touching), ("lifted", ~touching)):
+        parts = (("touching", touching), ("lifted", ~touching), ("observable", ~unobs), ("unobservable", unobs))
+        for part, sel in parts:
             res[m][f"{part}_mae_deg"] = float(e[sel].mean())
             res[m][f"{part}_acc5"] = float((e[sel] <= 5.0).mean() * 100)
     res["information_bound"] = information_bound(te["angles_deg"], te["grasp"])
