@@ -182,3 +182,22 @@ def test_fused_dual_net_starts_at_the_better_branch_per_joint(sim, samples) -> N
     assert set(summ["gate_start_rgb_joints"]) == {
         j for j, r, i in zip(JOINTS, e["rgb"], e["ir"], strict=True) if r <= i
     }
+
+
+def test_unobservable_joints_and_information_bound(samples) -> None:
+    from vtrack.dome.handpose import information_bound, unobservable_joints
+
+    grasps = np.array(["power", "tripod", "pinch", "hook"])
+    un = unobservable_joints(grasps)
+    assert un.sum(1).tolist() == [0, 2, 3, 2]  # power: none; tripod: ring/little PIP; pinch: +middle; hook: thumb
+    assert un[3, JOINTS.index("thumb_ip")] and not un[3, JOINTS.index("thumb_cmc")]
+    q = np.stack([s["angles_deg"] for s in samples]).astype(np.float64)
+    g = np.array([s["grasp"] for s in samples])
+    mask = unobservable_joints(g)
+    nominal = HandModel().nominal()
+    # the lifted distal joints lie within +-10 deg of the prior centre (nominal - 25: +-5 variation, 20-30 lift)
+    assert np.all(np.abs(q - (nominal - 25.0))[mask] <= 10.0 + 1e-4)
+    b = information_bound(q, g)
+    want = np.abs(q - (nominal - 25.0))[mask].sum() / q.size
+    assert b["mae_deg"] == pytest.approx(want) and b["unobservable_joint_frac"] == pytest.approx(mask.mean())
+    assert b["acc5"] >= 100 * (1 - mask.mean()) - 1e-9
