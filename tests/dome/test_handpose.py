@@ -201,3 +201,16 @@ def test_unobservable_joints_and_information_bound(samples) -> None:
     want = np.abs(q - (nominal - 25.0))[mask].sum() / q.size
     assert b["mae_deg"] == pytest.approx(want) and b["unobservable_joint_frac"] == pytest.approx(mask.mean())
     assert b["acc5"] >= 100 * (1 - mask.mean()) - 1e-9
+
+
+def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    from vtrack.errors import InputError
+
+    base = ["dome", "handpose", "train", "--out", str(tmp_path / "w.pt")]
+    for extra, field in ((["--ir-encoder", "graph"], "--ir-encoder"), (["--modalities", "rgb,depth"], "--modalities")):
+        r = CliRunner().invoke(app, [*base, *extra])
+        assert isinstance(r.exception, InputError) and r.exception.field == field
+    assert not (tmp_path / "w.pt").exists()
