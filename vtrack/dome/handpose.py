@@ -60,6 +60,8 @@ class HandPoseTrainConfig:
     feat: int = 128
     #: base width of the RGB image encoder (channels width, 2x, 4x, 8x)
     width: int = 16
+    #: base width of the IR image encoder (``ir_encoder="cnn"``; the 128 px frame costs 4x the 64 px RGB one)
+    ir_width: int = 8
     #: IR encoder: ``markers`` (marker-centred patches of the frame and its difference to the reference, per
     #: marker features in the reference's fixed marker order) or ``cnn`` (the image encoder on the IR frame)
     ir_encoder: str = "markers"
@@ -309,7 +311,7 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
     mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
     centers = ir_reference_centers(data["ir_reference"]) if modality == "ir" and tc.ir_encoder == "markers" else None
-    model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half)
+    model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half, tc.ir_width)
     val_in = model_inputs(modality, data, val_idx)
 
     def loss_on(pos: np.ndarray) -> torch.Tensor:
