@@ -137,3 +137,80 @@ def test_handpose_cli_predict_and_refusal(tmp_path, sim, samples) -> None:
     from vtrack.errors import InputError
 
     assert isinstance(r.exception, InputError) and "markers" in str(r.exception) and "angles_deg" not in r.output
+
+
+def test_marker_patch_encoder_reads_the_pins_at_their_rest_centres(sim) -> None:
+    from vtrack.dome.handpose import MarkerPatchEncoder, ir_reference_centers, prep_ir
+
+    ref = sim.ir_reference()
+    c = ir_reference_centers(ref)
+    assert 300 <= len(c) <= 331  # the pipeline's extractor on the no-contact frame (331 pins, rim ones may drop)
+    enc = MarkerPatchEncoder(c, HAND_DOME.image_size, feat=16, half=3)
+    x = torch.from_numpy(prep_ir(ref[None], ref))
+    g = x.reshape(1, 2, -1)[:, :, enc.idx]  # (1, 2, M, 49): the patches the encoder reads
+    # the centre pixel of every patch is a bright pin of the reference, and the difference channel is 0 there
+    centre = g[0, 0, :, g.shape[-1] // 2]
+    assert float(centre.mean()) > float(x[0, 0].mean()) + 0.2
+    assert float(g[0, 1].abs().max()) < 1e-6
+    assert enc(x).shape == (1, 16)
+
+
+def test_fused_dual_net_starts_at_the_better_branch_per_joint(sim, samples) -> None:
+    from vtrack.dome.handpose import HandPoseNet, HandPoseTrainConfig, fuse_dual, predict_deg, split_train_val
+
+    torch.manual_seed(0)
+    data = {
+        "rgb": np.stack([s["rgb"] for s in samples]),
+        "ir": np.stack([s["ir"] for s in samples]),
+        "ir_reference": sim.ir_reference(),
+        "angles_deg": np.stack([s["angles_deg"] for s in samples]),
+    }
+    gt = data["angles_deg"].astype(np.float64)
+    mean, std = gt.mean(0), gt.std(0) + 1.0
+    rgb = HandPoseNet("rgb", mean, std, feat=16, width=4).eval()
+    ir = HandPoseNet("ir", mean, std, feat=16, width=4).eval()
+    with torch.no_grad():  # make the IR branch the better one on the thumb joints, the RGB one elsewhere
+        ir.heads["ir"][-1].bias[:4] = torch.as_tensor((gt[:, :4].mean(0) - mean[:4]) / std[:4], dtype=torch.float32)
+    tc = HandPoseTrainConfig(fusion_steps=1, eval_every=1, batch=4, lr=1e-9)
+    dual, summ = fuse_dual(rgb, ir, data, tc, log=lambda *_: None)
+    _, val = split_train_val(len(gt), tc)
+    sub = {k: (v[val] if k != "ir_reference" else v) for k, v in data.items()}
+    e = {m: np.abs(predict_deg(n, sub) - gt[val]).mean(0) for m, n in (("rgb", rgb), ("ir", ir), ("dual", dual))}
+    better = np.minimum(e["rgb"], e["ir"])
+    # gate at sigmoid(+-4): within 2 % of the spread between the branches of the better one, joint by joint
+    assert np.all(e["dual"] <= better + 0.02 * np.abs(e["rgb"] - e["ir"]) + 1e-3)
+    assert set(summ["gate_start_rgb_joints"]) == {
+        j for j, r, i in zip(JOINTS, e["rgb"], e["ir"], strict=True) if r <= i
+    }
+
+
+def test_unobservable_joints_and_information_bound(samples) -> None:
+    from vtrack.dome.handpose import information_bound, unobservable_joints
+
+    grasps = np.array(["power", "tripod", "pinch", "hook"])
+    un = unobservable_joints(grasps)
+    assert un.sum(1).tolist() == [0, 2, 3, 2]  # power: none; tripod: ring/little PIP; pinch: +middle; hook: thumb
+    assert un[3, JOINTS.index("thumb_ip")] and not un[3, JOINTS.index("thumb_cmc")]
+    q = np.stack([s["angles_deg"] for s in samples]).astype(np.float64)
+    g = np.array([s["grasp"] for s in samples])
+    mask = unobservable_joints(g)
+    nominal = HandModel().nominal()
+    # the lifted distal joints lie within +-10 deg of the prior centre (nominal - 25: +-5 variation, 20-30 lift)
+    assert np.all(np.abs(q - (nominal - 25.0))[mask] <= 10.0 + 1e-4)
+    b = information_bound(q, g)
+    want = np.abs(q - (nominal - 25.0))[mask].sum() / q.size
+    assert b["mae_deg"] == pytest.approx(want) and b["unobservable_joint_frac"] == pytest.approx(mask.mean())
+    assert b["acc5"] >= 100 * (1 - mask.mean()) - 1e-9
+
+
+def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    from vtrack.errors import InputError
+
+    base = ["dome", "handpose", "train", "--out", str(tmp_path / "w.pt")]
+    for extra, field in ((["--ir-encoder", "graph"], "--ir-encoder"), (["--modalities", "rgb,depth"], "--modalities")):
+        r = CliRunner().invoke(app, [*base, *extra])
+        assert isinstance(r.exception, InputError) and r.exception.field == field
+    assert not (tmp_path / "w.pt").exists()

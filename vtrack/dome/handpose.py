@@ -30,9 +30,12 @@ from torch import nn
 from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE
 
 MODALITIES = ("rgb", "ir", "dual")
-HANDPOSE_VERSION = 1
+HANDPOSE_VERSION = 2
 #: held-out test set (grasps, seed) used by ``vtrack dome handpose eval`` and ``vtrack dome eval``
 TEST_N, TEST_SEED = 500, 4242
+#: training grasps are simulated in cached chunks of this many, chunk k with seed ``seed + k`` (a larger
+#: training set reuses the simulations of a smaller one)
+CHUNK = 3000
 #: gate: an IR frame must correlate this much with the sensor's reference frame (markers where they should be)
 IR_MIN_CORR = 0.5
 #: gate: predicted angles further than this (deg) outside the training range are flagged
@@ -41,17 +44,31 @@ ANGLE_MARGIN_DEG = 10.0
 
 @dataclass
 class HandPoseTrainConfig:
-    n_train: int = 3000
+    """Training recipe. Budgets are optimizer steps (not wall time), the same for every run of a setting."""
+
+    n_train: int = 9000
     seed: int = 0
-    epochs: int = 30
+    #: optimizer steps of each single-modality net (one-cycle schedule)
+    steps: int = 4000
+    #: optimizer steps of the dual net's fusion head (the encoders and branch heads are frozen)
+    fusion_steps: int = 3000
     batch: int = 64
     lr: float = 2e-3
     lambda_mae: float = 1.0
     lambda_rmse: float = 1.0
     val_frac: float = 0.1
     feat: int = 128
-    #: dual net: per-sample probability of dropping each modality's features in training (0 = off)
-    modality_dropout: float = 0.0
+    #: base width of the RGB image encoder (channels width, 2x, 4x, 8x)
+    width: int = 16
+    #: base width of the IR image encoder (``ir_encoder="cnn"``; the 128 px frame costs 4x the 64 px RGB one)
+    ir_width: int = 8
+    #: IR encoder: ``markers`` (marker-centred patches of the frame and its difference to the reference, per
+    #: marker features in the reference's fixed marker order) or ``cnn`` (the image encoder on the IR frame)
+    ir_encoder: str = "markers"
+    #: half side (px) of the marker-centred IR patches (the rest-marker spacing is ~5.4 px)
+    patch_half: int = 3
+    #: validate (and maybe checkpoint) every this many steps
+    eval_every: int = 250
 
 
 def weights_path() -> Path:
@@ -59,23 +76,24 @@ def weights_path() -> Path:
 
 
 class ImageEncoder(nn.Module):
-    """Four stride-2 conv blocks (8-16-32-64 channels: sized for a 15-minute CPU training), 4 x 4 average
-    pooling (keeps where on the dome things are), linear."""
+    """Four stride-2 conv blocks (``width``, 2x, 4x, 8x channels), 4 x 4 average pooling (keeps where on the
+    dome things are), linear."""
 
-    def __init__(self, in_ch: int, feat: int = 128) -> None:
+    def __init__(self, in_ch: int, feat: int = 128, width: int = 8) -> None:
         super().__init__()
 
         def block(i: int, o: int, k: int = 3) -> list[nn.Module]:
             return [nn.Conv2d(i, o, k, 2, k // 2, bias=False), nn.BatchNorm2d(o), nn.ReLU()]
 
+        w = width
         self.net = nn.Sequential(
-            *block(in_ch, 8, 5),
-            *block(8, 16),
-            *block(16, 32),
-            *block(32, 64),
+            *block(in_ch, w, 5),
+            *block(w, 2 * w),
+            *block(2 * w, 4 * w),
+            *block(4 * w, 8 * w),
             nn.AdaptiveAvgPool2d(4),
             nn.Flatten(),
-            nn.Linear(64 * 16, feat),
+            nn.Linear(8 * w * 16, feat),
             nn.ReLU(),
         )
 
@@ -83,37 +101,103 @@ class ImageEncoder(nn.Module):
         return self.net(x)
 
 
+class MarkerPatchEncoder(nn.Module):
+    """IR encoder on the marker field: one (2 h + 1)^2 patch of the gain-matched frame and of its difference to
+    the reference around every rest marker of the reference frame (px centres, fixed order), a per-marker MLP
+    shared by all markers (-> ``node`` features: how that pin moved / dimmed), and an MLP over the
+    concatenation in marker order (the order carries where on the dome each pin sits).
+
+    Why: the contacts move pins by a pixel or two; a strided CNN on the whole 128 px frame spends its first
+    layers finding the pins, while here each pin's neighbourhood is read at full resolution."""
+
+    def __init__(self, centers: np.ndarray, image_size: int, feat: int = 128, half: int = 3, node: int = 4) -> None:
+        super().__init__()
+        c = np.asarray(centers, np.float32).reshape(-1, 2)
+        self.register_buffer("centers", torch.from_numpy(c))
+        self.half, self.size, self.node = int(half), int(image_size), int(node)
+        d = np.arange(-self.half, self.half + 1)
+        cx = np.clip(np.rint(c[:, 0]).astype(np.int64)[:, None, None] + d[None, None, :], 0, self.size - 1)
+        cy = np.clip(np.rint(c[:, 1]).astype(np.int64)[:, None, None] + d[None, :, None], 0, self.size - 1)
+        self.register_buffer("idx", torch.from_numpy((cy * self.size + cx).reshape(len(c), -1)), persistent=False)
+        P = (2 * self.half + 1) ** 2
+        self.local = nn.Sequential(nn.Linear(2 * P, 32), nn.ReLU(), nn.Linear(32, node), nn.ReLU())
+        # small on purpose (a 331 x 8 -> 256 layer overfitted 3000 grasps within 750 steps)
+        self.glob = nn.Sequential(
+            nn.Dropout(0.1), nn.Linear(len(c) * node, 128), nn.ReLU(), nn.Linear(128, feat), nn.ReLU()
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        B, C = x.shape[:2]
+        g = x.reshape(B, C, -1)[:, :, self.idx]  # (B, C, M, P)
+        g = g.permute(0, 2, 1, 3).reshape(B, self.idx.shape[0], -1)
+        return self.glob(self.local(g).reshape(B, -1))
+
+
+def _head(feat: int) -> nn.Module:
+    return nn.Sequential(nn.Linear(feat, 128), nn.ReLU(), nn.Linear(128, len(JOINTS)))
+
+
 class HandPoseNet(nn.Module):
-    """Single- (``rgb`` | ``ir``) or dual-modality (late fusion) regressor of the 12 joint angles.
+    """Single- (``rgb`` | ``ir``) or dual-modality regressor of the 12 joint angles.
+
+    Dual (late fusion of features *and* predictions): both branches keep their own encoder and head (those of
+    the trained single-modality nets); a fusion head reads the concatenated features and outputs a per-joint
+    gate ``w`` and a residual ``r``: ``w * y_rgb + (1 - w) * y_ir + r``. The gate starts at the branch that is
+    better on the validation grasps for that joint and ``r`` at 0, so the fused net starts at least as good as
+    the better branch per joint, and training (with best-validation checkpointing, the start included) can
+    only keep or improve that.
 
     ``forward`` returns standardised angles; :meth:`degrees` maps them to degrees with the training mean/std."""
 
-    def __init__(self, modality: str, mean: np.ndarray, std: np.ndarray, feat: int = 128) -> None:
+    def __init__(
+        self,
+        modality: str,
+        mean: np.ndarray,
+        std: np.ndarray,
+        feat: int = 128,
+        width: int = 16,
+        ir_centers: np.ndarray | None = None,
+        patch_half: int = 3,
+        ir_width: int | None = None,
+    ) -> None:
         super().__init__()
         if modality not in MODALITIES:
             raise ValueError(f"modality must be one of {MODALITIES}, got {modality}")
         self.modality = modality
         self.enc = nn.ModuleDict()
         if modality in ("rgb", "dual"):
-            self.enc["rgb"] = ImageEncoder(3, feat)
+            self.enc["rgb"] = ImageEncoder(3, feat, width)
         if modality in ("ir", "dual"):
-            self.enc["ir"] = ImageEncoder(2, feat)
-        self.head = nn.Sequential(nn.Linear(feat * len(self.enc), 128), nn.ReLU(), nn.Linear(128, len(JOINTS)))
+            self.enc["ir"] = (
+                ImageEncoder(2, feat, ir_width or width)
+                if ir_centers is None
+                else MarkerPatchEncoder(ir_centers, HAND_DOME.image_size, feat, patch_half)
+            )
+        self.heads = nn.ModuleDict({k: _head(feat) for k in self.enc})
+        if modality == "dual":
+            self.gate = nn.Linear(2 * feat, len(JOINTS))
+            self.resid = nn.Sequential(
+                nn.Dropout(0.1), nn.Linear(2 * feat, 128), nn.ReLU(), nn.Linear(128, len(JOINTS))
+            )
+            nn.init.zeros_(self.gate.weight)
+            nn.init.zeros_(self.resid[-1].weight)
+            nn.init.zeros_(self.resid[-1].bias)
         self.register_buffer("mean", torch.as_tensor(np.asarray(mean, np.float32)))
         self.register_buffer("std", torch.as_tensor(np.asarray(std, np.float32)))
 
-    #: training only, dual net: probability of zeroing one modality's features per sample ("modality
-    #: dropout"), so the shared head cannot lean on the IR features for digits the IR camera does not see
-    modality_dropout: float = 0.0
+    def features(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return {k: e(inputs[k]) for k, e in self.enc.items()}
+
+    def fuse(self, feats: dict[str, torch.Tensor]) -> torch.Tensor:
+        y = {k: self.heads[k](f) for k, f in feats.items()}
+        if self.modality != "dual":
+            return y[self.modality]
+        f = torch.cat([feats["rgb"], feats["ir"]], 1)
+        w = torch.sigmoid(self.gate(f))
+        return w * y["rgb"] + (1.0 - w) * y["ir"] + self.resid(f)
 
     def forward(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
-        feats = [e(inputs[k]) for k, e in self.enc.items()]
-        if self.training and len(feats) == 2 and self.modality_dropout > 0:
-            B = feats[0].shape[0]
-            r = torch.rand(B, 1)
-            feats[0] = feats[0] * (r >= self.modality_dropout).float()  # drop RGB
-            feats[1] = feats[1] * ((r < self.modality_dropout) | (r >= 2 * self.modality_dropout)).float()  # IR
-        return self.head(torch.cat(feats, 1))
+        return self.fuse(self.features(inputs))
 
     def degrees(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         return self.mean + self.std * self(inputs)
@@ -171,51 +255,125 @@ def predict_deg(model: HandPoseNet, data: dict, batch: int = 128) -> np.ndarray:
     return np.concatenate(outs).astype(np.float64)
 
 
-def train_handpose(
-    modality: str, data: dict, tc: HandPoseTrainConfig, log=print, init: dict[str, HandPoseNet] | None = None
-) -> tuple[HandPoseNet, dict]:
-    """Train one setting; returns the best-validation model and a training summary. ``init``: trained
-    single-modality nets whose encoders start the dual net's encoders (then everything is trained)."""
-    torch.manual_seed(tc.seed)
-    rng = np.random.default_rng(tc.seed)
-    n = len(data["angles_deg"])
-    perm = rng.permutation(n)
+def split_train_val(n: int, tc: HandPoseTrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(train, val) indices: a fixed ``val_frac`` of the grasps (same split for every setting of a run)."""
+    perm = np.random.default_rng(tc.seed).permutation(n)
     n_val = max(8, int(round(tc.val_frac * n)))
-    val_idx, tr_idx = np.sort(perm[:n_val]), perm[n_val:]
-    y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
-    mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
-    model = HandPoseNet(modality, mean, std, tc.feat)
-    model.modality_dropout = tc.modality_dropout if modality == "dual" else 0.0
-    for k, enc in model.enc.items():
-        if init and k in init and k in init[k].enc:
-            enc.load_state_dict(init[k].enc[k].state_dict())
-    opt = torch.optim.AdamW(model.parameters(), lr=tc.lr, weight_decay=1e-4)
-    steps = tc.epochs * int(np.ceil(len(tr_idx) / tc.batch))
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=steps, pct_start=0.15)
-    val_in = model_inputs(modality, data, val_idx)
-    best, best_state, best_epoch = np.inf, None, -1
+    return perm[n_val:], np.sort(perm[:n_val])
+
+
+def _fit(model: nn.Module, params, loss_on, val_loss, n_steps: int, n_train: int, tc, log, tag: str) -> dict:
+    """Fixed-budget AdamW + one-cycle loop: ``loss_on(idx)`` is the training loss of a batch of training
+    positions, ``val_loss()`` the validation loss; keeps the best-validation state (the start included)."""
+    rng = np.random.default_rng(tc.seed + 1)
+    opt = torch.optim.AdamW(params, lr=tc.lr, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=n_steps, pct_start=0.15)
+    model.eval()
+    best, best_state, best_step = val_loss(), copy.deepcopy(model.state_dict()), 0
+    log(f"[handpose {tag}] step 0 val loss {best:.3f} deg")
     t0 = time.time()
-    for ep in range(tc.epochs):
+    order, pos = rng.permutation(n_train), 0
+    for step in range(1, n_steps + 1):
+        if pos + tc.batch > n_train:
+            order, pos = rng.permutation(n_train), 0
+        idx = np.sort(order[pos : pos + tc.batch])
+        pos += tc.batch
         model.train()
-        order = rng.permutation(tr_idx)
-        for i in range(0, len(order), tc.batch):
-            idx = np.sort(order[i : i + tc.batch])
-            if len(idx) < 2:
-                continue
-            loss = pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-        model.eval()
-        with torch.no_grad():
-            vl = float(pose_loss(model.degrees(val_in), y[val_idx], tc.lambda_mae, tc.lambda_rmse))
-        if vl < best:
-            best, best_state, best_epoch = vl, copy.deepcopy(model.state_dict()), ep
-        log(f"[handpose {modality}] epoch {ep + 1}/{tc.epochs} val loss {vl:.3f} deg ({time.time() - t0:.0f} s)")
+        loss = loss_on(idx)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        if step % tc.eval_every == 0 or step == n_steps:
+            model.eval()
+            vl = val_loss()
+            if vl < best:
+                best, best_state, best_step = vl, copy.deepcopy(model.state_dict()), step
+            log(f"[handpose {tag}] step {step}/{n_steps} val loss {vl:.3f} deg ({time.time() - t0:.0f} s)")
     model.load_state_dict(best_state)
     model.eval()
-    return model, {"val_loss_deg": best, "best_epoch": best_epoch + 1, "train_s": time.time() - t0}
+    return {"val_loss_deg": float(best), "best_step": best_step, "steps": n_steps, "train_s": time.time() - t0}
+
+
+def ir_reference_centers(ref: np.ndarray) -> np.ndarray:
+    """Rest-marker centres (px) of the IR reference frame (the pipeline's marker extractor, no simulator state)."""
+    from vtrack.dome.markers import extract_markers
+
+    return extract_markers(np.asarray(ref, np.uint8)).centers
+
+
+def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print) -> tuple[HandPoseNet, dict]:
+    """Train one single-modality setting (``rgb`` | ``ir``) for ``tc.steps``; best-validation model + summary."""
+    if modality not in ("rgb", "ir"):
+        raise ValueError("train_handpose trains the single-modality nets; the dual net is fuse_dual")
+    torch.manual_seed(tc.seed)
+    tr_idx, val_idx = split_train_val(len(data["angles_deg"]), tc)
+    y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
+    mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
+    centers = ir_reference_centers(data["ir_reference"]) if modality == "ir" and tc.ir_encoder == "markers" else None
+    model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half, tc.ir_width)
+    val_in = model_inputs(modality, data, val_idx)
+
+    def loss_on(pos: np.ndarray) -> torch.Tensor:
+        idx = np.sort(tr_idx[pos])
+        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse)
+
+    @torch.no_grad()
+    def val_loss() -> float:
+        return float(pose_loss(model.degrees(val_in), y[val_idx], tc.lambda_mae, tc.lambda_rmse))
+
+    summ = _fit(model, model.parameters(), loss_on, val_loss, tc.steps, len(tr_idx), tc, log, modality)
+    return model, summ
+
+
+@torch.no_grad()
+def _features(model: HandPoseNet, data: dict, idx: np.ndarray, batch: int = 256) -> dict[str, torch.Tensor]:
+    model.eval()
+    parts = [model.features(model_inputs("dual", data, idx[i : i + batch])) for i in range(0, len(idx), batch)]
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+
+
+def fuse_dual(
+    rgb: HandPoseNet, ir: HandPoseNet, data: dict, tc: HandPoseTrainConfig, log=print
+) -> tuple[HandPoseNet, dict]:
+    """The dual net from two trained single-modality nets: their encoders and heads are copied and frozen, the
+    fusion head (gate + residual, :class:`HandPoseNet`) is trained for ``tc.fusion_steps`` on the cached
+    branch features with the same loss, split and best-validation checkpointing."""
+    torch.manual_seed(tc.seed)
+    tr_idx, val_idx = split_train_val(len(data["angles_deg"]), tc)
+    if not torch.equal(rgb.mean, ir.mean) or not torch.equal(rgb.std, ir.std):
+        raise ValueError("the two branches were trained on different splits (mean/std differ)")
+    centers = ir.enc["ir"].centers.numpy() if isinstance(ir.enc["ir"], MarkerPatchEncoder) else None
+    half = ir.enc["ir"].half if centers is not None else tc.patch_half
+    width = rgb.enc["rgb"].net[0].out_channels
+    ir_width = None if centers is not None else ir.enc["ir"].net[0].out_channels
+    feat = rgb.heads["rgb"][0].in_features
+    model = HandPoseNet("dual", rgb.mean.numpy(), rgb.std.numpy(), feat, width, centers, half, ir_width)
+    for k, src in (("rgb", rgb), ("ir", ir)):
+        model.enc[k].load_state_dict(src.enc[k].state_dict())
+        model.heads[k].load_state_dict(src.heads[k].state_dict())
+    for p in [*model.enc.parameters(), *model.heads.parameters()]:
+        p.requires_grad_(False)
+    y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
+    f_tr, f_val = _features(model, data, tr_idx), _features(model, data, val_idx)
+    # gate start: per joint, the branch with the lower validation MAE (sigmoid(+-4) = 0.98 / 0.02)
+    with torch.no_grad():
+        e = {k: (model.mean + model.std * model.heads[k](f_val[k]) - y[val_idx]).abs().mean(0) for k in ("rgb", "ir")}
+        model.gate.bias.copy_(torch.where(e["rgb"] <= e["ir"], 4.0, -4.0))
+
+    def loss_on(pos: np.ndarray) -> torch.Tensor:
+        pred = model.mean + model.std * model.fuse({k: v[pos] for k, v in f_tr.items()})
+        return pose_loss(pred, y[tr_idx[pos]], tc.lambda_mae, tc.lambda_rmse)
+
+    @torch.no_grad()
+    def val_loss() -> float:
+        pred = model.mean + model.std * model.fuse(f_val)
+        return float(pose_loss(pred, y[val_idx], tc.lambda_mae, tc.lambda_rmse))
+
+    params = [*model.gate.parameters(), *model.resid.parameters()]
+    summ = _fit(model, params, loss_on, val_loss, tc.fusion_steps, len(tr_idx), tc, log, "dual")
+    summ["gate_start_rgb_joints"] = [j for j, v in zip(JOINTS, (e["rgb"] <= e["ir"]).tolist(), strict=True) if v]
+    return model, summ
 
 
 def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainConfig, info: dict) -> None:
@@ -229,7 +387,7 @@ def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainCon
         "info": info,
         "models": {
             m: {
-                k: v.half() if v.is_floating_point() and k not in ("mean", "std") else v
+                k: v.half() if v.is_floating_point() and k not in ("mean", "std") and not k.endswith("centers") else v
                 for k, v in net.state_dict().items()
             }
             for m, net in models.items()
@@ -256,9 +414,19 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
     if not isinstance(blob, dict) or blob.get("version") != HANDPOSE_VERSION or "models" not in blob:
         raise InputError("not a hand-pose weights file", path=path, expected=f"version {HANDPOSE_VERSION}")
     models = {}
-    feat = int(blob["train"].get("feat", 128))
     for m, sd in blob["models"].items():
-        net = HandPoseNet(m, sd["mean"].numpy(), sd["std"].numpy(), feat)
+        centers = sd.get("enc.ir.centers")
+        widths = {k: int(sd[f"enc.{k}.net.0.weight"].shape[0]) for k in ("rgb", "ir") if f"enc.{k}.net.0.weight" in sd}
+        net = HandPoseNet(
+            m,
+            sd["mean"].numpy(),
+            sd["std"].numpy(),
+            int(sd[f"heads.{next(iter(['rgb', 'ir'] if m == 'dual' else [m]))}.0.weight"].shape[1]),
+            widths.get("rgb", widths.get("ir", 16)),
+            None if centers is None else centers.float().numpy(),
+            int(round((np.sqrt(sd["enc.ir.local.0.weight"].shape[1] / 2) - 1) / 2)) if centers is not None else 3,
+            widths.get("ir"),
+        )
         net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
         net.eval()
         models[m] = net
@@ -280,6 +448,72 @@ def touching_joints(grasps: np.ndarray) -> np.ndarray:
     return out
 
 
+def unobservable_joints(grasps: np.ndarray) -> np.ndarray:
+    """(n, 12) bool: distal joints of the lifted digits (finger PIP, thumb MCP and IP). A lifted digit does
+    not touch the shell, so the IR image shows nothing of it, and its distal segments are 15-30 mm off the
+    shell: a 5 deg change of such a joint moves the simulated RGB image by ~1 grey level (matched-filter SNR
+    0-1.6 against the sensor noise, noise-free renders), against 7-65 for the MCP / CMC joints."""
+    from vtrack.dome.handsim import DIGITS, GRASPS
+
+    out = np.zeros((len(grasps), len(JOINTS)), bool)
+    for i, g in enumerate(np.asarray(grasps).astype(str)):
+        for d in DIGITS:
+            if d.name not in GRASPS[g]:
+                out[i, list(d.joints[1:])] = True
+    return out
+
+
+def rgb_joint_sensitivity(n_grasps: int = 40, step_deg: float = 5.0, seed: int = 7) -> dict:
+    """Evaluation-only: how much the simulated RGB image changes when one joint moves by ``step_deg``.
+
+    Noise-free renders of ``n_grasps`` random grasps, each joint moved in turn. For each joint and contact
+    state (``touch`` / ``lifted``) the median over grasps of the largest pixel change (grey levels) and of the
+    matched-filter SNR ``||diff|| / sigma``, with sigma the simulator's per-pixel noise (0.015 x 255). SNR around
+    1 or below means the change is lost in the noise of one frame."""
+    from vtrack.dome.handsim import DIGITS, GRASPS, HandDomeSimulator
+
+    sim = HandDomeSimulator()
+    rng = np.random.default_rng(seed)
+    rows: dict[tuple[str, str], list] = {}
+    for _ in range(n_grasps):
+        q, yaw, grasp = sim.hand.sample(rng)
+        base = sim.render_rgb(sim.hand.capsules(q, yaw), np.random.default_rng(0), noise=0.0).astype(np.float64)
+        for d in DIGITS:
+            state = "touch" if d.name in GRASPS[grasp] else "lifted"
+            for j in d.joints:
+                qq = q.copy()
+                qq[j] += step_deg
+                img = sim.render_rgb(sim.hand.capsules(qq, yaw), np.random.default_rng(0), noise=0.0)
+                diff = img.astype(np.float64) - base
+                rows.setdefault((JOINTS[j], state), []).append(
+                    (np.abs(diff).max(), np.sqrt((diff**2).sum()) / (0.015 * 255))
+                )
+    return {
+        f"{j}/{st}": {
+            "max_grey": float(np.median([r[0] for r in v])),
+            "snr": float(np.median([r[1] for r in v])),
+            "n": len(v),
+        }
+        for (j, st), v in sorted(rows.items())
+    }
+
+
+def information_bound(angles_deg: np.ndarray, grasps: np.ndarray) -> dict:
+    """Evaluation-only bound (reads the truth): the metrics of an estimator that is exact on every joint
+    except the :func:`unobservable_joints`, where it predicts the centre of their prior (the nominal wrap
+    minus the 25 deg lift: the MAE- and Acc@5-optimal guess when the image carries no information)."""
+    from vtrack.dome.handsim import HandModel
+
+    q = np.asarray(angles_deg, np.float64)
+    un = unobservable_joints(grasps)
+    centre = np.broadcast_to(HandModel().nominal() - 25.0, q.shape)
+    pred = np.where(un, centre, q)
+    return {
+        **{k: v for k, v in pose_metrics(pred, q).items() if k != "per_joint_mae_deg"},
+        "unobservable_joint_frac": float(un.mean()),
+    }
+
+
 def evaluate_handpose(path: Path | None = None, n_test: int = TEST_N, seed: int = TEST_SEED) -> dict:
     """Metrics of every stored setting on held-out simulated grasps (never seen in training: other seed)."""
     from vtrack.dome.handsim import make_handpose_dataset
@@ -289,6 +523,7 @@ def evaluate_handpose(path: Path | None = None, n_test: int = TEST_N, seed: int 
     te = make_handpose_dataset(n_test, seed)
     res: dict = {}
     touching = touching_joints(te["grasp"])
+    unobs = unobservable_joints(te["grasp"])
     for m in MODALITIES:
         if m not in models:
             continue
@@ -297,9 +532,11 @@ def evaluate_handpose(path: Path | None = None, n_test: int = TEST_N, seed: int 
         ms = (time.perf_counter() - t0) * 1e3 / len(pred)
         res[m] = {**pose_metrics(pred, te["angles_deg"]), "ms_per_frame_batched": ms}
         e = np.abs(pred - te["angles_deg"])
-        for part, sel in (("touching", touching), ("lifted", ~touching)):
+        parts = (("touching", touching), ("lifted", ~touching), ("observable", ~unobs), ("unobservable", unobs))
+        for part, sel in parts:
             res[m][f"{part}_mae_deg"] = float(e[sel].mean())
             res[m][f"{part}_acc5"] = float((e[sel] <= 5.0).mean() * 100)
+    res["information_bound"] = information_bound(te["angles_deg"], te["grasp"])
     res["test_set"] = {
         "grasps": int(n_test),
         "seed": int(seed),
@@ -393,6 +630,18 @@ class HandPosePredictor:
         return HandPoseResult(q, modality, not reasons, "; ".join(reasons))
 
 
+def load_train_set(n: int, seed: int, progress: bool = False) -> dict[str, np.ndarray]:
+    """``n`` training grasps from cached chunks of :data:`CHUNK` (chunk k simulated with seed ``seed + k``)."""
+    from vtrack.dome.handsim import make_handpose_dataset
+
+    parts = [
+        make_handpose_dataset(min(CHUNK, n - s), seed + k, progress=progress) for k, s in enumerate(range(0, n, CHUNK))
+    ]
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "ir_reference"}
+    out["ir_reference"] = parts[0]["ir_reference"]
+    return out
+
+
 def train_all(
     tc: HandPoseTrainConfig,
     out: Path | None = None,
@@ -400,11 +649,13 @@ def train_all(
     log=print,
     progress: bool = False,
 ) -> dict:
-    """Simulate (cached), train every setting with the same budget, evaluate on the held-out grasps, save."""
+    """Simulate (cached), train the listed settings with their fixed budgets, evaluate on the held-out grasps,
+    save. The dual net is fused from the single-modality nets of this run (or, when they are not retrained,
+    of the weights file ``out``; they must come from the same training set and split)."""
     from vtrack.dome.handsim import make_handpose_dataset
 
     torch.set_num_threads(1)
-    tr = make_handpose_dataset(tc.n_train, tc.seed, progress=progress)
+    tr = load_train_set(tc.n_train, tc.seed, progress)
     te = make_handpose_dataset(TEST_N, TEST_SEED, progress=progress)
     models, info = {}, {"train": {}, "test": {}}
     path = Path(out) if out else weights_path()
@@ -414,12 +665,15 @@ def train_all(
         info = {**blob.get("info", {}), **info}
         info["train"] = {k: v for k, v in blob.get("info", {}).get("train", {}).items() if k not in modalities}
         info["test"] = {k: v for k, v in blob.get("info", {}).get("test", {}).items() if k not in modalities}
-    for m in modalities:
-        # the dual net's encoders start from the single-modality ones trained in this run (late fusion of
-        # pretrained encoders, then trained end to end with the same loss and budget)
-        init = {k: models[k] for k in ("rgb", "ir") if k in models} if m == "dual" else None
-        net, summ = train_handpose(m, tr, tc, log, init)
-        summ["encoders_from_single"] = sorted(init) if init else []
+    for m in [m for m in MODALITIES if m in modalities]:  # singles first: the dual net is fused from them
+        if m == "dual":
+            from vtrack.errors import InputError
+
+            if not {"rgb", "ir"} <= set(models):
+                raise InputError("the dual net needs trained rgb and ir nets", field="--modalities", got=modalities)
+            net, summ = fuse_dual(models["rgb"], models["ir"], tr, tc, log)
+        else:
+            net, summ = train_handpose(m, tr, tc, log)
         models[m] = net
         info["train"][m] = summ
         info["test"][m] = {

@@ -253,18 +253,19 @@ def register(app: typer.Typer) -> None:
     @handpose_app.command("train")
     def handpose_train(
         out: Path = typer.Option(None, "--out", help="weights file (default: the shipped weights/handpose.pt)"),
-        n_train: int = typer.Option(3000, "--n-train", min=32, help="simulated training grasps"),
-        epochs: int = typer.Option(30, "--epochs", min=1),
+        n_train: int = typer.Option(
+            9000, "--n-train", min=32, help="simulated training grasps (cached chunks of 3000)"
+        ),
+        steps: int = typer.Option(4000, "--steps", min=1, help="optimizer steps per single net"),
+        fusion_steps: int = typer.Option(3000, "--fusion-steps", min=1, help="optimizer steps of the dual fusion head"),
+        ir_encoder: str = typer.Option("markers", "--ir-encoder", help="markers (marker-centred patches) or cnn"),
         modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
         seed: int = typer.Option(0, "--seed"),
-        modality_dropout: float = typer.Option(
-            0.0, "--modality-dropout", min=0.0, max=0.5, help="dual net: per-sample drop probability per modality"
-        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
-        validation checkpoint), report held-out metrics, save all settings in one weights file (settings not
-        listed in --modalities are kept from that file; the dual net starts from the single-modality encoders)."""
+        validation checkpoint, fixed step budgets), report held-out metrics, save all settings in one weights file
+        (settings not listed in --modalities are kept from that file; the dual net fuses the two single nets)."""
         import json
 
         from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, train_all
@@ -274,7 +275,11 @@ def register(app: typer.Typer) -> None:
         bad = [m for m in mods if m not in MODALITIES]
         if bad or not mods:
             raise InputError("unknown modality", field="--modalities", expected="rgb, ir, dual", got=modalities)
-        tc = HandPoseTrainConfig(n_train=n_train, epochs=epochs, seed=seed, modality_dropout=modality_dropout)
+        if ir_encoder not in ("markers", "cnn"):
+            raise InputError("unknown IR encoder", field="--ir-encoder", expected="markers or cnn", got=ir_encoder)
+        tc = HandPoseTrainConfig(
+            n_train=n_train, steps=steps, fusion_steps=fusion_steps, seed=seed, ir_encoder=ir_encoder
+        )
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
         _write_json_out(json_out, info)
