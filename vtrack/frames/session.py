@@ -330,7 +330,8 @@ class SessionFrames:
             T_ws = poses.get(s)
             if T_ws is None or not np.all(np.isfinite(T_ws)):
                 continue
-            c: Contact = self.touch.contact(s, data)  # type: ignore[union-attr]
+            # a Contact already computed (the live pipeline runs the tactile pipeline as the images arrive)
+            c: Contact = data if isinstance(data, Contact) else self.touch.contact(s, data)  # type: ignore[union-attr]
             contacts[s] = c
             if c.in_contact:
                 tp.append(se3.transform_points(T_ws, c.points))
