@@ -15,7 +15,8 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   measured in wall time is inflated).
 
 Variants: ``touch process`` (default: the tactile pipeline on every tactile image as it arrives, in a child
-process), ``touch thread`` (the same in a worker thread sharing the GIL with the tracker) and ``touch in camera
+process; with ``replay reader process`` the replay also decodes the session in a child process),
+``touch thread`` (the same in a worker thread sharing the GIL with the tracker) and ``touch in camera
 step`` (the newest image of each sensor is processed inside the camera step, as offline tracking does; tactile
 images in between are never read).
 
@@ -34,6 +35,7 @@ from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
     "touch process": {"touch_worker": "process"},
+    "touch process, replay reader process": {"touch_worker": "process", "reader": "process"},
     "touch thread": {"touch_worker": "thread"},
     "touch in camera step": {"touch_worker": "off"},
 }
@@ -51,12 +53,15 @@ def _cases(quick: bool) -> list[tuple[str, str, float]]:
     return [("006_mustard_bottle", "none", 2.0)] if quick else list(CASES)
 
 
-def run_live(session, variant: dict, reader: str = "thread") -> dict:
-    """One real-time replay of ``session`` into the ``track`` consumer; the pipeline's result dict."""
+def run_live(session, variant: dict) -> dict:
+    """One real-time replay of ``session`` into the ``track`` consumer (``variant``: its options, plus
+    ``reader`` = the replay's decoder, thread | process); the pipeline's result dict."""
     from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
     from vtrack.live.pipeline import LivePipeline
     from vtrack.live.sources import SessionReplaySource
 
+    variant = dict(variant)
+    reader = variant.pop("reader", "thread")
     cons = [make_consumer("track", session, **variant)]
     src = SessionReplaySource(session, streams=replay_streams(session, cons), fields=replay_fields(cons), reader=reader)
     return LivePipeline(src, cons).run()
