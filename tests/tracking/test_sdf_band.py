@@ -23,6 +23,9 @@ def test_band_holds_every_voxel_within_the_radius_and_is_smaller_than_the_cube()
     assert got.reshape(-1)[need].all()  # superset of the ball
     cube = np.abs(grid[:, None, :] - src[None]).max(-1).min(1) <= 3
     assert got.sum() < cube.sum()  # and cheaper than the half-size-3 cube it replaced
+    full = np.zeros(tuple(shape), bool)
+    full[tuple(band_voxels(src, shape, radius, ball=False).T)] = True
+    assert np.array_equal(full.reshape(-1), cube)  # ball=False: exactly that cube (incremental updates)
     assert len(band_voxels(src[:0], shape, radius)) == 0
 
 

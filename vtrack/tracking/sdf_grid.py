@@ -196,13 +196,14 @@ class SDFGrid:
 
 
 # -- band of a surfel map (the SLAM tracker's grid updates) ------------------------------------
-def band_voxels(src_ijk: np.ndarray, shape: np.ndarray, radius: float) -> np.ndarray:
-    """Grid indices (M, 3) of every voxel within ``radius`` (voxel units, Euclidean) of a source voxel.
+def band_voxels(src_ijk: np.ndarray, shape: np.ndarray, radius: float, ball: bool = True) -> np.ndarray:
+    """Grid indices (M, 3) of every voxel within ``radius`` (voxel units, Euclidean) of a source voxel
+    (``ball=False``: the whole cube of half-size ``floor(radius)``, which holds that ball).
 
-    A superset of that ball, cheaper than the cube of half-size ``ceil(radius)``: for ``2 < radius < 4``
+    A superset of that ball, cheaper than the cube of half-size ``floor(radius)``: for ``2 < radius < 4``
     the cube of half-size 2 dilated by the 6-neighbourhood (275 voxels per source instead of 343 for
     ``radius`` 3.87; a point of the ball has coordinates <= 3 and at most one of them at 3, since two make
-    it 4.24 away); outside that range, the cube of half-size ``ceil(radius)``. Separable filters on the
+    it 4.24 away); outside that range, the cube. Separable filters on the
     sources' bounding box only.
     """
     from scipy.ndimage import maximum_filter
@@ -210,11 +211,11 @@ def band_voxels(src_ijk: np.ndarray, shape: np.ndarray, radius: float) -> np.nda
     shape = np.asarray(shape, np.int64)
     if not len(src_ijk):
         return np.zeros((0, 3), np.int64)
-    r = int(np.ceil(radius))
+    r = int(np.floor(radius))  # integer offsets within the ball have every coordinate <= floor(radius)
     b0, b1 = np.maximum(src_ijk.min(0) - r, 0), np.minimum(src_ijk.max(0) + r + 1, shape)
     occ = np.zeros(tuple(b1 - b0), bool)
     occ[tuple((src_ijk - b0).T)] = True
-    cross = 2 < radius < 4
+    cross = ball and 2 < radius < 4
     band = maximum_filter(occ, size=5 if cross else 2 * r + 1)
     if cross:
         out = band.copy()
