@@ -28,6 +28,11 @@ def register(app: typer.Typer) -> None:
         poses: Path = typer.Option(
             None, "--poses", help="reconstruct: poses.csv of T_world_object (e.g. from vtrack track)"
         ),
+        touch_worker: str = typer.Option(
+            None,
+            "--touch-worker",
+            help="track: tactile pipeline in a child 'process' (default), a 'thread' or 'off' (in the camera step)",
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
         from vtrack.io.poses import parse_pose
@@ -37,7 +42,11 @@ def register(app: typer.Typer) -> None:
         from vtrack_apps.output import print_table, write_json
 
         per_kind = {
-            "track": {"mesh": mesh, "init_pose": parse_pose(init_pose) if init_pose else None},
+            "track": {
+                "mesh": mesh,
+                "init_pose": parse_pose(init_pose) if init_pose else None,
+                "touch_worker": touch_worker,
+            },
             "reconstruct": {"poses": poses},
         }
         cons = [
