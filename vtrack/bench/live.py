@@ -15,7 +15,7 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   measured in wall time is inflated).
 
 Variants: ``touch process`` (default: the tactile pipeline on every tactile image as it arrives, in a child
-process; with ``replay reader process`` the replay also decodes the session in a child process),
+process; with ``+ reader process`` the replay also decodes the session in a child process),
 ``touch thread`` (the same in a worker thread sharing the GIL with the tracker) and ``touch in camera
 step`` (the newest image of each sensor is processed inside the camera step, as offline tracking does; tactile
 images in between are never read).
@@ -35,7 +35,7 @@ from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
     "touch process": {"touch_worker": "process"},
-    "touch process, replay reader process": {"touch_worker": "process", "reader": "process"},
+    "touch process + reader process": {"touch_worker": "process", "reader": "process"},
     "touch thread": {"touch_worker": "thread"},
     "touch in camera step": {"touch_worker": "off"},
 }
