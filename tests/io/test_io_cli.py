@@ -99,3 +99,11 @@ def test_live_command_known_shape_and_given_poses(tmp_path: Path) -> None:
     assert rc["integrated"] >= 5 and rc["mesh_vertices"] > 50
     bad = invoke("live", sess, "--consumer", "track", "--mesh", mesh, "--init-pose", "1,2,3")
     assert isinstance(bad.exception, InputError) and "--init-pose" in str(bad.exception)
+
+
+def test_live_command_rejects_an_unknown_touch_worker(tmp_path: Path) -> None:
+    from vtrack.testing.sessions import write_sphere_session
+
+    sess = write_sphere_session(tmp_path / "sphere", seconds=0.2)
+    bad = invoke("live", sess, "--consumer", "track", "--touch-worker", "gpu")
+    assert isinstance(bad.exception, InputError) and "touch_worker" in str(bad.exception)

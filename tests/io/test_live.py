@@ -120,3 +120,77 @@ def test_recorder_feeds_live_consumers_while_writing(tmp_path):
     null = out["consumers"]["null"]
     assert out["source"]["emitted"]["camera/oak"] == stats.written["camera/oak"] == 15
     assert null["processed_total"] + null["dropped_total"] == 15
+
+
+def test_summary_says_whether_the_pipeline_keeps_up_and_what_it_dropped(live_session):
+    """A consumer twice as slow as the camera (50 ms per 30 Hz frame) has a real-time factor near 1/1.5 and
+    drops camera frames; the null consumer keeps up. Only the requested fields are decoded and emitted."""
+    from vtrack.live.consumers import NullConsumer
+    from vtrack.live.pipeline import live_summary
+
+    seen: list[set] = []
+
+    class Fields(NullConsumer):
+        name = "fields"
+
+        def process(self, ev) -> None:
+            seen.append(set(ev.data))
+            super().process(ev)
+
+    src = SessionReplaySource(
+        live_session, streams=["camera/cam0", "tactile/digit_index"], fields={"camera/cam0": ["depth"]}
+    )
+    res = LivePipeline(src, [Fields(), Slow()]).run()
+    assert seen and all(s in ({"depth"}, {"image"}) for s in seen)  # camera: depth only; tactile: all fields
+    sm = res["summary"]
+    assert sm == live_summary(res, ["fields", "slow"])
+    for k in ("real_time_factor", "real_time_factor_cpu", "dropped_tactile_pct", "dropped_camera_pct"):
+        assert k in sm and sm[k] is not None and np.isfinite(sm[k])
+    slow = res["consumers"]["slow"]
+    assert 0.4 < slow["real_time_factor"] < 0.9  # 30 Hz x 50 ms = 1.5 s of work per second
+    assert slow["real_time_factor_cpu"] > 3.0  # sleeping costs no CPU
+    assert res["consumers"]["fields"]["real_time_factor"] > 1.0
+    assert sm["real_time_factor"] == slow["real_time_factor"]  # the busiest worker sets the pace
+    assert 20.0 < sm["dropped_camera_pct"] < 80.0 and 0.0 <= sm["dropped_tactile_pct"] < 20.0
+    cam = slow["streams"]["camera/cam0"]
+    assert cam["busy_ms_mean"] == pytest.approx(50.0, abs=25.0) and cam["latency_ms_p95"] < 200
+    with pytest.raises(InputError, match="no such field"):
+        SessionReplaySource(live_session, streams=["camera/cam0"], fields={"camera/cam0": ["nope"]})
+
+
+@pytest.mark.parametrize("mode", ["thread", "process"])
+def test_track_consumer_runs_touch_as_the_images_arrive(tiny_session, mode):
+    """The live tracker's touch stage turns each tactile image into a contact when it arrives (in a thread or
+    a child process); the camera step then builds the same frame as from the images themselves."""
+    pytest.importorskip("open3d")
+    from vtrack.frames.touch import Contact
+    from vtrack.live.consumers import TouchConsumer, TrackConsumer
+    from vtrack.live.sources import FrameEvent
+
+    tc = TrackConsumer(tiny_session, touch_worker=mode)
+    try:
+        touch, track = tc.parts()
+        assert isinstance(touch, TouchConsumer) and track is tc
+        assert set(tc.fields()["camera/cam0"]) == {"depth"}  # the colour image is never decoded
+        assert not tc.wants("tactile/digit_index") and touch.wants("tactile/digit_index")
+        sf = tc.sf
+        i = len(sf) // 2
+        raw = sf.read(i)
+        for s, img in raw["touch"]:
+            touch.process(FrameEvent(f"tactile/{s}", float(sf.times[i]), i, {"image": img}))
+        assert tc.touch_steps == len(raw["touch"]) and all(isinstance(c, Contact) for c in tc.images.values())
+        want = sf.build(raw)
+        got = sf.build({**raw, "touch": list(tc.images.items())})
+        assert len(want.touch_points) > 0  # the frame has contacts
+        np.testing.assert_allclose(got.touch_points, want.touch_points)
+        np.testing.assert_allclose(got.free_points, want.free_points)
+        if mode == "process":
+            assert touch.offload_cpu_s > 0  # the child's CPU time is accounted to the worker
+        js = sf.reader["joints"]
+        j = int(js.index_at(sf.times[i])[0])
+        tc.process(FrameEvent("joints", float(js.t[j]), j, {"q": js["q"][j]}))
+        tc.process(FrameEvent("camera/cam0", float(sf.times[i]), i, {"depth": sf.cams[0].stream["depth"][i]}))
+        assert len(tc.poses) == 1 and np.all(np.isfinite(tc.poses[0][1]))
+    finally:
+        for p in tc.parts():
+            p.finish()

@@ -233,3 +233,29 @@ def test_scene_embedded_in_session(tmp_path: Path, shared_data: Path) -> None:
     assert back.name == scene.name
     assert [t.name for t in back.tactile] == [t.name for t in scene.tactile]
     assert np.allclose(back.cameras[0].extrinsics(), scene.cameras[0].extrinsics())
+
+
+def test_sequential_reads_prefetch_blocks_and_return_the_same_frames(tmp_path: Path) -> None:
+    """A sequential pass of one-frame reads decodes several chunks per call (one image per chunk: depth) and
+    returns exactly the frames that one-frame reads in random order return."""
+    frames = np.random.default_rng(3).integers(0, 3000, (60, 240, 320), dtype=np.uint16)
+    with SessionWriter(tmp_path / "s", {"name": "unit"}) as w:  # one frame per chunk, as a full-size depth image
+        w.add_stream("cam", StreamSpec("rgbd", {"depth": FieldSpec((240, 320), "uint16", chunk_frames=1)}))
+        for i, f in enumerate(frames):
+            w.append("cam", i / 30, depth=f)
+
+    def counted():
+        f = open_session(tmp_path / "s")["cam"]["depth"]
+        calls: list[str] = []
+        read = f._read
+        f._read = lambda sel, fr: (calls.append(fr), read(sel, fr))[1]
+        return f, calls
+
+    depth, calls = counted()
+    assert depth._chunk == 1 and 1 < depth._block_chunks < 60
+    assert all(np.array_equal(depth[i], frames[i]) for i in range(60))
+    assert len(calls) <= 1 + -(-59 // depth._block_chunks)  # frame 0, then blocks: not 60 calls
+    depth, calls = counted()
+    for i in np.random.default_rng(2).permutation(60):
+        assert np.array_equal(depth[int(i)], frames[i]), i
+    assert len(calls) >= 40  # random access reads one frame at a time (no wasted blocks)

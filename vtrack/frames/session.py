@@ -181,6 +181,7 @@ class SessionFrames:
         self.depth_stride = max(1, int(depth_stride))
         self.contact_free_margin_m = float(contact_free_margin_m)
         self.contact_free_max_vision = int(contact_free_max_vision)
+        self._gel_grid: dict[tuple[str, int, int], np.ndarray] = {}
         if not (np.isfinite(self.contact_free_margin_m) and self.contact_free_margin_m >= 0):
             raise InputError(
                 "contact_free_margin_m must be >= 0 (m)", field="contact_free_margin_m", got=contact_free_margin_m
@@ -330,7 +331,8 @@ class SessionFrames:
             T_ws = poses.get(s)
             if T_ws is None or not np.all(np.isfinite(T_ws)):
                 continue
-            c: Contact = self.touch.contact(s, data)  # type: ignore[union-attr]
+            # a Contact already computed (the live pipeline runs the tactile pipeline as the images arrive)
+            c: Contact = data if isinstance(data, Contact) else self.touch.contact(s, data)  # type: ignore[union-attr]
             contacts[s] = c
             if c.in_contact:
                 tp.append(se3.transform_points(T_ws, c.points))
@@ -340,8 +342,7 @@ class SessionFrames:
                 if self.contact_free_max_vision > 0:
                     contact_free.append(se3.transform_points(T_ws, self._beside_patch(s, c)))
             elif c.valid:
-                w, h = self.touch.size[s]  # type: ignore[union-attr]
-                free.append(se3.transform_points(T_ws, gel_free_points(w, h, self.touch.mm_per_px[s])))  # type: ignore[union-attr]
+                free.append(se3.transform_points(T_ws, self._gel(s)))
         touch_points = _cat(tp)
         vis, masks = [], {}
         for c, d, m in raw["cams"]:
@@ -385,13 +386,21 @@ class SessionFrames:
             info=info,
         )
 
+    def _gel(self, sensor: str, n_rows: int = 5, n_cols: int = 4) -> np.ndarray:
+        """:func:`~vtrack.frames.touch.gel_free_points` of a sensor (fixed per sensor: built once)."""
+        key = (sensor, n_rows, n_cols)
+        G = self._gel_grid.get(key)
+        if G is None:
+            w, h = self.touch.size[sensor]  # type: ignore[union-attr]
+            G = self._gel_grid[key] = gel_free_points(w, h, self.touch.mm_per_px[sensor], n_rows, n_cols)  # type: ignore[union-attr]
+        return G
+
     def _beside_patch(self, sensor: str, c: Contact) -> np.ndarray:
         """Gel-surface points (sensor frame, m; a 11 x 8 grid, ~3 mm apart on a DIGIT) farther than
         ``contact_free_margin_m`` from the contact patch ``c.points`` (sensor xy)."""
         from scipy.spatial import cKDTree
 
-        w, h = self.touch.size[sensor]  # type: ignore[union-attr]
-        G = gel_free_points(w, h, self.touch.mm_per_px[sensor], n_rows=11, n_cols=8)  # type: ignore[union-attr]
+        G = self._gel(sensor, 11, 8)
         d, _ = cKDTree(c.points[:, :2]).query(G[:, :2])
         return G[d > self.contact_free_margin_m]
 

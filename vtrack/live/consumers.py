@@ -21,14 +21,25 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.live.pipeline import Consumer
 from vtrack.live.sources import FrameEvent
+from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
 
 
 @dataclass
 class LiveTrackConfig:
     """Options of :class:`TrackConsumer`: depth_stride = keep every k-th depth pixel (rows and columns);
-    the tracker's own options are :class:`vtrack.tracking.window.TrackerOptions` (passed through)."""
+    touch_worker = run the tactile pipeline on each tactile image as it arrives: ``process`` (a child
+    process: tactile images and tracking on two cores), ``thread`` (a worker thread of this process; it
+    shares the GIL with the tracker) or ``off`` (on the newest image of each sensor inside the camera
+    frame's step, as offline tracking does; the step is then longer and the images in between are never
+    read); touch_downsample /
+    touch_stride = the tactile pipeline's working-resolution factor and point stride (tracking's defaults,
+    :data:`vtrack.tracking.run.TRACK_TOUCH_DOWNSAMPLE`). The tracker's own options are
+    :class:`vtrack.tracking.window.TrackerOptions` (passed through)."""
 
     depth_stride: int = 4
+    touch_worker: str = "process"
+    touch_downsample: int = TRACK_TOUCH_DOWNSAMPLE
+    touch_stride: int = TRACK_TOUCH_STRIDE
 
 
 @dataclass
@@ -58,6 +69,105 @@ class NullConsumer(Consumer):
         return {"checksum": self.checksum}
 
 
+def _touch_process(session: str, point_stride: int, downsample: int, conn: Any) -> None:
+    """Child process of a ``process`` touch worker: tactile images in, contacts (sensor frame) out."""
+    try:
+        from vtrack.threads import limit_threads
+
+        limit_threads(1)
+        import time
+
+        from vtrack.frames.touch import TouchSource
+        from vtrack.io.session import open_session
+
+        r = open_session(session)
+        ts = TouchSource(r, r.scene(check_files=False), "pipeline", point_stride=point_stride, downsample=downsample)
+    except Exception as e:  # reported by the parent as one line
+        conn.send(f"{type(e).__name__}: {e}")
+        return
+    conn.send("ready")
+    while True:
+        msg = conn.recv()
+        if msg is None:
+            return
+        c0 = time.thread_time()
+        try:
+            c = ts.contact(*msg)
+            conn.send((c.points, c.normals, c.penetration_mm, c.valid, time.thread_time() - c0))
+        except Exception as e:
+            conn.send(f"{type(e).__name__}: {e}")
+
+
+class TouchConsumer(Consumer):
+    """The tactile stage of :class:`TrackConsumer`: each tactile image through its sensor's calibrated
+    tactile pipeline as it arrives; the newest contact per sensor (sensor frame) is what the next camera
+    step uses.
+
+    ``mode="thread"`` runs the pipeline in this worker thread (it shares the GIL with the tracker's
+    thread); ``mode="process"`` in a child process (the worker thread only hands images over and waits
+    with the GIL released, so tactile images and tracking use two cores). The child's CPU time per image is
+    added to this worker's (``offload_cpu_s``)."""
+
+    name = "track.touch"
+
+    def __init__(self, owner: TrackConsumer, mode: str = "thread") -> None:
+        self.owner = owner
+        self.mode = mode
+        self.offload_cpu_s = 0.0
+        self._proc: Any = None
+        self._conn: Any = None
+        if mode == "process":
+            import multiprocessing as mp
+
+            ctx = mp.get_context("spawn")  # no fork: the parent has threads (zarr's event loop)
+            self._conn, child = ctx.Pipe()
+            cfg = owner.config
+            self._proc = ctx.Process(
+                target=_touch_process,
+                args=(str(owner.session), cfg.touch_stride, cfg.touch_downsample, child),
+                daemon=True,
+                name="live-touch",
+            )
+            self._proc.start()
+            if not self._conn.poll(180):
+                self._proc.kill()
+                raise InputError("the live touch process did not start", path=owner.session)
+            first = self._conn.recv()
+            if first != "ready":
+                raise InputError(f"live touch process failed: {first}", path=owner.session)
+
+    def wants(self, stream: str) -> bool:
+        return stream in self.owner.touch_streams
+
+    def process(self, ev: FrameEvent) -> None:
+        from vtrack.frames.touch import Contact
+
+        s = ev.stream.split("/", 1)[1]
+        if self._conn is None:
+            c = self.owner.sf.touch.contact(s, ev.data["image"])  # type: ignore[union-attr]
+        else:
+            self._conn.send((s, ev.data["image"]))
+            got = self._conn.recv()
+            if isinstance(got, str):
+                raise RuntimeError(f"live touch process: {got}")
+            P, N, pen, valid, cpu = got
+            c = Contact(P, N, pen, valid)
+            self.offload_cpu_s = cpu
+        self.owner.images[s] = c  # one dict item assignment: atomic for the camera step reading it
+        self.owner.touch_steps += 1
+
+    def finish(self) -> dict[str, Any]:
+        if self._proc is not None:
+            try:
+                self._conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+            self._proc.join(5)
+            if self._proc.is_alive():
+                self._proc.kill()
+        return {"mode": self.mode}
+
+
 class TrackConsumer(Consumer):
     """In-hand tracking on the live stream through the frames layer (no ground truth).
 
@@ -79,12 +189,13 @@ class TrackConsumer(Consumer):
         depth_stride: int | None = None,
         **tracker_opts: Any,
     ) -> None:
+        from vtrack.config import build_config
         from vtrack.frames.session import SessionFrames
-        from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
 
-        self.config = config or LiveTrackConfig()
+        cfg_opts = {k: tracker_opts.pop(k) for k in list(tracker_opts) if k in LiveTrackConfig.__dataclass_fields__}
         if depth_stride is not None:
-            self.config = LiveTrackConfig(depth_stride=depth_stride)
+            cfg_opts["depth_stride"] = depth_stride
+        self.config = build_config(LiveTrackConfig, cfg_opts, "live tracking", base=config)
         depth_stride = self.config.depth_stride
         self.session = Path(session)
         try:
@@ -92,8 +203,8 @@ class TrackConsumer(Consumer):
                 self.session,
                 modalities=("vision", "touch"),
                 depth_stride=depth_stride,
-                touch_stride=TRACK_TOUCH_STRIDE,
-                touch_downsample=TRACK_TOUCH_DOWNSAMPLE,
+                touch_stride=self.config.touch_stride,
+                touch_downsample=self.config.touch_downsample,
             )
         except InputError:  # e.g. a sensor without calibration: vision only, said in the result
             self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride)
@@ -104,8 +215,21 @@ class TrackConsumer(Consumer):
         self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
         self.touch_streams = [f"tactile/{s}" for s in (self.sf.touch.sensors if self.sf.touch else [])]
         self.q: np.ndarray | None = None
-        self.images: dict[str, Any] = {}
+        self.images: dict[str, Any] = {}  # newest tactile image (or its Contact, with the touch worker) per sensor
+        self.touch_steps = 0
         self.poses: list[tuple[float, np.ndarray]] = []
+        mode = self.config.touch_worker
+        if mode not in ("process", "thread", "off"):
+            raise InputError("unknown touch worker", field="touch_worker", expected="process|thread|off", got=mode)
+        self._touch = TouchConsumer(self, mode) if (mode != "off" and self.touch_streams) else None
+        from vtrack.tracking.run import warm_up
+
+        # imports (open3d, scipy, ...) before the replay starts, not in the first frame's latency
+        warm_up("known_shape" if self.mesh is not None else "slam", write=False)
+        import scipy.ndimage  # noqa: F401  (the SLAM grid update)
+
+    def parts(self) -> list[Consumer]:
+        return [self] if self._touch is None else [self._touch, self]
 
     def streams(self) -> list[str]:
         s = list(self.cams) + self.touch_streams
@@ -113,8 +237,17 @@ class TrackConsumer(Consumer):
             s.append("joints")
         return s
 
+    def fields(self) -> dict[str, list[str]]:
+        """The fields this consumer reads per stream (depth only: the colour image is not used)."""
+        out = {c: ["depth"] for c in self.cams} | {s: ["image"] for s in self.touch_streams}
+        if self.sf.kin is not None:
+            out["joints"] = ["q"]
+        return out
+
     def wants(self, stream: str) -> bool:
-        return stream in self.cams or stream in self.touch_streams or (stream == "joints" and self.sf.kin is not None)
+        if stream in self.touch_streams:
+            return self._touch is None
+        return stream in self.cams or (stream == "joints" and self.sf.kin is not None)
 
     def _start(self, frame: Any) -> None:
         from vtrack.tracking.run import build_tracker, centroid_frame, register_known_shape
@@ -159,6 +292,8 @@ class TrackConsumer(Consumer):
     def finish(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "steps": len(self.poses),
+            "touch_steps": self.touch_steps,
+            "touch_worker": self._touch.mode if self._touch is not None else "off",
             "modalities": list(self.sf.modalities),
             "mode": "known_shape" if self.mesh is not None else "slam",
         }
@@ -215,6 +350,9 @@ class ReconstructConsumer(Consumer):
     def streams(self) -> list[str]:
         return list(self.cams) + (["joints"] if self.sf.kin is not None else [])
 
+    def fields(self) -> dict[str, list[str]]:
+        return {c: ["depth"] for c in self.cams} | ({"joints": ["q"]} if self.sf.kin is not None else {})
+
     def wants(self, stream: str) -> bool:
         return stream in self.cams or (stream == "joints" and self.sf.kin is not None)
 
@@ -249,6 +387,17 @@ def make_consumer(kind: str, session: str | Path, **opts: Any) -> Consumer:
     if kind not in kinds:
         raise InputError("unknown live consumer", field="--consumer", expected="|".join(kinds), got=kind)
     return registry.load(f"live.{kind}")(session, **opts)
+
+
+def replay_fields(consumers: list[Consumer]) -> dict[str, list[str]] | None:
+    """Per stream, the union of the fields the consumers read (None: a consumer reads every field)."""
+    out: dict[str, set[str]] = {}
+    for c in consumers:
+        if not hasattr(c, "fields"):
+            return None
+        for k, fs in c.fields().items():
+            out.setdefault(k, set()).update(fs)
+    return {k: sorted(v) for k, v in out.items()}
 
 
 def replay_streams(session: str | Path, consumers: list[Consumer]) -> list[str]:

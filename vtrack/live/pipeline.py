@@ -21,7 +21,9 @@ from vtrack.live.sources import FrameEvent
 
 class Consumer:
     """Base class: ``wants(stream)`` selects streams; ``process(event)`` handles one frame;
-    ``finish()`` returns a JSON-able result dict."""
+    ``finish()`` returns a JSON-able result dict. A consumer whose work splits into stages that may run
+    concurrently (e.g. tactile images through the tactile pipeline at 60 Hz beside the tracker at the camera
+    rate) returns them from ``parts()``: each part gets its own worker thread and mailbox."""
 
     name = "consumer"
 
@@ -34,6 +36,9 @@ class Consumer:
     def finish(self) -> dict[str, Any]:
         return {}
 
+    def parts(self) -> list[Consumer]:
+        return [self]
+
 
 @dataclass
 class ConsumerStats:
@@ -43,6 +48,9 @@ class ConsumerStats:
     latency_ms: list[float] = field(default_factory=list)
     busy_s: float = 0.0
     errors: int = 0
+    busy_by_stream: dict[str, float] = field(default_factory=dict)
+    cpu_by_stream: dict[str, float] = field(default_factory=dict)
+    latency_by_stream: dict[str, list[float]] = field(default_factory=dict)
 
     def summary(self, wall_s: float) -> dict[str, Any]:
         lat = np.asarray(self.latency_ms) if self.latency_ms else np.zeros(1)
@@ -54,6 +62,14 @@ class ConsumerStats:
                     "processed": self.processed.get(s, 0),
                     "dropped": self.dropped.get(s, 0),
                     "rate_hz": round(self.processed.get(s, 0) / max(wall_s, 1e-9), 2),
+                    "busy_ms_mean": round(1e3 * self.busy_by_stream.get(s, 0.0) / max(self.processed.get(s, 0), 1), 2),
+                    "cpu_ms_mean": round(1e3 * self.cpu_by_stream.get(s, 0.0) / max(self.processed.get(s, 0), 1), 2),
+                    "latency_ms_mean": _r(np.mean(self.latency_by_stream[s]))
+                    if self.latency_by_stream.get(s)
+                    else None,
+                    "latency_ms_p95": _r(np.percentile(self.latency_by_stream[s], 95))
+                    if self.latency_by_stream.get(s)
+                    else None,
                 }
                 for s in streams
             },
@@ -64,6 +80,10 @@ class ConsumerStats:
             "busy_fraction": round(self.busy_s / max(wall_s, 1e-9), 3),
             "errors": self.errors,
         }
+
+
+def _r(x: float) -> float:
+    return round(float(x), 2)
 
 
 class _Worker(threading.Thread):
@@ -99,7 +119,7 @@ class _Worker(threading.Thread):
                     return
                 key = min(self.slots, key=lambda k: self.slots[k].t)
                 ev = self.slots.pop(key)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             try:
                 self.consumer.process(ev)
             except Exception as e:  # keep the pipeline alive; the first error is reported
@@ -107,9 +127,15 @@ class _Worker(threading.Thread):
                 if self.error is None:
                     self.error = e
             t1 = time.perf_counter()
-            self.stats.busy_s += t1 - t0
-            self.stats.latency_ms.append((t1 - ev.wall) * 1e3)
-            self.stats.processed[ev.stream] = self.stats.processed.get(ev.stream, 0) + 1
+            st = self.stats
+            st.busy_s += t1 - t0
+            st.busy_by_stream[ev.stream] = st.busy_by_stream.get(ev.stream, 0.0) + (t1 - t0)
+            # + CPU the consumer spent in a helper process for this frame (its own thread only waited)
+            cpu = time.thread_time() - c0 + float(getattr(self.consumer, "offload_cpu_s", 0.0))
+            st.cpu_by_stream[ev.stream] = st.cpu_by_stream.get(ev.stream, 0.0) + cpu
+            st.latency_ms.append((t1 - ev.wall) * 1e3)
+            st.latency_by_stream.setdefault(ev.stream, []).append((t1 - ev.wall) * 1e3)
+            st.processed[ev.stream] = st.processed.get(ev.stream, 0) + 1
 
 
 class LivePipeline:
@@ -118,7 +144,8 @@ class LivePipeline:
     def __init__(self, source: Any, consumers: list[Consumer], switch_interval_s: float = 0.001) -> None:
         self.source = source
         self.switch_interval_s = switch_interval_s
-        self.workers = [_Worker(c) for c in consumers]
+        self.consumers = consumers
+        self.workers = [_Worker(p) for c in consumers for p in c.parts()]
 
     def _emit(self, ev: FrameEvent) -> None:
         for w in self.workers:
@@ -171,4 +198,60 @@ class LivePipeline:
             if w.error is not None:
                 res["first_error"] = f"{type(w.error).__name__}: {w.error}"
             out["consumers"][w.consumer.name] = res
+        out["summary"] = live_summary(out, [c.name for c in self.consumers])
         return out
+
+
+def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dict[str, Any]:
+    """The headline figures of a live run (``LivePipeline.run`` output), defined so they can be checked:
+
+    - ``real_time_factor``: min over worker threads of capacity / demand = active replay seconds / the
+      seconds that processing every frame the worker received would take (its mean busy time per frame of each
+      stream x frames received). >= 1: the pipeline keeps up with the sensors; < 1: it must drop frames.
+      ``real_time_factor_cpu``: the same from each worker thread's CPU time (what it would reach with a core
+      to itself; on a shared, loaded machine the wall-time figure is lower by the load).
+    - ``dropped_<kind>_pct`` (kind = tactile | camera | joints): frames of those streams never processed, %
+      of the frames in the replayed schedule: skipped by the source (late) or replaced unprocessed in a
+      worker's mailbox (the worst worker that takes the stream).
+    - ``latency_ms_mean`` / ``latency_ms_p95``: from a camera frame's emission to the end of its processing
+      (the pose), in the ``track`` consumer (else the first consumer).
+    - ``poses_per_s``: tracker steps / active seconds (``track`` consumer).
+    """
+    src = res["source"]
+    active = max(float(res.get("active_s") or 0.0), 1e-9)
+    scheduled = {
+        k: src["emitted"].get(k, 0) + src["skipped_late"].get(k, 0)
+        for k in set(src["emitted"]) | set(src["skipped_late"])
+    }
+    cons = res["consumers"]
+    out: dict[str, Any] = {}
+    for c in cons.values():
+        # demand: processing EVERY frame of the schedule (also those the source skipped or the mailbox replaced)
+        # at the worker's mean time per processed frame of each stream
+        for key, per in (("real_time_factor", "busy_ms_mean"), ("real_time_factor_cpu", "cpu_ms_mean")):
+            demand = sum(v[per] * scheduled.get(k, v["received"]) for k, v in c["streams"].items() if v["processed"])
+            c[key] = round(1e3 * active / demand, 3) if demand > 0 else None
+    for key in ("real_time_factor", "real_time_factor_cpu"):
+        v = [c[key] for c in cons.values() if c.get(key) is not None]
+        out[key] = min(v) if v else None
+    # joints: only the newest state is used (a superseded one is not a loss), so they are not counted here
+    for kind, prefix in (("tactile", "tactile/"), ("camera", "camera/")):
+        names = [k for k in scheduled if k.startswith(prefix)]
+        total = sum(scheduled[k] for k in names)
+        if not total:
+            continue
+        lost = 0
+        for k in names:
+            took = [c["streams"][k]["dropped"] for c in cons.values() if k in c["streams"]]
+            lost += src["skipped_late"].get(k, 0) + (max(took) if took else 0)
+        out[f"dropped_{kind}_pct"] = round(100.0 * lost / total, 2)
+    main = next((n for n in (consumers or []) if n == "track"), None) or next(iter(cons), None)
+    if main is not None:
+        cams = {k: v for k, v in cons[main]["streams"].items() if k.startswith("camera/") and v["latency_ms_mean"]}
+        if cams:
+            s0 = next(iter(cams.values()))
+            out["latency_ms_mean"], out["latency_ms_p95"] = s0["latency_ms_mean"], s0["latency_ms_p95"]
+        steps = cons[main].get("result", {}).get("steps")
+        if steps is not None:
+            out["poses_per_s"] = round(steps / active, 2)
+    return out

@@ -193,3 +193,87 @@ class SDFGrid:
         q = np.stack([X, Y, Z], -1).reshape(-1, 3).astype(np.float32)
         sdf = scene.compute_signed_distance(o3d.core.Tensor(q)).numpy().reshape(n)
         return cls(sdf, lo.astype(np.float64), voxel)
+
+
+# -- band of a surfel map (the SLAM tracker's grid updates) ------------------------------------
+def band_voxels(src_ijk: np.ndarray, shape: np.ndarray, radius: float, ball: bool = True) -> np.ndarray:
+    """Grid indices (M, 3) of every voxel within ``radius`` (voxel units, Euclidean) of a source voxel
+    (``ball=False``: the whole cube of half-size ``floor(radius)``, which holds that ball).
+
+    A superset of that ball, cheaper than the cube of half-size ``floor(radius)``: for ``2 < radius < 4``
+    the cube of half-size 2 dilated by the 6-neighbourhood (275 voxels per source instead of 343 for
+    ``radius`` 3.87; a point of the ball has coordinates <= 3 and at most one of them at 3, since two make
+    it 4.24 away); outside that range, the cube. Separable filters on the
+    sources' bounding box only.
+    """
+    from scipy.ndimage import maximum_filter
+
+    shape = np.asarray(shape, np.int64)
+    if not len(src_ijk):
+        return np.zeros((0, 3), np.int64)
+    r = int(np.floor(radius))  # integer offsets within the ball have every coordinate <= floor(radius)
+    b0, b1 = np.maximum(src_ijk.min(0) - r, 0), np.minimum(src_ijk.max(0) + r + 1, shape)
+    occ = np.zeros(tuple(b1 - b0), bool)
+    occ[tuple((src_ijk - b0).T)] = True
+    cross = ball and 2 < radius < 4
+    band = maximum_filter(occ, size=5 if cross else 2 * r + 1)
+    if cross:
+        out = band.copy()
+        for ax in range(3):
+            lo = [slice(None)] * 3
+            hi = [slice(None)] * 3
+            lo[ax], hi[ax] = slice(1, None), slice(None, -1)
+            out[tuple(lo)] |= band[tuple(hi)]
+            out[tuple(hi)] |= band[tuple(lo)]
+        band = out
+    return np.argwhere(band) + b0
+
+
+def surfel_band_sdf(
+    X: np.ndarray,
+    S: np.ndarray,
+    N: np.ndarray,
+    W: np.ndarray,
+    trunc: float,
+    min_dist: float,
+    k: int = 4,
+    tree=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distance at points ``X`` (M, 3) from a surfel map: the inverse-distance- and weight-weighted
+    mean, over the ``k`` nearest surfels within ``trunc``, of the point-to-plane distance (point distance
+    for a surfel without normal). Object frame, metres.
+
+    Args:
+        S, N, W: surfel positions (K, 3), unit normals (K, 3; zero = unknown) and weights (K,).
+        trunc: search radius and clamp of the values, m.
+        min_dist: inverse-distance weights use ``max(d, min_dist)``, m.
+        tree: a ``cKDTree`` of ``S`` to reuse (built here otherwise).
+
+    Returns:
+        values (M,) float32 in ``[-trunc, trunc]`` (``trunc`` where no surfel is within reach) and the
+        weight sums (M,) (0 there).
+    """
+    from scipy.spatial import cKDTree
+
+    k = min(int(k), len(S))
+    if len(X) == 0 or k == 0:
+        return np.full(len(X), trunc, np.float32), np.zeros(len(X))
+    if tree is None:
+        tree = cKDTree(S, leafsize=64)  # larger leaves: 20 % faster queries on 10^4 surfels than the default 16
+    dist, idx = tree.query(X, k=k, distance_upper_bound=trunc)
+    dist = dist.reshape(len(X), k)
+    idx = idx.reshape(len(X), k)
+    valid = np.isfinite(dist)
+    idx_c = np.where(valid, idx, 0)
+    wgt = np.where(valid, W[idx_c] / np.maximum(dist, min_dist), 0.0)
+    # float32 differences (sub-micrometre error on a 0.3 m box): half the memory traffic of the (M, k, 3) terms
+    diff = X.astype(np.float32)[:, None, :] - S.astype(np.float32)[idx_c]
+    has_n = (np.einsum("ij,ij->i", N, N) > 0.25)[idx_c]  # per surfel once, not per (point, neighbour)
+    sd = np.where(
+        has_n,
+        np.einsum("ijk,ijk->ij", diff, N.astype(np.float32)[idx_c]),
+        np.sqrt(np.einsum("ijk,ijk->ij", diff, diff)),
+    )
+    wsum = wgt.sum(1)
+    val = np.where(wsum > 0, np.einsum("ij,ij->i", wgt, sd) / np.maximum(wsum, 1e-12), trunc)
+    return np.clip(val, -trunc, trunc).astype(np.float32), wsum

@@ -31,7 +31,7 @@ from vtrack.errors import InputError
 from vtrack.geometry import se3
 from vtrack.tracking.frame import TrackingFrame
 from vtrack.tracking.posegraph import BackendOptions, Keyframe, interpolate_corrections, refine_keyframes
-from vtrack.tracking.sdf_grid import SDFGrid
+from vtrack.tracking.sdf_grid import SDFGrid, band_voxels, surfel_band_sdf
 from vtrack.tracking.window import TrackerOptions, WindowTracker
 
 
@@ -389,9 +389,6 @@ class SLAMTracker(WindowTracker):
         ``full_refresh_every``-th update (and whenever the neural mapper drives the values) recomputes
         the whole band, so weight-only drift never accumulates.
         """
-        from scipy.ndimage import maximum_filter
-        from scipy.spatial import cKDTree
-
         if len(self.map) < 10 or self._box is None:
             return
         if self.neural is not None:
@@ -421,29 +418,18 @@ class SLAMTracker(WindowTracker):
         self.map.n_new = 0
         grid = np.full(tuple(n), self.trunc, np.float32) if full else self.sdf.values.copy()
         if len(src):
-            r = int(np.ceil(self.trunc / v))
-            ijk = np.clip(np.round((src - lo) / v).astype(np.int64), 0, n - 1)
-            # band = cube of half-size r around the sources, on the sources' bounding box only
-            b0, b1 = np.maximum(ijk.min(0) - r, 0), np.minimum(ijk.max(0) + r + 1, n)
-            occ = np.zeros(tuple(b1 - b0), bool)
-            occ[tuple((ijk - b0).T)] = True
-            band = maximum_filter(occ, size=2 * r + 1)
-            bi = np.argwhere(band) + b0
+            # voxels that a source surfel can reach: within trunc of it, i.e. trunc / v + half a voxel diagonal (a
+            # full update); an incremental one keeps the whole cube: a surfel that moved less than refresh_move is
+            # not a source but may still bring a voxel just outside that ball within reach, which the cube's corners
+            # catch (with the ball alone: 8 voxels off by up to 8 mm in test_incremental_refresh_matches_a_full_rebuild)
+            bi = band_voxels(
+                np.clip(np.round((src - lo) / v).astype(np.int64), 0, n - 1),
+                n,
+                self.trunc / v + 0.5 * np.sqrt(3),
+                ball=full,
+            )
             X = lo + v * bi
-            k = min(4, len(S))
-            dist, idx = cKDTree(S).query(X, k=k, distance_upper_bound=self.trunc)
-            dist = dist.reshape(len(X), k)
-            idx = idx.reshape(len(X), k)
-            valid = np.isfinite(dist)
-            idx_c = np.where(valid, idx, 0)
-            wgt = np.where(valid, W[idx_c] / np.maximum(dist, 0.5 * self.map.voxel), 0.0)
-            diff = X[:, None, :] - S[idx_c]
-            nrm = N[idx_c]
-            has_n = np.linalg.norm(nrm, axis=-1) > 0.5
-            sd = np.where(has_n, np.sum(diff * nrm, -1), np.linalg.norm(diff, axis=-1))
-            wsum = wgt.sum(1)
-            val = np.where(wsum > 0, (wgt * sd).sum(1) / np.maximum(wsum, 1e-12), self.trunc)
-            val = np.clip(val, -self.trunc, self.trunc)
+            val, wsum = surfel_band_sdf(X, S, N, W, self.trunc, 0.5 * self.map.voxel)
             if neural:
                 near = wsum > 0
                 nv, _ = self.neural.query(X[near], with_grad=False)

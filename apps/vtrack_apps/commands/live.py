@@ -28,16 +28,25 @@ def register(app: typer.Typer) -> None:
         poses: Path = typer.Option(
             None, "--poses", help="reconstruct: poses.csv of T_world_object (e.g. from vtrack track)"
         ),
+        touch_worker: str = typer.Option(
+            None,
+            "--touch-worker",
+            help="track: tactile pipeline in a child 'process' (default), a 'thread' or 'off' (in the camera step)",
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
         from vtrack.io.poses import parse_pose
-        from vtrack.live.consumers import make_consumer, replay_streams
+        from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
         from vtrack.live.pipeline import LivePipeline
         from vtrack.live.sources import SessionReplaySource
         from vtrack_apps.output import print_table, write_json
 
         per_kind = {
-            "track": {"mesh": mesh, "init_pose": parse_pose(init_pose) if init_pose else None},
+            "track": {
+                "mesh": mesh,
+                "init_pose": parse_pose(init_pose) if init_pose else None,
+                "touch_worker": touch_worker,
+            },
             "reconstruct": {"poses": poses},
         }
         cons = [
@@ -52,6 +61,7 @@ def register(app: typer.Typer) -> None:
             seconds=seconds,
             loop=loop,
             reader=reader,
+            fields=replay_fields(cons),
         )
         res = LivePipeline(src, cons).run()
         so = res["source"]
@@ -74,5 +84,11 @@ def register(app: typer.Typer) -> None:
             )
             if "first_error" in r:
                 typer.secho(f"consumer {name}: {r['errors']} error(s), first: {r['first_error']}", fg="yellow")
+        sm = res["summary"]
+        typer.echo(
+            "summary: "
+            + ", ".join(f"{k} {v}" for k, v in sm.items())
+            + " (real-time factor = capacity / demand of the busiest worker; see docs/recording.md)"
+        )
         if json_out:
             write_json(json_out, res)

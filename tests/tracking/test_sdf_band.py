@@ -1,0 +1,59 @@
+"""The SLAM grid update's band and surfel SDF (vtrack.tracking.sdf_grid.band_voxels / surfel_band_sdf)
+against brute force."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vtrack.tracking.sdf_grid import band_voxels, surfel_band_sdf
+
+
+def test_band_holds_every_voxel_within_the_radius_and_is_smaller_than_the_cube():
+    rng = np.random.default_rng(0)
+    shape = np.array([30, 25, 20])
+    src = rng.integers(0, shape, size=(40, 3))
+    radius = 3.0 + 0.5 * np.sqrt(3)  # the SLAM map: trunc = 3 voxels + half a voxel diagonal
+    band = band_voxels(src, shape, radius)
+    assert np.all((band >= 0) & (band < shape))
+    got = np.zeros(tuple(shape), bool)
+    got[tuple(band.T)] = True
+    grid = np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), -1).reshape(-1, 3)
+    d = np.sqrt(((grid[:, None, :] - src[None]) ** 2).sum(-1)).min(1)
+    need = d <= radius
+    assert got.reshape(-1)[need].all()  # superset of the ball
+    cube = np.abs(grid[:, None, :] - src[None]).max(-1).min(1) <= 3
+    assert got.sum() < cube.sum()  # and cheaper than the half-size-3 cube it replaced
+    full = np.zeros(tuple(shape), bool)
+    full[tuple(band_voxels(src, shape, radius, ball=False).T)] = True
+    assert np.array_equal(full.reshape(-1), cube)  # ball=False: exactly that cube (incremental updates)
+    assert len(band_voxels(src[:0], shape, radius)) == 0
+
+
+def test_surfel_band_sdf_matches_brute_force_weighted_plane_distance():
+    rng = np.random.default_rng(1)
+    # surfels on the plane z = 0 (normal +z), a few without normal
+    S = np.concatenate([rng.uniform(-0.02, 0.02, (300, 2)), np.zeros((300, 1))], 1)
+    N = np.tile([0.0, 0.0, 1.0], (300, 1))
+    N[:20] = 0.0
+    W = rng.uniform(0.5, 3.0, 300)
+    X = rng.uniform(-0.02, 0.02, (200, 3))
+    trunc, dmin = 0.012, 0.001
+    val, wsum = surfel_band_sdf(X, S, N, W, trunc, dmin)
+    d = np.linalg.norm(X[:, None] - S[None], axis=-1)
+    ref = np.full(len(X), trunc)
+    for i in range(len(X)):
+        nn = np.argsort(d[i])[:4]
+        nn = nn[d[i, nn] <= trunc]
+        if not len(nn):
+            continue
+        w = W[nn] / np.maximum(d[i, nn], dmin)
+        diff = X[i] - S[nn]
+        sd = np.where(np.linalg.norm(N[nn], axis=1) > 0.5, (diff * N[nn]).sum(1), np.linalg.norm(diff, axis=1))
+        ref[i] = np.clip((w * sd).sum() / w.sum(), -trunc, trunc)
+    assert val.dtype == np.float32 and np.all(np.isfinite(val))
+    np.testing.assert_allclose(val, ref, atol=1e-6)
+    # mostly the plane distance z (a surfel without normal adds a little)
+    near = wsum > 0
+    assert near.sum() > 100 and np.median(np.abs(val[near] - X[near, 2])) < 1e-3
+    v0, w0 = surfel_band_sdf(X[:0], S, N, W, trunc, dmin)
+    assert v0.shape == (0,) and w0.shape == (0,)

@@ -1,0 +1,115 @@
+"""``vtrack bench live``: blind tracking live at sensor rate (real-time replay through ``vtrack.live``).
+
+Each case replays a simulator session at real time (1 camera at 30 Hz, 4 DIGIT at 60 Hz, joints at 60 Hz)
+into the ``track`` consumer (blind SLAM: segmentation by the FK-posed hand, touch from the tactile images
+through each sensor's calibrated pipeline; the session's ``gt/`` is read only after the run, to score). Rows
+(one per session x variant), with the definitions of :func:`vtrack.live.pipeline.live_summary`:
+
+- ``real_time_factor`` (wall time; lowered by whatever else runs on the machine) and
+  ``real_time_factor_cpu`` (each worker thread's CPU time: what it reaches with a core to itself);
+- latency of a pose after its camera frame (mean / p95), dropped tactile / camera frames (%), poses/s;
+- ``motion_err_mm``: object-motion error of the live poses (ADD; ADD-S for symmetric objects);
+- ``ms``: CPU ms of one camera step of the tracker (segmentation + tracking; the tactile pipeline too in the
+  ``touch in camera step`` variant), ``touch_cpu_ms``: CPU ms per tactile image in the touch worker;
+- ``load1``: the machine's 1-minute load average at the start of the row (2 cores: above 2, every figure
+  measured in wall time is inflated).
+
+Variants: ``touch process`` (default: the tactile pipeline on every tactile image as it arrives, in a child
+process; with ``+ reader process`` the replay also decodes the session in a child process),
+``touch thread`` (the same in a worker thread sharing the GIL with the tracker) and ``touch in camera
+step`` (the newest image of each sensor is processed inside the camera step, as offline tracking does; tactile
+images in between are never read).
+
+Cases: 3 shared YCB objects, 5 s sessions, occlusion none, or ``VTRACK_BENCH_LIVE_CASES`` =
+``"object|occlusion|seconds;..."``. Quick mode: one 2 s session, the default variant.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from vtrack.bench.harness import BenchTable
+
+VARIANTS = {
+    "touch process": {"touch_worker": "process"},
+    "touch process + reader process": {"touch_worker": "process", "reader": "process"},
+    "touch thread": {"touch_worker": "thread"},
+    "touch in camera step": {"touch_worker": "off"},
+}
+CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))
+
+
+def _cases(quick: bool) -> list[tuple[str, str, float]]:
+    env = os.environ.get("VTRACK_BENCH_LIVE_CASES")
+    if env:
+        out = []
+        for item in env.split(";"):
+            name, occ, sec = (item.split("|") + ["none", "5"])[:3]
+            out.append((name, occ or "none", float(sec or 5)))
+        return out
+    return [("006_mustard_bottle", "none", 2.0)] if quick else list(CASES)
+
+
+def run_live(session, variant: dict) -> dict:
+    """One real-time replay of ``session`` into the ``track`` consumer (``variant``: its options, plus
+    ``reader`` = the replay's decoder, thread | process); the pipeline's result dict."""
+    from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
+    from vtrack.live.pipeline import LivePipeline
+    from vtrack.live.sources import SessionReplaySource
+
+    variant = dict(variant)
+    reader = variant.pop("reader", "thread")
+    cons = [make_consumer("track", session, **variant)]
+    src = SessionReplaySource(session, streams=replay_streams(session, cons), fields=replay_fields(cons), reader=reader)
+    return LivePipeline(src, cons).run()
+
+
+def run(quick: bool = False) -> BenchTable:
+    from vtrack.testing.sim import ycb_session
+
+    table = BenchTable(stage="live", error_key="motion_err_mm", time_key="ms")
+    variants = {"touch process": VARIANTS["touch process"]} if quick else VARIANTS
+    for name, occ, seconds in _cases(quick):
+        sess = ycb_session(name, occ, seconds)
+        for vname, v in variants.items():
+            load1 = os.getloadavg()[0]
+            t0 = time.perf_counter()
+            res = run_live(sess, v)
+            sm = res["summary"]
+            tr = res["consumers"]["track"]
+            cam = next((s for k, s in tr["streams"].items() if k.startswith("camera/")), {})
+            touch = res["consumers"].get("track.touch", {}).get("streams", {})
+            touch_cpu = [s["cpu_ms_mean"] for s in touch.values() if s["processed"]]
+            table.add(
+                method=vname,
+                setting=f"{name} / {occ} / {seconds:g} s",
+                object=name,
+                occlusion=occ,
+                real_time_factor=sm.get("real_time_factor"),
+                real_time_factor_cpu=sm.get("real_time_factor_cpu"),
+                latency_ms_mean=sm.get("latency_ms_mean"),
+                latency_ms_p95=sm.get("latency_ms_p95"),
+                dropped_tactile_pct=sm.get("dropped_tactile_pct"),
+                dropped_camera_pct=sm.get("dropped_camera_pct"),
+                poses_per_s=sm.get("poses_per_s"),
+                motion_err_mm=tr["result"].get("motion_err_mm", float("nan")),
+                ms=cam.get("cpu_ms_mean", float("nan")),
+                touch_cpu_ms=float(np.mean(touch_cpu)) if touch_cpu else float("nan"),
+                steps=tr["result"].get("steps", 0),
+                load1=round(load1, 2),
+                wall_s=round(time.perf_counter() - t0, 1),
+                error=tr.get("first_error", ""),
+            )
+    table.notes.append(
+        "Command: `vtrack --threads 1 bench live --out DIR`. Real-time replay (speed 1) of blind sessions; "
+        "real_time_factor = capacity / demand of the busiest worker thread (wall time), real_time_factor_cpu = "
+        "the same from thread CPU time (a core per worker); see vtrack/live/pipeline.py::live_summary."
+    )
+    table.notes.append(
+        "Measured on a shared 2-core machine: `load1` is the load average when the row started; with a load "
+        "above 2 the wall-time figures (real_time_factor, latency, drops) are inflated by the other processes."
+    )
+    return table
