@@ -81,7 +81,10 @@ class GlobalRegOptions:
     ransac_max_iter: int = 6000  #: samples per RANSAC run
     use_fgr: bool = True
     use_pca: bool = True
-    flips: int = 2  #: best distinct hypotheses also tried turned 180 deg (3 axes)
+    flips: int = 2  #: best distinct hypotheses also tried turned about the model's 3 principal axes
+    #: turns per principal axis tried on those (2: 180 deg only; 8: every 45 deg). Near-symmetric shapes fit a
+    #: partial view almost equally well turned: a mug's spin (handle), a box's flips, a ball's seams
+    turns: int = 2
     icp_iterations: int = 25
     top_k: int = 5  #: hypotheses returned
     distinct_frac: float = 0.1  #: hypotheses closer than this * diameter (ADD / ADD-S) are merged
@@ -90,6 +93,8 @@ class GlobalRegOptions:
     sigma_vision: float = 0.0015  #: vision point-to-surface tolerance in the score, m
     max_score_points: int = 1500  #: vision points used by the fine ICP stage and the score
     sigma_touch: float = 0.001  #: contact-to-surface tolerance in the score, m
+    #: weight of the normal agreement in the touch term, in [0, 1]: ``(1 - w) + w * max(0, cos)``
+    touch_normal_weight: float = 0.5
     contact_tolerance: float = 0.002  #: touch points deeper than this inside count as penetration, m
     free_margin: float = 0.001  #: free gel points deeper than this inside penetrate, m
     w_vision: float = 1.0
@@ -301,7 +306,8 @@ def _evaluate(
         cos = np.einsum("ij,ij->i", n_o, gn)
         has_n = np.isfinite(cos)
         h.normal_agreement = float(cos[has_n].mean()) if has_n.any() else float("nan")
-        cterm = np.where(has_n, 0.5 + 0.5 * np.maximum(np.nan_to_num(cos), 0.0), 1.0)
+        wn = float(np.clip(opts.touch_normal_weight, 0.0, 1.0))
+        cterm = np.where(has_n, (1.0 - wn) + wn * np.maximum(np.nan_to_num(cos), 0.0), 1.0)
         parts += opts.w_touch * float(np.mean(np.exp(-0.5 * (d / opts.sigma_touch) ** 2) * cterm))
         wsum += opts.w_touch
         pen.append(np.maximum(0.0, -d - opts.contact_tolerance))
@@ -515,10 +521,12 @@ def _vision_hypotheses(obs: _Obs, model: _Model, opts: GlobalRegOptions) -> list
         # Try those turns of the best distinct hypotheses so touch can decide between them.
         cm, Um = _pca_frames(model.points)
         best = _distinct(out, model, False, GlobalRegOptions(top_k=opts.flips, distinct_frac=opts.distinct_frac))
+        n_turns = max(2, int(opts.turns))
+        angles = [2.0 * np.pi * j / n_turns for j in range(1, n_turns)]
         for h in best:
             T_ow0 = se3.invert(h.T_world_object)
-            for k in range(3):
-                R_flip = se3.so3_exp(np.pi * Um[:, k])
+            for k, a in ((k, a) for k in range(3) for a in angles):
+                R_flip = se3.so3_exp(a * Um[:, k])
                 T_flip = se3.make_transform(R_flip, cm - R_flip @ cm)  # object frame, about the centroid
                 T_ow = _icp(Q, model, T_flip @ T_ow0, (2.0 * v,), opts.icp_iterations)
                 T_ow = _icp(Qf, model, T_ow, (0.6 * v,), opts.icp_iterations)
@@ -670,6 +678,20 @@ class Relocaliser:
         self.search_radius = float(search_radius)
         self.min_score = float(min_score)
         self.last_hypotheses: list[PoseHypothesis] = []
+
+    def score(self, frames: list[TrackingFrame], T_world_object: np.ndarray, T_last_good: np.ndarray) -> float:
+        """Verification score in [0, 1] of a pose (e.g. the tracker's) on the observations :meth:`relocalise`
+        uses with the same ``T_last_good`` (vision points near it, voxel-downsampled), so poses compare."""
+        obs = _gather(frames, self.opts)
+        T = np.asarray(T_world_object, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            return 0.0
+        if len(obs.vision):
+            c = se3.transform_points(np.asarray(T_last_good, np.float64), self.model.centre[None])[0]
+            reach = self.search_radius + 0.5 * self.model.diameter
+            obs.vision = obs.vision[np.linalg.norm(obs.vision - c, axis=1) < reach]
+        h = _evaluate(T, self.model, obs, self.opts, "score", vision=_down(obs.vision, self.model.voxel))
+        return float(h.score)
 
     def relocalise(self, frames: list[TrackingFrame], T_last_good: np.ndarray) -> PoseHypothesis | None:
         """Best hypothesis of ``T_world_object`` for ``frames[0]`` near ``T_last_good``, or None."""
