@@ -95,3 +95,17 @@ def test_no_attempt_on_a_clean_sequence(mesh, seq):
     err, st, rl = _run(mesh, seq, seq.frames, seq.gt, relocalise=True)
     assert rl.attempts == 0 and "relocalised" not in st
     assert err.max() < 0.002
+
+
+def test_relocaliser_score_prefers_the_true_pose(mesh, seq):
+    from vtrack.io.mesh import load_mesh
+    from vtrack.tracking.globalreg import Relocaliser
+
+    reloc = Relocaliser(*load_mesh(mesh))
+    frames, gt = _hidden_and_moved(seq, (1, 0, 0), 150.0, (0.03, 0.0, 0.0))
+    recent = frames[HIDDEN.stop : HIDDEN.stop + 3][::-1]
+    T_true, T_before = gt[HIDDEN.stop + 2], seq.gt[HIDDEN.start - 1]
+    s_true = reloc.score(recent, T_true, T_before)
+    s_old = reloc.score(recent, T_before, T_before)  # the pose before the unseen move
+    assert 0.0 <= s_old < s_true - 0.2 <= 0.8
+    assert reloc.score(recent, np.full((4, 4), np.nan), T_before) == 0.0
