@@ -335,6 +335,36 @@ def _evaluate(
     return h
 
 
+def _batch_scores(R_wo: np.ndarray, t: np.ndarray, model: _Model, obs: _Obs, opts: GlobalRegOptions) -> np.ndarray:
+    """:func:`_evaluate`'s score of K poses ``(R_wo (K, 3, 3), t (K, 3))`` at once (one grid lookup per term;
+    the touch-only path ranks 3000 sampled rotations: 8-10 s one by one on the hidden baseball, ~1 s batched)."""
+    K = len(R_wo)
+    parts, wsum = np.zeros(K), 0.0
+
+    def to_obj(P: np.ndarray) -> np.ndarray:  # (K, M, 3) object-frame points of world points P
+        return np.einsum("kji,kmj->kmi", R_wo, P[None] - t[:, None])
+
+    if len(obs.vision):
+        d, _ = model.grid.query(to_obj(obs.vision).reshape(-1, 3), with_grad=False)
+        parts += opts.w_vision * np.exp(-0.5 * (d.reshape(K, -1) / opts.sigma_vision) ** 2).mean(1)
+        wsum += opts.w_vision
+    if len(obs.touch):
+        d, g = model.grid.query(to_obj(obs.touch).reshape(-1, 3))
+        d, g = d.reshape(K, -1), g.reshape(K, -1, 3)
+        n_o = np.einsum("kji,mj->kmi", R_wo, obs.normals)  # R^T n per pose
+        gn = g / np.maximum(np.linalg.norm(g, axis=2, keepdims=True), 1e-12)
+        cos = np.einsum("kmi,kmi->km", n_o, gn)
+        wn = float(np.clip(opts.touch_normal_weight, 0.0, 1.0))
+        cterm = np.where(np.isfinite(cos), (1.0 - wn) + wn * np.maximum(np.nan_to_num(cos), 0.0), 1.0)
+        parts += opts.w_touch * (np.exp(-0.5 * (d / opts.sigma_touch) ** 2) * cterm).mean(1)
+        wsum += opts.w_touch
+    if len(obs.free):
+        d, _ = model.grid.query(to_obj(obs.free).reshape(-1, 3), with_grad=False)
+        parts += opts.w_free * (np.maximum(0.0, -d.reshape(K, -1) - opts.free_margin) <= 0.0).mean(1)
+        wsum += opts.w_free
+    return parts / wsum if wsum > 0 else parts
+
+
 def _distinct(
     hyps: list[PoseHypothesis], model: _Model, symmetric: bool, opts: GlobalRegOptions
 ) -> list[PoseHypothesis]:
@@ -581,7 +611,7 @@ def _touch_hypotheses(obs: _Obs, model: _Model, opts: GlobalRegOptions) -> list[
     T_all = np.repeat(np.eye(4)[None], K, 0)
     T_all[:, :3, :3] = R_wo
     T_all[:, :3, 3] = t
-    scores = np.array([_evaluate(T, model, obs, opts, "touch").score for T in T_all])
+    scores = _batch_scores(R_wo, t, model, obs, opts)
     order = np.argsort(-scores, kind="stable")[: max(1, opts.touch_refine)]
     out = []
     for i in order:
