@@ -18,9 +18,13 @@ images through each sensor's calibration) and the mesh; ground truth only scores
 
 from __future__ import annotations
 
+import json
+import os
 import time
+from pathlib import Path
 
 from vtrack.bench.harness import BenchTable
+from vtrack.errors import InputError
 
 #: first frame of seed s is START_STEP * s
 START_STEP = 10
@@ -89,7 +93,12 @@ def _track_rows(table: BenchTable, obj: str, occ: str, sess, mesh) -> None:
     }
     res, rows = {}, {}
     for name, kw in runs.items():
-        m = track_session(sess, "", shape="known_shape", mesh=mesh, write=False, **kw)
+        try:
+            m = track_session(sess, "", shape="known_shape", mesh=mesh, write=False, **kw)
+        except InputError as e:  # e.g. vision only and the object hidden: no first pose is a result too
+            table.notes.append(f"{name} {obj[4:]} {occ}: {e}")
+            table.add(method=name, setting=f"{obj[4:]} {occ} seed0", object=obj, occlusion=occ, seed=0, failed=1.0)
+            continue
         res[name] = m
         rows[name] = dict(
             method=name,
@@ -105,8 +114,9 @@ def _track_rows(table: BenchTable, obj: str, occ: str, sess, mesh) -> None:
             reloc_attempts=m.get("reloc_attempts", 0),
         )
     for mod in ("visuo-tactile", "vision"):
-        blind, orc = res[f"track/{mod} [blind]"], res[f"track/{mod} [oracle init]"]
-        rows[f"track/{mod} [blind]"]["success_track"] = float(blind["add_s_mm"] < 2.0 * orc["add_s_mm"])
+        blind, orc = res.get(f"track/{mod} [blind]"), res.get(f"track/{mod} [oracle init]")
+        if blind is not None and orc is not None:
+            rows[f"track/{mod} [blind]"]["success_track"] = float(blind["add_s_mm"] < 2.0 * orc["add_s_mm"])
     for row in rows.values():
         table.add(**row)
 
@@ -121,8 +131,17 @@ def run(quick: bool = False) -> BenchTable:
     table = BenchTable(stage="globalreg", error_key="add_s_mm", time_key="ms", threads=1)
     t0 = time.perf_counter()
     objs = ycb_objects()[:2] if quick else ycb_objects()
+    if os.environ.get("VTRACK_BENCH_GLOBALREG_OBJECTS"):  # a subset (e.g. to run halves in parallel)
+        objs = [o for o in objs if o in os.environ["VTRACK_BENCH_GLOBALREG_OBJECTS"].split(",")]
     occs = ("none",) if quick else ("none", "medium")
     seeds = 2 if quick else N_SEEDS
+    merge = os.environ.get("VTRACK_BENCH_GLOBALREG_MERGE")  # folders of earlier runs' globalreg.json to merge
+    if merge:
+        objs = []
+        for d in merge.split(","):
+            got = json.loads((Path(d) / "globalreg.json").read_text())["rows"]
+            table.rows += [{k: v for k, v in r.items() if k != "pareto"} for r in got if r.get("object") != "all"]
+            table.notes.append(f"merged from {d}/globalreg.json")
     for obj in objs:
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
         for occ in occs:
@@ -134,7 +153,7 @@ def run(quick: bool = False) -> BenchTable:
         by=("method", "occlusion"),
         means=("ms", "add_s_mm", "add_mm", "success_5mm", "success_2mm", "success_track", "init_ms"),
         min_rows=2,
-        where=lambda r: r.get("object") != "all",
+        where=lambda r: r.get("object") != "all" and not r.get("failed"),
         label=lambda key, rows: {
             "setting": f"all {len(rows)} runs {key[1]}",
             "object": "all",
