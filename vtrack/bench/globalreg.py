@@ -143,7 +143,13 @@ def run(quick: bool = False) -> BenchTable:
         objs = []
         for d in merge.split(","):
             got = json.loads((Path(d) / "globalreg.json").read_text())["rows"]
-            table.rows += [{k: v for k, v in r.items() if k != "pareto"} for r in got if r.get("object") != "all"]
+            # the JSON holds NaN as null
+            nan = float("nan")
+            table.rows += [
+                {k: nan if v is None else v for k, v in r.items() if k != "pareto"}
+                for r in got
+                if r.get("object") != "all"
+            ]
             table.notes.append(f"merged from {d}/globalreg.json")
     for obj in objs:
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
@@ -182,7 +188,8 @@ def run(quick: bool = False) -> BenchTable:
         },
     )
     table.notes += [
-        f"{'quick' if quick else 'full'} run, {time.perf_counter() - t0:.0f} s wall; single thread. `ms`: CPU ms to "
+        f"{'merged' if merge else 'quick' if quick else 'full'} run, {time.perf_counter() - t0:.0f} s wall; "
+        "single thread. `ms`: CPU ms to "
         "the first pose (3 frames built: segmentation + tactile pipeline, then global registration) for "
         "`globalreg` rows; CPU ms per frame for `track/` rows (`init_ms`: wall ms to the first pose in that run).",
         f"seed s: registration from frames {START_STEP}s..{START_STEP}s+2 of the 2 s session, RANSAC seed s. "
