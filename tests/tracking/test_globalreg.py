@@ -154,3 +154,25 @@ def test_bad_input_names_the_field(mustard):
         Relocaliser(V, F, search_radius=-1.0)
     with pytest.raises(InputError, match="bogus"):
         GlobalRegOptions.from_dict({"bogus": 1})
+
+
+def test_batched_touch_scores_equal_the_one_by_one_score(mustard):
+    # the touch-only path ranks its 3000 sampled rotations with the batched score: it must be _evaluate's
+    from scipy.spatial.transform import Rotation
+
+    from vtrack.tracking import globalreg as G
+
+    V, F, _ = mustard
+    T = random_pose(1, centre=CENTRE)
+    fr = synthetic_frame(V, F, T, seed=1, n_contacts=5)
+    fr.touch_normals[0] = np.nan  # a contact without a normal
+    opts = GlobalRegOptions()
+    model, obs = G._prepare_model(V, F, opts, None), G._gather([fr], opts)
+    obs.vision = obs.vision[:20]
+    R = Rotation.random(40, random_state=0).as_matrix()
+    t = T[:3, 3] + np.random.default_rng(0).normal(0.0, 0.01, (40, 3))
+    Ts = np.repeat(np.eye(4)[None], 40, 0)
+    Ts[:, :3, :3], Ts[:, :3, 3] = R, t
+    one = np.array([G._evaluate(X, model, obs, opts, "touch").score for X in Ts])
+    np.testing.assert_allclose(G._batch_scores(R, t, model, obs, opts), one, atol=1e-12)
+    assert one.std() > 0.01  # the poses differ in score: the comparison means something

@@ -15,4 +15,5 @@ STAGES: dict[str, str] = {
     "slam": "vtrack.bench.slam",
     "generate": "vtrack.bench.generate",
     "live": "vtrack.bench.live",
+    "globalreg": "vtrack.bench.globalreg",
 }
