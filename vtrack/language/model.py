@@ -204,30 +204,41 @@ class TouchSteer:
             t = self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign))
             return t.numpy()
 
-    def encode_images(self, images: np.ndarray, alpha: float | None = None, batch: int = 256) -> np.ndarray:
-        """(N, D_SHARED) unit tactile embeddings of network inputs (N, 3, H, W) (P2 at ``alpha``)."""
+    def _features(self, images: np.ndarray, batch: int = 256):
+        """f(I) of ``images`` and of their 180-degree rotation ((N, D_FEAT) tensors each). The last array's
+        features are kept (the evaluation sweeps steer the same images many times; P2 acts after f(I))."""
+        torch = _torch()
+        c = self.__dict__.get("_feat_cache")
+        if c is not None and c[0] is images:
+            return c[1], c[2]
+        self.net.eval()
+        f, g = [], []
+        with torch.no_grad():
+            for i in range(0, len(images), batch):
+                x = torch.as_tensor(images[i : i + batch])
+                f.append(self.net.enc(x))
+                g.append(self.net.enc(x.flip(2, 3)))
+        z = torch.zeros(0, D_FEAT)
+        f, g = (torch.cat(f) if f else z), (torch.cat(g) if g else z)
+        self.__dict__["_feat_cache"] = (images, f, g)
+        return f, g
+
+    def encode_images(self, images: np.ndarray, alpha: float | None = None) -> np.ndarray:
+        """(N, D_SHARED) unit tactile embeddings of network inputs (N, 3, H, W) (P2 at ``alpha``), averaged
+        with the 180-degree rotation (a training augmentation that keeps every attribute)."""
         torch = _torch()
         a = self.steering.p2 if alpha is None else alpha
-        self.net.eval()
-        out = []
+        f, g = self._features(images)
         with torch.no_grad():
-            for i in range(0, len(images), batch):
-                x = torch.as_tensor(images[i : i + batch])
-                # average with the 180-degree rotation (a training augmentation that keeps every attribute)
-                v = self.net.image_embed(x, a) + self.net.image_embed(x.flip(2, 3), a)
-                out.append((v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)).numpy())
-        return np.concatenate(out) if out else np.zeros((0, D_SHARED), np.float32)
+            sp = self.net.s_proj()[None] if a else 0.0
+            v = [self.net.w_img(h) + a * sp for h in (f, g)]
+            v = sum(u / u.norm(dim=1, keepdim=True).clamp_min(1e-9) for u in v)
+            return (v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)).numpy()
 
-    def encode_features(self, images: np.ndarray, batch: int = 256) -> np.ndarray:
+    def encode_features(self, images: np.ndarray) -> np.ndarray:
         """(N, D_FEAT) tactile features f(I) (the describer's input), averaged with the 180-degree rotation."""
-        torch = _torch()
-        self.net.eval()
-        out = []
-        with torch.no_grad():
-            for i in range(0, len(images), batch):
-                x = torch.as_tensor(images[i : i + batch])
-                out.append((0.5 * (self.net.enc(x) + self.net.enc(x.flip(2, 3)))).numpy())
-        return np.concatenate(out) if out else np.zeros((0, D_FEAT), np.float32)
+        f, g = self._features(images)
+        return (0.5 * (f + g)).numpy()
 
     def describe(self, images: np.ndarray, p3: float | None = None, p4: float | None = None) -> list[str]:
         """Generated description of each image (network inputs (N, 3, H, W))."""
