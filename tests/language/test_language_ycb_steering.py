@@ -93,11 +93,53 @@ def test_p1w_steering_moves_attention_off_distractor_words() -> None:
     # P1 (additive, text-independent) changes a query's image ranking only by the image prior s_proj . v
     v = torch.as_tensor(gal["emb"][:200]).float()
     with torch.no_grad():
-        t0 = model.net.text_embed(tok, mask, 0.0)
+        t_raw = model.net.w_text(model.net.pool(tok, mask))  # W_text g(T), before the normalisation
         t1 = model.net.text_embed(tok, mask, 0.5)
         prior = v @ model.net.s_proj()
         s1 = v @ t1.T  # (200, 2) steered scores
-        s0 = v @ t0.T + 0.5 * prior[:, None]  # unsteered scores + the image-only prior
+        s0 = v @ t_raw.T + 0.5 * prior[:, None]  # unnormalised unsteered scores + the image-only prior
     # per query, one is the other times a positive constant (the normalisation): the same ranking
     scale = s0 / s1
     assert torch.allclose(scale, scale[:1].expand_as(scale), rtol=1e-4) and bool((scale > 0).all())
+
+
+@needs_extra
+def test_steering_positions_follow_the_paper() -> None:
+    """P1 / P2 add the projected steering vector before the normalisation; P3 shifts the describer's input
+    word vectors by ``s_hat``; P4 shifts the tactile features f(I) (not the retrieval embedding) by ``s_hat``
+    zero-padded to the feature dimension."""
+    import torch
+
+    from vtrack.language.api import load
+    from vtrack.language.model import D_FEAT
+    from vtrack.language.text import token_arrays
+
+    model, _ = load(None, "none")
+    net = model.net
+    # the identities hold for any input: a fixed random batch shaped like the network input (3, 60, 80)
+    x = 0.3 * torch.randn(6, 3, 60, 80, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        s_proj = net.s_proj()
+        assert abs(float(s_proj.norm()) - 1) < 1e-5
+        raw = net.w_img(net.enc(x))
+        want = raw + 0.3 * s_proj
+        assert torch.allclose(net.image_embed(x, 0.3), want / want.norm(dim=1, keepdim=True), atol=1e-5)
+        tok, mask = (torch.as_tensor(a) for a in token_arrays(["feels soft and smooth; not hard. it looks red."]))
+        t_raw = net.w_text(net.pool(tok, mask))
+        want = t_raw + 0.02 * s_proj
+        assert torch.allclose(net.text_embed(tok, mask, 0.02), want / want.norm(dim=1, keepdim=True), atol=1e-5)
+        f = net.enc(x)
+        s_feat = net.s_feat()
+        assert s_feat.shape == (D_FEAT,) and torch.allclose(s_feat[:50], net.s_hat)
+        assert float(s_feat[50:].abs().sum()) == 0
+        ids = torch.zeros(6, 5, dtype=torch.long)
+        steered = net.decode_logits(f, ids, 0.0, 0.5)
+        assert torch.allclose(steered, net.decode_logits(f + 0.5 * s_feat, ids), atol=1e-5)
+        assert not torch.allclose(steered, net.decode_logits(f, ids), atol=1e-3)
+        # P3: the describer's input word vectors move along s_hat
+        p3 = net.decode_logits(f, ids, 0.2)
+        net.word_emb += 0.2 * net.s_hat
+        try:
+            assert torch.allclose(p3, net.decode_logits(f, ids), atol=1e-5)
+        finally:
+            net.word_emb -= 0.2 * net.s_hat

@@ -185,6 +185,7 @@ def evaluate(model, data: TactileSet, *, split: str = "test", mode: int = 2, ste
         # YCB queries against the whole test gallery (every material of the split)
         full = _query_subset_recall(model, sub, ycb, mode=mode, **kw)
         res |= {"ycb_r1_in_full_pool": full[1], "ycb_r5_in_full_pool": full[5]}
+    res |= steering_scale(model, sub)
     res |= generation(model, sub, **({} if steer else {"p3": 0.0, "p4": 0.0}))
     res |= selection(model, sub, **({} if steer else {"p1": 0.0}))
     ood = retrieval(model, data.subset(data.split == "ood"), mode=mode, **kw)
@@ -192,11 +193,27 @@ def evaluate(model, data: TactileSet, *, split: str = "test", mode: int = 2, ste
     return res
 
 
+def steering_scale(model, data: TactileSet) -> dict:
+    """Median norms of what P1 / P2 / P4 are added to (``W_text g(T)``, ``W_img f(I)``, ``f(I)``): the steering
+    vectors are unit, so a strength ``a`` is a fraction ``a / norm`` of the embedding it steers."""
+    from vtrack.language.text import token_arrays
+
+    torch = __import__("torch")
+    tok, mask = (torch.as_tensor(a) for a in token_arrays(data.texts(mode=2, seed=EVAL_SEED)))
+    with torch.no_grad():
+        t = model.net.w_text(model.net.pool(tok, mask))
+        f = torch.as_tensor(model.encode_features(data.images))
+        v = model.net.w_img(f)
+    med = lambda z: float(z.norm(dim=1).median())  # noqa: E731
+    return {"norm_text_proj": med(t), "norm_image_proj": med(v), "norm_feat": med(f)}
+
+
 def sweep(
-    model, data: TactileSet, *, split: str = "val", alphas=(0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)
+    model, data: TactileSet, *, split: str = "val", alphas=(0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 ) -> list[dict]:
     """Fig. 3-style sweep of injection position and strength at inference on ``split`` (object R@1 and BLEU-1);
-    the model's own steering is switched off except at the swept position."""
+    the model's own steering is switched off except at the swept position. The paper's grid (0.01-1.0) plus 2 and
+    5: P1 / P2 are added to unnormalised embeddings (see :func:`steering_scale`)."""
     sub = data.subset(data.split == split)
     rows = []
     for pos in ("p1", "p2", "p1w", "p3", "p4"):

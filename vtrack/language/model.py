@@ -5,16 +5,19 @@ GloVe sentence vector, symmetric InfoNCE with a learnable temperature, and a GRU
 Spaces: ``g(T)`` and ``s_hat`` live in the 50-d GloVe space; the CNN gives ``f(I)`` (96-d); both are
 projected into the shared, unit-norm retrieval space (``D_SHARED`` = 64). Steering positions:
 
-- P1: ``t~ = normalize(W_text g(T) + a * s_proj)``, ``s_proj = normalize(W_text s_hat)`` (paper eq. for P1);
+- P1: ``t~ = normalize(W_text g(T) + a * s_proj)``, ``s_proj = normalize(W_text s_hat)``, added to the
+  *unnormalised* projection as the paper's equation (Sec. III-C; model version 1 normalised first);
 - P1w (ours, not in the paper): ``s_hat`` scores every word of the text, ``e(w) . s_hat``, and the pooling's
   attention logit of the word gets ``+ a * e(w) . s_hat``: words near the N end (colours, shapes) lose weight
   and tactile ones gain, so the steering acts per text (a constant offset like P1 cannot: see
   docs/language.md, "Why P1 cannot suppress a distractor");
-- P2: ``v~ = normalize(v + a * s_proj)`` (the tactile embedding, same space);
+- P2: ``v~ = normalize(W_img f(I) + a * s_proj)`` (the tactile embedding, same space, same place);
 - P3: the describer's input word vectors (frozen GloVe, so ``s_hat`` itself) get ``+ a * s_hat``;
-- P4: the describer's conditioning input. The paper's decoder cross-attends to the ViT features; ours is a
-  GRU whose initial state and every step see the tactile embedding ``v`` (shared space), so P4 adds
-  ``a * s_proj`` to that conditioning vector.
+- P4: the describer's conditioning input, ``f~(I) = f(I) + a * s_hat`` in the tactile encoder's feature space
+  (paper Sec. III-D: the ViT features before the retrieval projection). The paper's ``s_hat`` and ``f(I)``
+  share the dimension d; ours are 50-d and 96-d, so ``s_hat`` is zero-padded to 96-d (a fixed unit direction
+  of the feature space, as the paper's is: nothing aligns the ViT space with the text encoder's). Our decoder
+  is a GRU whose initial state and every step see ``f~(I)`` (the paper's cross-attends to it).
 
 Training (``train``) keeps the chosen injection active during training and inference, as the paper does.
 """
@@ -31,8 +34,9 @@ import numpy as np
 
 from vtrack.errors import InputError
 
-#: on-disk version of a saved model (``.pt`` key ``"version"``); a newer file is refused
-MODEL_VERSION = 1
+#: on-disk version of a saved model (``.pt`` key ``"version"``); another version is refused (2: the describer
+#: conditions on f(I), P1 / P2 are added before the normalisation, as the paper)
+MODEL_VERSION = 2
 D_FEAT = 96
 D_SHARED = 64
 D_HIDDEN = 128
@@ -89,8 +93,8 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
             self.register_buffer("s_hat", torch.as_tensor(s_hat, dtype=torch.float32))
             # describer: frozen GloVe input embeddings (so P3 lives in the steering vector's own space)
             self.register_buffer("word_emb", torch.as_tensor(word_vecs, dtype=torch.float32))
-            self.cond = nn.Linear(D_SHARED, D_HIDDEN)
-            self.gru = nn.GRU(word_vecs.shape[1] + D_SHARED, D_HIDDEN, batch_first=True)
+            self.cond = nn.Linear(D_FEAT, D_HIDDEN)
+            self.gru = nn.GRU(word_vecs.shape[1] + D_FEAT, D_HIDDEN, batch_first=True)
             self.out = nn.Linear(D_HIDDEN, len(vocab))
 
         # ---- retrieval
@@ -98,14 +102,18 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
             p = self.w_text(self.s_hat[None])[0]
             return p / p.norm().clamp_min(1e-9)
 
-        def image_embed(self, x, alpha_p2: float = 0.0):
+        def s_feat(self):
+            """P4 direction in the feature space of f(I): ``s_hat`` zero-padded to D_FEAT (module docstring)."""
+            return torch.nn.functional.pad(self.s_hat, (0, D_FEAT - self.s_hat.shape[0]))
+
+        def image_embed(self, x, alpha_p2: float = 0.0, with_feat: bool = False):
+            """v (B, D_SHARED) unit; with ``with_feat`` also f(I) (B, D_FEAT), the describer's input."""
             f = self.enc(x)
             v = self.w_img(f)
-            v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)
-            if alpha_p2:
+            if alpha_p2:  # P2, added before the normalisation like P1
                 v = v + alpha_p2 * self.s_proj()[None]
-                v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)
-            return v
+            v = v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)
+            return (v, f) if with_feat else v
 
         def word_weights(self, tok, mask, beta_w: float = 0.0, sign=None):
             """(B, L) pooling weights of the (signed) word vectors ``tok`` (B, L, 50); ``beta_w`` > 0 adds P1w
@@ -122,16 +130,14 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
 
         def text_embed(self, tok, mask, alpha_p1: float = 0.0, beta_w: float = 0.0, sign=None):
             t = self.w_text(self.pool(tok, mask, beta_w, sign))
-            # the paper adds a * s_proj to the projected (unnormalised) text embedding; ours is normalised
-            # first so a means the same for every text (a fraction of the unit length)
-            t = t / t.norm(dim=1, keepdim=True).clamp_min(1e-9)
-            if alpha_p1:
+            if alpha_p1:  # the paper's P1: added to the projected, not yet normalised text embedding
                 t = t + alpha_p1 * self.s_proj()[None]
             return t / t.norm(dim=1, keepdim=True).clamp_min(1e-9)
 
         # ---- description
-        def decode_logits(self, v, tokens, alpha_p3: float = 0.0, alpha_p4: float = 0.0):
-            c = v + alpha_p4 * self.s_proj()[None] if alpha_p4 else v
+        def decode_logits(self, f, tokens, alpha_p3: float = 0.0, alpha_p4: float = 0.0):
+            """Next-word logits (B, L, V) given the tactile features f(I) (B, D_FEAT) and input ids (B, L)."""
+            c = f + alpha_p4 * self.s_feat()[None] if alpha_p4 else f
             e = self.word_emb[tokens]
             if alpha_p3:
                 e = e + alpha_p3 * self.s_hat[None, None]
@@ -141,10 +147,10 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
             return self.out(y)
 
         @torch.no_grad()
-        def generate(self, v, alpha_p3: float = 0.0, alpha_p4: float = 0.0, max_len: int = MAX_LEN):
-            """Greedy decoding; returns (B, <= max_len) token ids (stops at the end token, id 1)."""
-            B = v.shape[0]
-            c = v + alpha_p4 * self.s_proj()[None] if alpha_p4 else v
+        def generate(self, f, alpha_p3: float = 0.0, alpha_p4: float = 0.0, max_len: int = MAX_LEN):
+            """Greedy decoding from f(I) (B, D_FEAT); returns (B, <= max_len) token ids (end token id 1)."""
+            B = f.shape[0]
+            c = f + alpha_p4 * self.s_feat()[None] if alpha_p4 else f
             h = torch.tanh(self.cond(c))[None].contiguous()
             tok = torch.zeros(B, dtype=torch.long)  # <bos> = 0
             outs = []
@@ -198,24 +204,46 @@ class TouchSteer:
             t = self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign))
             return t.numpy()
 
-    def encode_images(self, images: np.ndarray, alpha: float | None = None, batch: int = 256) -> np.ndarray:
-        """(N, D_SHARED) unit tactile embeddings of network inputs (N, 3, H, W) (P2 at ``alpha``)."""
+    def _features(self, images: np.ndarray, batch: int = 256):
+        """f(I) of ``images`` and of their 180-degree rotation ((N, D_FEAT) tensors each). The last array's
+        features are kept (the evaluation sweeps steer the same images many times; P2 acts after f(I))."""
         torch = _torch()
-        a = self.steering.p2 if alpha is None else alpha
+        c = self.__dict__.get("_feat_cache")
+        if c is not None and c[0] is images:
+            return c[1], c[2]
         self.net.eval()
-        out = []
+        f, g = [], []
         with torch.no_grad():
             for i in range(0, len(images), batch):
                 x = torch.as_tensor(images[i : i + batch])
-                # average with the 180-degree rotation (a training augmentation that keeps every attribute)
-                v = self.net.image_embed(x, a) + self.net.image_embed(x.flip(2, 3), a)
-                out.append((v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)).numpy())
-        return np.concatenate(out) if out else np.zeros((0, D_SHARED), np.float32)
+                f.append(self.net.enc(x))
+                g.append(self.net.enc(x.flip(2, 3)))
+        z = torch.zeros(0, D_FEAT)
+        f, g = (torch.cat(f) if f else z), (torch.cat(g) if g else z)
+        self.__dict__["_feat_cache"] = (images, f, g)
+        return f, g
+
+    def encode_images(self, images: np.ndarray, alpha: float | None = None) -> np.ndarray:
+        """(N, D_SHARED) unit tactile embeddings of network inputs (N, 3, H, W) (P2 at ``alpha``), averaged
+        with the 180-degree rotation (a training augmentation that keeps every attribute)."""
+        torch = _torch()
+        a = self.steering.p2 if alpha is None else alpha
+        f, g = self._features(images)
+        with torch.no_grad():
+            sp = self.net.s_proj()[None] if a else 0.0
+            v = [self.net.w_img(h) + a * sp for h in (f, g)]
+            v = sum(u / u.norm(dim=1, keepdim=True).clamp_min(1e-9) for u in v)
+            return (v / v.norm(dim=1, keepdim=True).clamp_min(1e-9)).numpy()
+
+    def encode_features(self, images: np.ndarray) -> np.ndarray:
+        """(N, D_FEAT) tactile features f(I) (the describer's input), averaged with the 180-degree rotation."""
+        f, g = self._features(images)
+        return (0.5 * (f + g)).numpy()
 
     def describe(self, images: np.ndarray, p3: float | None = None, p4: float | None = None) -> list[str]:
         """Generated description of each image (network inputs (N, 3, H, W))."""
         torch = _torch()
-        v = torch.as_tensor(self.encode_images(images))
+        v = torch.as_tensor(self.encode_features(images))
         a3 = self.steering.p3 if p3 is None else p3
         a4 = self.steering.p4 if p4 is None else p4
         ids = self.net.generate(v, a3, a4).numpy()
@@ -251,12 +279,12 @@ class TouchSteer:
         keys = ("state", "vocab", "steering")
         if not isinstance(blob, dict) or any(k not in blob for k in keys) or "s_hat" not in blob["state"]:
             raise InputError("not a vtrack language model", path=path, expected="keys state, vocab, steering")
-        if int(blob.get("version", 1)) > MODEL_VERSION:
+        if int(blob.get("version", 1)) != MODEL_VERSION:
             raise InputError(
-                "language model from a newer vtrack",
+                "language model from another vtrack version (retrain with 'vtrack language train')",
                 path=path,
-                expected=f"version <= {MODEL_VERSION}",
-                got=blob.get("version"),
+                expected=f"version {MODEL_VERSION}",
+                got=blob.get("version", 1),
             )
         vocab = list(blob["vocab"])
         s_hat = blob["state"]["s_hat"].float().numpy()
@@ -331,6 +359,9 @@ def train(
     mode: int = 2,
     seed: int = 0,
     pooling: str = "attention",
+    cls_weight: float = 0.0,
+    same_weight: float = 0.5,
+    shift_px: int = 0,
     log=None,
 ) -> TouchSteer:
     """Train on the ``train`` split of a :class:`~vtrack.language.materials.TactileSet`.
@@ -339,6 +370,15 @@ def train(
     (synonyms p = 0.3, shuffled attributes, new distractor words) from 8 pre-drawn variants per sample; the
     describer learns the tactile-only canonical description. Images are randomly rotated by 180 degrees
     (which keeps every attribute, orientation included).
+
+    Args:
+        cls_weight: weight of an auxiliary material-classification loss on f(I) (a linear head over the
+            training materials, used only in training and not saved): a global signal that the in-batch
+            InfoNCE (a batch of 64 holds ~1 other contact of a material) gives only weakly.
+        same_weight: share of the InfoNCE target mass on the batch's other contacts of the same material (the
+            rest on the own pair).
+        shift_px: random circular shift of the image by up to this many pixels (0: none); the position
+            word of a contact is coarse (centred / edge), so a few pixels keep it.
     """
     from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector, token_arrays, word_vectors
 
@@ -361,7 +401,11 @@ def train(
     else:
         s_hat = steering_vector(LEXICON_A, LEXICON_N if steering.design == "A-N" else None)
     net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, pooling)
-    opt = torch.optim.AdamW([p for p in net.parameters() if p.requires_grad], lr=lr, weight_decay=1e-4)
+    n_mat = int(tr.material.max()) + 1
+    cls_head = torch.nn.Linear(D_FEAT, n_mat) if cls_weight > 0 else None
+    params = [p for p in net.parameters() if p.requires_grad]
+    params += list(cls_head.parameters()) if cls_head is not None else []
+    opt = torch.optim.AdamW(params, lr=lr, weight_decay=1e-4)
     steps = epochs * int(np.ceil(n / batch))
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
     x_all = torch.as_tensor(tr.images)
@@ -379,25 +423,30 @@ def train(
             x = x_all[b]
             flip = torch.as_tensor(rng.random(len(b)) < 0.5)
             x = torch.where(flip[:, None, None, None], x.flip(2, 3), x)
+            if shift_px:
+                dy, dx = (int(d) for d in rng.integers(-shift_px, shift_px + 1, 2))
+                x = torch.roll(x, (dy, dx), (2, 3))
             x = x + 0.03 * torch.randn_like(x)  # camera-noise augmentation
-            v = net.image_embed(x, steering.p2)
+            v, f = net.image_embed(x, steering.p2, with_feat=True)
             t = net.text_embed(tok_all[b], mask_all[b], steering.p1)
             logits = net.logit_scale.exp().clamp(max=100) * v @ t.T
             # InfoNCE targets: half on the own pair, half spread over the batch's other contacts of the same
             # material (they are not negatives: the object-level task counts them as matches)
             same = mat_all[b][:, None] == mat_all[b][None]
-            target = 0.5 * torch.eye(len(b)) + 0.5 * same.float() / same.sum(1, keepdim=True)
+            target = (1 - same_weight) * torch.eye(len(b)) + same_weight * same.float() / same.sum(1, keepdim=True)
             loss = 0.5 * (
                 torch.nn.functional.cross_entropy(logits, target) + torch.nn.functional.cross_entropy(logits.T, target)
             )
+            if cls_head is not None:
+                loss = loss + cls_weight * torch.nn.functional.cross_entropy(cls_head(f), mat_all[b])
             tok = tgt[b]
-            lm = net.decode_logits(v, tok[:, :-1], steering.p3, steering.p4)
+            lm = net.decode_logits(f, tok[:, :-1], steering.p3, steering.p4)
             loss = loss + lm_weight * torch.nn.functional.cross_entropy(
                 lm.reshape(-1, lm.shape[-1]), tok[:, 1:].reshape(-1)
             )
             opt.zero_grad()
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            torch.nn.utils.clip_grad_norm_(params, 1.0)
             opt.step()
             sched.step()
             tot += float(loss.detach()) * len(b)
@@ -408,5 +457,6 @@ def train(
             )
     net.eval()
     meta = {"epochs": epochs, "mode": mode, "seed": seed, "pooling": pooling, "n_train": n}
+    meta |= {"cls_weight": cls_weight, "same_weight": same_weight, "shift_px": shift_px}
     meta["train_s"] = round(time.perf_counter() - t0, 1)
     return TouchSteer(net, vocab, steering, meta)

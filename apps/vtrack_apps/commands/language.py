@@ -29,6 +29,9 @@ def register(app: typer.Typer) -> None:
         pooling: str = typer.Option(
             "attention", "--pooling", help="text pooling: attention (learned word weights) | mean (frozen mean)"
         ),
+        cls_weight: float = typer.Option(
+            None, "--cls-weight", help="weight of the auxiliary material classification on f(I) (default: recipe)"
+        ),
     ) -> None:
         """Generate the procedural materials (cached) and train no-steering, A-only and A-N models alike."""
         import torch
@@ -37,7 +40,10 @@ def register(app: typer.Typer) -> None:
 
         torch.set_num_threads(1)
         designs = tuple(design) if design else DESIGNS
-        folder = train_all(out, epochs=epochs, seed=seed, designs=designs, pooling=pooling, log=typer.echo)
+        recipe = {} if cls_weight is None else {"cls_weight": cls_weight}
+        folder = train_all(
+            out, epochs=epochs, seed=seed, designs=designs, pooling=pooling, recipe=recipe, log=typer.echo
+        )
         typer.echo(f"models written to {folder}")
 
     @lang.command("eval")
