@@ -7,7 +7,9 @@ The SDF lives in the OBJECT frame (metres). Model::
 with ``u`` the position normalised to the cubic bounds, ``grid_l`` dense trilinear feature grids of
 growing resolution (hand-written trilinear interpolation so that the eikonal term can be
 differentiated twice; ``F.grid_sample`` has no double backward in 3-D), a softplus MLP, and a
-sphere prior (radius ``r0`` = 0.45 x half-extent) that gives a sane sign before any data arrives.
+sphere prior (radius ``r0`` = 0.45 x half-extent) that gives a sane sign before any data arrives. Offline the
+prior is built from the observations (:attr:`NeuralSDFConfig.prior`, default ``symmetric``: their convex hull
+united with a detected surface of revolution, :mod:`vtrack.fusion.symmetry`).
 
 Losses (iSDF / NeuralFeels style), SDF residuals divided by ``sdf_scale``:
 
@@ -126,7 +128,9 @@ class NeuralSDFConfig:
     max_points: replay-buffer capacity (points). keep_largest: keep the mesh's largest component. seed: RNG.
     prior (offline :meth:`~NeuralSDFReconstructor.fit`; online it is always the sphere): ``sphere`` (radius 0.45 x
     the box half-size at its centre), ``hull`` (signed distance to the convex hull of the observed points: an
-    unobserved side spans the observed parts instead of sagging towards the centre) or ``blend`` (their mean);
+    unobserved side spans the observed parts instead of sagging towards the centre), ``blend`` (their mean) or
+    ``symmetric`` (default: the hull united with the surface of revolution of :mod:`vtrack.fusion.symmetry` when
+    the observations are one, e.g. a ball or a can: their unseen side is the revolved seen profile, not a flat cut);
     hull_cluster_mm: the hull is built from the 26-connected clusters of this cell size holding >= 2 % of the
     points (stray points dropped). hull_weight, hull_margin (m): optional loss ``sdf <= hull SDF + margin``
     deeper than the margin inside the hull (0 = off).
@@ -157,7 +161,7 @@ class NeuralSDFConfig:
     max_points: int = 300_000
     keep_largest: bool = True
     seed: int = 0
-    prior: str = "hull"
+    prior: str = "symmetric"
     hull_weight: float = 0.0
     hull_cluster_mm: float = 4.0
     hull_margin: float = 0.004

@@ -14,7 +14,9 @@ Method (object frame, metres):
 2. Profile: each point becomes ``(h, rho)`` = (height along the axis, distance to it); per height bin the
    radius is a quantile of ``rho`` (robust to a handle, which covers a small share of the angles), gaps are
    interpolated, the profile is median-filtered.
-3. Test: the revolved surface must pass through the observed side (points whose normal is across the axis):
+   Points facing the axis (the inner wall of a cup) are left out: the profile is the outer one.
+3. Test: the revolved surface must pass through the observed side (points whose normal points away from the
+   axis):
    the share of them within ``tol`` of it must reach ``min_inlier``; otherwise (a box, a banana, a mustard
    bottle) there is no symmetry prior.
 4. SDF: the 2-D signed distance to the profile region in the (h, rho) half-plane (Euclidean distance
@@ -181,9 +183,32 @@ def fit_revolution(
             step *= 0.93
     if not np.isfinite(e) or e > max_axis_rms:
         return None
+    # the handle of a cup (normal lines far from the axis) tilts the fit: refit on the points that agree
+    _, r = _axis_point(P, N, a, ref)
+    agree = np.abs(r) < 2.5 * e
+    if agree.sum() >= 50:
+        Pa, Na = P[agree], N[agree]
+        e_a = _trimmed_rms(_axis_point(Pa, Na, a, ref)[1], keep=0.95)
+        step = 0.05
+        for _ in range(40):
+            a2 = a + step * rng.normal(size=3)
+            a2 /= np.linalg.norm(a2)
+            c2, r2 = _axis_point(Pa, Na, a2, ref)
+            e2 = _trimmed_rms(r2, keep=0.95)
+            if e2 < e_a and extent(a2) >= 0.97 * ext:
+                e_a, a, c = e2, a2, c2
+            else:
+                step *= 0.93
     X = P - c
     h = X @ a
-    rho = np.linalg.norm(X - h[:, None] * a, axis=1)
+    radial = X - h[:, None] * a
+    rho = np.linalg.norm(radial, axis=1)
+    n_out = np.einsum("ij,ij->i", N, radial) / np.maximum(rho, 1e-9)  # normal component away from the axis
+    # the outer profile only: inward-facing points (the inner wall of a cup) are left to the network
+    outer = n_out > -0.3
+    P, N, h, rho, n_out = P[outer], N[outer], h[outer], rho[outer], n_out[outer]
+    if len(P) < 50:
+        return None
     # profile radius per height bin
     lo, hi = h.min(), h.max()
     nb = max(2, int(np.ceil((hi - lo) / cell)) + 1)
@@ -223,7 +248,7 @@ def fit_revolution(
     )
     # the test uses the side (normals across the axis): caps may be recessed (a can's lid below its rim), which a
     # profile radius per height cannot represent and need not (the network fits the observed caps)
-    side = np.abs(N @ a) < 0.7
+    side = n_out > 0.7
     if side.sum() < 0.2 * len(P):
         return None
     rev.inlier = float(np.mean(np.abs(rev.sdf(P[side])) <= tol))
