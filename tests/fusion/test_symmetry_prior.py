@@ -101,13 +101,13 @@ def test_symmetric_prior_completes_the_back_of_a_ball_in_the_neural_sdf():
 
     torch.set_num_threads(1)
     rng = np.random.default_rng(4)
-    P, N = _noisy(*_sphere(4000, 0.037, rng, lambda n: n[:, 0] > -0.2), rng)
+    P, N = _noisy(*_sphere(2500, 0.037, rng, lambda n: n[:, 0] > -0.2), rng)
     obs = [Observation(0.0, 1, 0, "touch", P, N, np.ones(len(P)), np.zeros(len(P)), np.eye(4))]
     back, _ = _sphere(400, 0.032, rng, lambda n: n[:, 0] < -0.7)  # 5 mm inside the unseen back
     inside = {}
     for prior in ("hull", "symmetric"):
         r = NeuralSDFReconstructor(seed=0, prior=prior)
-        r.fit(obs, n_iters=40)
+        r.fit(obs, n_iters=30)
         s, _ = r.query(back, with_grad=False)
         inside[prior] = float(np.mean(s < 0))
         if prior == "symmetric":
