@@ -43,6 +43,12 @@ def test_half_observed_sphere_completes():
     assert np.percentile(np.abs(rev.sdf(back)), 90) < 0.0015
     assert rev.sdf(np.zeros((1, 3)))[0] == pytest.approx(-0.037, abs=0.002)  # inside, by the radius
     assert rev.sdf(np.array([[0.08, 0.0, 0.0]]))[0] == pytest.approx(0.043, abs=0.002)  # outside
+    far = rev.sdf(np.array([[0.0, 0.0, 0.5]]))[0]  # beyond the raster: still the distance, roughly
+    assert 0.4 < far < 0.5
+    from vtrack.errors import InputError
+
+    with pytest.raises(InputError, match="non-finite"):
+        rev.sdf(np.array([[np.nan, 0.0, 0.0]]))
 
 
 def test_partly_observed_cylinder_completes():

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vtrack.errors import InputError
+
 
 @dataclass
 class Revolution:
@@ -53,7 +55,10 @@ class Revolution:
     def sdf(self, points: np.ndarray) -> np.ndarray:
         """Signed distance (N,) m of object-frame points (N, 3) to the revolved solid (bilinear on the raster;
         outside the raster the distance to its border is added)."""
-        X = np.asarray(points, np.float64).reshape(-1, 3) - self.centre
+        X = np.asarray(points, np.float64).reshape(-1, 3)
+        if not np.isfinite(X).all():
+            raise InputError("non-finite query points", field="points", expected="finite (N, 3) m", got="NaN/Inf")
+        X = X - self.centre
         h = X @ self.axis
         rho = np.linalg.norm(X - h[:, None] * self.axis, axis=1)
         nh, nr = self.sdf2.shape
