@@ -186,7 +186,7 @@ def _full(table: BenchTable, seconds: float) -> None:
                 if (main or mods != "touch") and (blind or mods == "vision+touch"):
                     run(method="neural_sdf", mods=mods, setting="iters=400" + tag, n_iters=400)
             # ablation: the neural SDF's shape prior (default: NeuralSDFConfig.prior) against the others
-            for prior in () if headline else ("sphere", "hull", "blend"):
+            for prior in () if headline else ("sphere", "hull", "blend", "symmetric"):
                 if prior != _default_prior():
                     run(method="neural_sdf", mods="vision+touch", setting=f"iters=400 prior={prior}" + tag, prior=prior)
             if blind and "observations_frontend" in info:

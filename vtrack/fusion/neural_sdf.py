@@ -7,7 +7,9 @@ The SDF lives in the OBJECT frame (metres). Model::
 with ``u`` the position normalised to the cubic bounds, ``grid_l`` dense trilinear feature grids of
 growing resolution (hand-written trilinear interpolation so that the eikonal term can be
 differentiated twice; ``F.grid_sample`` has no double backward in 3-D), a softplus MLP, and a
-sphere prior (radius ``r0`` = 0.45 x half-extent) that gives a sane sign before any data arrives.
+sphere prior (radius ``r0`` = 0.45 x half-extent) that gives a sane sign before any data arrives. Offline the
+prior is built from the observations (:attr:`NeuralSDFConfig.prior`, default ``symmetric``: their convex hull
+united with a detected surface of revolution, :mod:`vtrack.fusion.symmetry`).
 
 Losses (iSDF / NeuralFeels style), SDF residuals divided by ``sdf_scale``:
 
@@ -51,7 +53,7 @@ def _torch():
 OFFLINE_ITERS = 400
 
 #: Shape priors of the neural SDF (:attr:`NeuralSDFConfig.prior`).
-PRIORS = ("sphere", "hull", "blend")
+PRIORS = ("sphere", "hull", "blend", "symmetric")
 
 
 class _SDFNet:
@@ -126,7 +128,9 @@ class NeuralSDFConfig:
     max_points: replay-buffer capacity (points). keep_largest: keep the mesh's largest component. seed: RNG.
     prior (offline :meth:`~NeuralSDFReconstructor.fit`; online it is always the sphere): ``sphere`` (radius 0.45 x
     the box half-size at its centre), ``hull`` (signed distance to the convex hull of the observed points: an
-    unobserved side spans the observed parts instead of sagging towards the centre) or ``blend`` (their mean);
+    unobserved side spans the observed parts instead of sagging towards the centre), ``blend`` (their mean) or
+    ``symmetric`` (default: the hull united with the surface of revolution of :mod:`vtrack.fusion.symmetry` when
+    the observations are one, e.g. a ball or a can: their unseen side is the revolved seen profile, not a flat cut);
     hull_cluster_mm: the hull is built from the 26-connected clusters of this cell size holding >= 2 % of the
     points (stray points dropped). hull_weight, hull_margin (m): optional loss ``sdf <= hull SDF + margin``
     deeper than the margin inside the hull (0 = off).
@@ -157,7 +161,7 @@ class NeuralSDFConfig:
     max_points: int = 300_000
     keep_largest: bool = True
     seed: int = 0
-    prior: str = "hull"
+    prior: str = "symmetric"
     hull_weight: float = 0.0
     hull_cluster_mm: float = 4.0
     hull_margin: float = 0.004
@@ -216,6 +220,7 @@ class NeuralSDFReconstructor:
         self._carve: Any = None  # vtrack.fusion.carve.CarveGrid once fit() carved the box
         self._hull_prior: Any = None  # ((r + 1)^3, 1) torch table of the convex-hull prior over the box
         self._hull_res = 0
+        self.revolution: Any = None  # vtrack.fusion.symmetry.Revolution found by the symmetric prior, if any
         self._carve_idx: np.ndarray | None = None
         self.carve_seconds = 0.0
         if bounds is not None:
@@ -351,7 +356,7 @@ class NeuralSDFReconstructor:
         u = ((x - torch.as_tensor(self.lo, dtype=x.dtype)) / self.size).clamp(0.0, 1.0)
         h = torch.cat([self.net.features(u), u * 2 - 1], dim=1)
         prior = torch.linalg.norm(x - self._center, dim=1) - self._r0
-        if self._hull_prior is not None and self.opts["prior"] == "hull":
+        if self._hull_prior is not None and self.opts["prior"] in ("hull", "symmetric"):
             prior = self._hull_t(u)
         elif self._hull_prior is not None and self.opts["prior"] == "blend":
             prior = 0.5 * (prior + self._hull_t(u))
@@ -530,17 +535,24 @@ class NeuralSDFReconstructor:
             )
         }
 
-    def set_hull_prior(self, points: np.ndarray) -> bool:
+    def set_hull_prior(self, points: np.ndarray, normals: np.ndarray | None = None) -> bool:
         """Use the convex hull of ``points`` (object frame, m) as the SDF prior instead of the sphere: where
         nothing was observed the surface spans the observed parts (flat caps, no shrinking towards the
-        centre). Returns False (sphere kept) when the points span no volume."""
+        centre). With ``prior="symmetric"`` a surface of revolution detected in the points
+        (:func:`vtrack.fusion.symmetry.fit_revolution`; ``normals`` (N, 3) orient its normals) is added to the
+        hull (union): the unseen side of a ball or a can is completed by revolving the seen profile.
+        Returns False (sphere kept) when the points span no volume."""
         from scipy.spatial import ConvexHull, QhullError
 
         P = np.asarray(points, np.float64).reshape(-1, 3)
-        P = P[np.isfinite(P).all(1)]
+        Nrm = np.zeros_like(P) if normals is None else np.asarray(normals, np.float64).reshape(-1, 3)
+        fin = np.isfinite(P).all(1)
+        P, Nrm = P[fin], Nrm[fin]
+        self.revolution = None
         if len(P) < 4:
             return False
-        P = largest_cluster(P, self.opts["hull_cluster_mm"] * 1e-3)
+        keep = largest_cluster(P, self.opts["hull_cluster_mm"] * 1e-3, return_mask=True)
+        P, Nrm = P[keep], Nrm[keep]
         # voxel-thin the points first (qhull time, and duplicates)
         _, first = np.unique(np.floor((P - P.min(0)) / 2e-3).astype(np.int64), axis=0, return_index=True)
         if len(first) < 4:
@@ -560,6 +572,12 @@ class NeuralSDFReconstructor:
         G32, eq32 = G.astype(np.float32), eq.astype(np.float32)
         for a in range(0, len(eq), 128):
             np.maximum(val, (G32 @ eq32[a : a + 128, :3].T + eq32[a : a + 128, 3]).max(1), out=val)
+        if self.opts["prior"] == "symmetric":
+            from vtrack.fusion.symmetry import fit_revolution
+
+            self.revolution = fit_revolution(P[first], Nrm[first], seed=self.opts["seed"])
+            if self.revolution is not None:
+                np.minimum(val, self.revolution.sdf(G).astype(np.float32), out=val)
         torch = _torch()
         self._hull_prior = torch.tensor(val[:, None], dtype=torch.float32)
         self._hull_res = r
@@ -616,8 +634,9 @@ class NeuralSDFReconstructor:
         for ob in obs:
             self.integrate_observation(ob)
         self._recent_from = self.n_points  # offline: uniform replay
-        if (self.opts["prior"] in ("hull", "blend") or self.opts["hull_weight"] > 0) and self.iterations == 0:
-            self.set_hull_prior(self._buf["p"])
+        hull_based = self.opts["prior"] in ("hull", "blend", "symmetric") or self.opts["hull_weight"] > 0
+        if hull_based and self.iterations == 0:
+            self.set_hull_prior(self._buf["p"], self._buf["n"])
         t_c = time.perf_counter()
         if self.opts["carve"]:
             self.set_carving(obs)
@@ -710,24 +729,26 @@ class NeuralSDFReconstructor:
         }
 
 
-def largest_cluster(points: np.ndarray, voxel: float, min_share: float = 0.02) -> np.ndarray:
+def largest_cluster(points: np.ndarray, voxel: float, min_share: float = 0.02, return_mask: bool = False) -> np.ndarray:
     """The points (N, 3) of the 26-connected clusters of ``voxel``-sized occupied cells (m) that hold at least
     ``min_share`` of the points: drops the few stray points (a segmentation leak on a finger, a wrong contact)
-    that would blow up a convex hull, and keeps every substantial part of a sparsely sampled object."""
+    that would blow up a convex hull, and keeps every substantial part of a sparsely sampled object.
+    ``return_mask``: the (N,) boolean mask of the kept points instead."""
     from scipy import ndimage
 
     P = np.asarray(points, np.float64).reshape(-1, 3)
     if len(P) == 0 or voxel <= 0:
-        return P
+        return np.ones(len(P), bool) if return_mask else P
     ijk = np.floor((P - P.min(0)) / voxel).astype(np.int64)
     occ = np.zeros(ijk.max(0) + 1, bool)
     occ[tuple(ijk.T)] = True
     lab, n = ndimage.label(occ, structure=np.ones((3, 3, 3)))
     if n <= 1:
-        return P
+        return np.ones(len(P), bool) if return_mask else P
     pl = lab[tuple(ijk.T)]
     share = np.bincount(pl, minlength=n + 1) / len(P)
-    return P[share[pl] >= min_share]
+    keep = share[pl] >= min_share
+    return keep if return_mask else P[keep]
 
 
 def marching_cubes(
