@@ -14,4 +14,5 @@ STAGES: dict[str, str] = {
     "segmentation": "vtrack.bench.segmentation",
     "slam": "vtrack.bench.slam",
     "generate": "vtrack.bench.generate",
+    "generate_downstream": "vtrack.bench.generate_downstream",
 }

@@ -14,7 +14,9 @@ def register(app: typer.Typer) -> None:
     @app.command("bench")
     def bench(
         stage: str = typer.Argument(
-            "all", help="tactile | fusion | tracking | dome | segmentation | simreal | slam | generate | all"
+            "all",
+            help="tactile | fusion | tracking | dome | segmentation | simreal | slam | generate | generate_downstream "
+            "| all",
         ),
         quick: bool = typer.Option(False, "--quick", help="fewer operating points and frames (< 3 min total)"),
         out: Path = typer.Option(
