@@ -16,4 +16,5 @@ STAGES: dict[str, str] = {
     "generate": "vtrack.bench.generate",
     "live": "vtrack.bench.live",
     "globalreg": "vtrack.bench.globalreg",
+    "generate_downstream": "vtrack.bench.generate_downstream",
 }

@@ -229,10 +229,14 @@ def _depth_net():
 
 
 def _train_depth_cnn(
-    real: tuple[np.ndarray, np.ndarray], extra: tuple[np.ndarray, np.ndarray] | None, steps: int, seed: int
+    real: tuple[np.ndarray, np.ndarray],
+    extra: tuple[np.ndarray, np.ndarray] | None,
+    steps: int,
+    seed: int,
+    extra_frac: float = 0.5,
 ):
     """Depth regressor (mm) on colour-change images, Adam, a fixed number of steps of batch 32; with ``extra``
-    (augmentation) half of every batch is drawn from it, half from the real images."""
+    (augmentation) a fraction ``extra_frac`` of every batch is drawn from it, the rest from the real images."""
     import torch
 
     torch.manual_seed(seed)
@@ -248,8 +252,9 @@ def _train_depth_cnn(
             idx = torch.from_numpy(rng.integers(0, len(Xr), 32))
             x, y = Xr[idx], Yr[idx]
         else:
-            i = torch.from_numpy(rng.integers(0, len(Xr), 16))
-            j = torch.from_numpy(rng.integers(0, len(extra[0]), 16))
+            n_extra = int(round(32 * extra_frac))
+            i = torch.from_numpy(rng.integers(0, len(Xr), 32 - n_extra))
+            j = torch.from_numpy(rng.integers(0, len(extra[0]), n_extra))
             x = torch.cat([Xr[i], torch.from_numpy(extra[0][j.numpy()])])
             y = torch.cat([Yr[i], torch.from_numpy((extra[1][j.numpy()] - mu) / sd)])
         loss = ((net(x)[:, 0] - y) ** 2).mean()

@@ -7,15 +7,14 @@ from pathlib import Path
 
 import typer
 
+from vtrack.bench import STAGES
 from vtrack.errors import VtrackError
 
 
 def register(app: typer.Typer) -> None:
     @app.command("bench")
     def bench(
-        stage: str = typer.Argument(
-            "all", help="tactile | fusion | tracking | dome | segmentation | simreal | slam | generate | live | all"
-        ),
+        stage: str = typer.Argument("all", help=" | ".join([*STAGES, "all"])),
         quick: bool = typer.Option(False, "--quick", help="fewer operating points and frames (< 3 min total)"),
         out: Path = typer.Option(
             None,
