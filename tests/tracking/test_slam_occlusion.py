@@ -1,6 +1,7 @@
 """SLAM under occlusion: which weak directions are left to the motion prior (``project_min_vision``)."""
 
 import numpy as np
+
 from vtrack.tracking.sdf_grid import SDFGrid
 from vtrack.tracking.window import TrackerOptions, WindowTracker
 
