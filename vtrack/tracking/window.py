@@ -88,6 +88,8 @@ class TrackerOptions:
     #: that sees a small patch of the object (heavy occlusion) is weak in several directions because the patch is
     #: small, not because the object looks the same under that motion: the data still informs there and is lifted
     project_min_vision: int = 0
+    #: ``project`` also in frames without any segmented vision point (touch only)
+    project_without_vision: bool = True
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
@@ -479,7 +481,7 @@ class WindowTracker:
         n_weak = int(weak.sum()) if lam_max > 0 else 6
         proj = None
         pw = weak & (lam < o.project_ratio * lam_max) if o.project_ratio > 0 else weak
-        few = 0 < n_vision < o.project_min_vision
+        few = (0 < n_vision < o.project_min_vision) or (n_vision == 0 and not o.project_without_vision)
         if o.degenerate_mode == "project" and pw.any() and not few:
             Uw = U[:, pw]
             # twist delta = S delta_s; its strong part is S (I - Uw Uw^T) S^-1 delta
