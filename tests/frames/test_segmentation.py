@@ -273,3 +273,21 @@ def test_object_split_by_a_wide_finger_band_is_merged_but_a_distractor_is_not():
     assert not m[distractor].any() and not m[depth == 1.0].any()
     old = mask(0.035)  # the previous gap keeps only the touched half
     assert old[left].all() and not old[right].any()
+
+
+def test_hand_samples_do_not_depend_on_which_camera_asked_first(frames):
+    """Spacings that share a cache key get the same hand samples in either order (they used to be sampled at the
+    first caller's spacing, so a session's masks, and SLAM on them, depended on the sessions run before it)."""
+    from vtrack.frames import segmentation as sg
+
+    kin = frames[0]().kin
+    got = []
+    for order in ((0.00104, 0.00096), (0.00096, 0.00104)):
+        sg._SAMPLE_CACHE.clear()
+        got.append([sg.sample_link_surfaces(kin, sp, 400_000) for sp in order])
+    sg._SAMPLE_CACHE.clear()
+    links = sorted(got[0][0])
+    assert links and all(len(got[0][0][k]) > 0 for k in links)
+    for x in (got[0][1], got[1][0], got[1][1]):
+        assert sorted(x) == links
+        assert all(np.array_equal(x[k], got[0][0][k]) for k in links)

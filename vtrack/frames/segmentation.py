@@ -129,7 +129,12 @@ def sample_link_surfaces(kin: Any, spacing_m: float, max_samples: int) -> dict[s
         areas[link] = a
     total = max(sum(areas.values()), 1e-12)
     spacing_m = max(spacing_m, float(np.sqrt(total / max(max_samples, 1))))
-    key = (str(kin.urdf_path), int(round(spacing_m * 1e4)))
+    # Sample at the cache key's spacing (0.1 mm steps), not at the requested one: two cameras whose spacings round
+    # to the same key then get the same samples whichever asked first. Sampling at the first caller's spacing made
+    # results depend on the sessions run before in the same process (blind SLAM, 5 s mug session: 6.94 mm alone,
+    # 12.54 mm after the soup can, 11.42 after the mustard bottle and potted-meat can).
+    key = (str(kin.urdf_path), max(1, int(round(spacing_m * 1e4))))
+    spacing_m = key[1] * 1e-4
     if key in _SAMPLE_CACHE:
         return _SAMPLE_CACHE[key]
     from vtrack.eval.pose_metrics import sample_model_points

@@ -84,6 +84,12 @@ class TrackerOptions:
     #: ``project`` only the weak directions below this fraction of the strongest one (0: every weak one); the
     #: others are lifted: a frame with few points is weak everywhere, and there the data still informs
     project_ratio: float = 0.0
+    #: ``project`` only in frames with no segmented vision point or at least this many (0: in every frame); a frame
+    #: that sees a small patch of the object (heavy occlusion) is weak in several directions because the patch is
+    #: small, not because the object looks the same under that motion: the data still informs there and is lifted
+    project_min_vision: int = 0
+    #: ``project`` also in frames without any segmented vision point (touch only)
+    project_without_vision: bool = True
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
@@ -147,6 +153,7 @@ class _Slot:
     #: pose it was computed at: the data terms see only the projected part of the motion away from it
     proj: np.ndarray | None = None
     T_lin: np.ndarray | None = None
+    n_vision: int = -1  #: segmented vision points of the frame when it was current (-1: count the slot's frame)
 
 
 def _hat3(v: np.ndarray) -> np.ndarray:
@@ -289,7 +296,7 @@ class WindowTracker:
             n_touch=fr.n_touch,
             n_free=0 if fr.free_points is None else len(fr.free_points),
         )
-        cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy())
+        cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy(), n_vision=fr.n_vision)
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
         if info.n_vision + info.n_touch + info.n_free == 0:
@@ -454,9 +461,10 @@ class WindowTracker:
             cost += 0.5 * float(np.sum((r * sq) ** 2))
         return terms, cost
 
-    def _degeneracy(self, H: np.ndarray) -> tuple[np.ndarray, int, np.ndarray | None]:
+    def _degeneracy(self, H: np.ndarray, n_vision: int = 0) -> tuple[np.ndarray, int, np.ndarray | None]:
         """Regulariser lifting weak eigen-directions of a 6x6 data block; their count; and the projector of a
-        twist onto the strong directions (None when none is weak or ``degenerate_mode`` is ``lift``)."""
+        twist onto the strong directions (None when none is weak, ``degenerate_mode`` is ``lift`` or the frame's
+        ``n_vision`` segmented points are fewer than ``project_min_vision`` but not none)."""
         o = self.opts
         L = o.object_radius
         S = np.diag([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
@@ -473,7 +481,8 @@ class WindowTracker:
         n_weak = int(weak.sum()) if lam_max > 0 else 6
         proj = None
         pw = weak & (lam < o.project_ratio * lam_max) if o.project_ratio > 0 else weak
-        if o.degenerate_mode == "project" and pw.any():
+        few = (0 < n_vision < o.project_min_vision) or (n_vision == 0 and not o.project_without_vision)
+        if o.degenerate_mode == "project" and pw.any() and not few:
             Uw = U[:, pw]
             # twist delta = S delta_s; its strong part is S (I - Uw Uw^T) S^-1 delta
             proj = S @ (np.eye(6) - Uw @ Uw.T) @ Sinv
@@ -517,7 +526,8 @@ class WindowTracker:
         H, b, cost, datas = self._total(slots, v_before, dt_first)
         dims = 0
         for i, s in enumerate(slots):
-            s.reg, d, s.proj = self._degeneracy(datas[i])
+            nv = s.n_vision if s.n_vision >= 0 else s.frame.n_vision
+            s.reg, d, s.proj = self._degeneracy(datas[i], nv)
             s.T_lin = s.T.copy()
             if i == n - 1:
                 dims = d
