@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -96,9 +97,29 @@ def test_live_command_known_shape_and_given_poses(tmp_path: Path) -> None:
     tr, rc = cons["track"]["result"], cons["reconstruct"]["result"]
     assert tr["mode"] == "known_shape" and tr["steps"] >= 5
     assert tr["add_s_mm"] < 3.0  # a sphere: ADD-S (its spin is unobservable)
+    # the offline loss check runs live too; on a clean replay a re-registration never replaces the tracker
+    assert tr["reloc_successes"] == 0 and tr["reloc_attempts"] >= 0
     assert rc["integrated"] >= 5 and rc["mesh_vertices"] > 50
     bad = invoke("live", sess, "--consumer", "track", "--mesh", mesh, "--init-pose", "1,2,3")
     assert isinstance(bad.exception, InputError) and "--init-pose" in str(bad.exception)
+
+
+def test_live_known_shape_uses_the_offline_contact_weight_and_loss_check(tmp_path: Path) -> None:
+    """The live known-shape tracker weighs image contacts as offline `track_session` does with vision + touch
+    (sigma 3 mm) and carries the same re-localisation."""
+    pytest.importorskip("open3d")
+    from vtrack.live.consumers import TrackConsumer
+    from vtrack.testing.sessions import write_sphere_session
+    from vtrack.tracking.run import KNOWN_SIGMA_TOUCH_WITH_VISION, Relocalisation
+
+    sess = write_sphere_session(tmp_path / "sphere", seconds=0.2)
+    tc = TrackConsumer(sess, mesh=tmp_path / "sphere_sphere.ply", init_pose=np.eye(4), touch_worker="off")
+    assert "touch" in tc.sf.modalities
+    tc._start(tc.sf.build(tc.sf.read(0)).tracking_frame())
+    assert tc.tracker.opts.sigma_touch == KNOWN_SIGMA_TOUCH_WITH_VISION
+    assert isinstance(tc.reloc, Relocalisation)
+    slam = TrackConsumer(sess, touch_worker="off")
+    assert slam.reloc is None
 
 
 def test_live_command_rejects_an_unknown_touch_worker(tmp_path: Path) -> None:

@@ -212,6 +212,7 @@ class TrackConsumer(Consumer):
         self.init_pose = init_pose
         self.tracker_opts = tracker_opts
         self.tracker: Any = None
+        self.reloc: Any = None  # known shape: run.Relocalisation once the tracker starts
         self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
         self.touch_streams = [f"tactile/{s}" for s in (self.sf.touch.sensors if self.sf.touch else [])]
         self.q: np.ndarray | None = None
@@ -250,16 +251,29 @@ class TrackConsumer(Consumer):
         return stream in self.cams or (stream == "joints" and self.sf.kin is not None)
 
     def _start(self, frame: Any) -> None:
-        from vtrack.tracking.run import build_tracker, centroid_frame, register_known_shape
+        from vtrack.tracking.run import (
+            KNOWN_SIGMA_TOUCH_WITH_VISION,
+            Relocalisation,
+            build_tracker,
+            centroid_frame,
+            register_known_shape,
+        )
 
         if self.mesh is not None:
+            symmetric = bool(self.sf.scene.object.symmetric)
             T0 = self.init_pose
             if T0 is None:
                 try:
-                    T0, _ = register_known_shape(self.mesh, [frame], bool(self.sf.scene.object.symmetric))
+                    T0, _ = register_known_shape(self.mesh, [frame], symmetric)
                 except InputError:  # nothing to register on yet: try the next frame
                     return
-            self.tracker = build_tracker("known_shape", self.mesh, T0, **self.tracker_opts)
+            opts = dict(self.tracker_opts)
+            if {"vision", "touch"} <= set(self.sf.modalities):  # the offline rule, same modalities
+                # the same contact weight as offline `track_session` with vision + touch (image contacts lie
+                # ~0.5 mm off the surface; a tight sigma pulls the depth fit off)
+                opts.setdefault("sigma_touch", KNOWN_SIGMA_TOUCH_WITH_VISION)
+            self.tracker = build_tracker("known_shape", self.mesh, T0, **opts)
+            self.reloc = Relocalisation(self.tracker, self.mesh, symmetric)  # as offline: recover after a loss
         else:
             T0 = centroid_frame(frame)
             if T0 is not None:
@@ -287,6 +301,9 @@ class TrackConsumer(Consumer):
             if self.tracker is None:
                 return
         T = self.tracker.step(frame)
+        if self.reloc is not None:
+            info = getattr(self.tracker, "last_info", None)
+            T, _ = self.reloc.update(frame, T, info.status if info is not None else "ok")
         self.poses.append((ev.t, np.asarray(T)))
 
     def finish(self) -> dict[str, Any]:
@@ -297,6 +314,8 @@ class TrackConsumer(Consumer):
             "modalities": list(self.sf.modalities),
             "mode": "known_shape" if self.mesh is not None else "slam",
         }
+        if self.reloc is not None:
+            out["reloc_attempts"], out["reloc_successes"] = self.reloc.attempts, self.reloc.successes
         if len(self.poses) > 1:
             from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
 
