@@ -228,6 +228,25 @@ def _depth_net():
     ).to(torch.float32)  # fmt: skip
 
 
+def _press_depth(ps, p) -> float:
+    """Indentation depth of a labelled ball press (mm), from its contact radius and the ball's geometry."""
+    from vtrack.sim.presses import press_depth_mm
+
+    return press_depth_mm(ps.ball_radius_mm, p.contact_radius_px * ps.mm_per_px)
+
+
+def _depth_features(imgs: list[np.ndarray], background: np.ndarray) -> np.ndarray:
+    """Depth-CNN input: each image minus the background, area-resized to 80x60, CHW, scaled by 1/32 (float32)."""
+    import cv2
+
+    bgf = background.astype(np.float32)
+    out = [
+        cv2.resize(im.astype(np.float32) - bgf, (80, 60), interpolation=cv2.INTER_AREA).transpose(2, 0, 1) / 32.0
+        for im in imgs
+    ]
+    return np.ascontiguousarray(np.stack(out), np.float32)
+
+
 def _train_depth_cnn(
     real: tuple[np.ndarray, np.ndarray],
     extra: tuple[np.ndarray, np.ndarray] | None,
@@ -308,15 +327,9 @@ def force_study(
     R = ps.ball_radius_mm
 
     def depth(p) -> float:
-        return press_depth_mm(R, p.contact_radius_px * ps.mm_per_px)
+        return _press_depth(ps, p)
 
-    def feats(imgs: list[np.ndarray], background: np.ndarray) -> np.ndarray:
-        bgf = background.astype(np.float32)
-        out = [
-            cv2.resize(im.astype(np.float32) - bgf, (80, 60), interpolation=cv2.INTER_AREA).transpose(2, 0, 1) / 32.0
-            for im in imgs
-        ]
-        return np.ascontiguousarray(np.stack(out), np.float32)
+    feats = _depth_features
 
     Xtr = feats([ps.image(p) for p in train], bg)
     Ytr = np.array([depth(p) for p in train], np.float32)

@@ -127,9 +127,8 @@ def real_pose_study(
     import cv2
     import torch
 
-    from vtrack.bench.generate import _pose_net
+    from vtrack.bench.generate import _pose_net, _press_depth
     from vtrack.paths import shared_data_dir
-    from vtrack.sim.presses import press_depth_mm
     from vtrack.tactile.generate import data as gd
     from vtrack.tactile.generate.generator import TactileGenerator
     from vtrack.tactile.generate.train import REAL_HOLDOUT
@@ -163,7 +162,7 @@ def real_pose_study(
         }
 
     def depth(p) -> float:
-        return press_depth_mm(ps.ball_radius_mm, p.contact_radius_px * ps.mm_per_px)
+        return _press_depth(ps, p)
 
     deltas_tr = [ps.image(p).astype(np.float32) - bgf for p in train]
     xy_tr = np.array([p.center_xy_px for p in train], np.float32)
@@ -290,12 +289,10 @@ def force_diagnosis(
        0.1); targets at the real training presses' own depths and centres (every ordered pair of training
        presses, i.e. no depth outside what the sensor showed); and pseudo-labels (the generated images
        relabelled by the real-only regressor, i.e. trusting the image over the requested depth)."""
-    import cv2
     import torch
 
-    from vtrack.bench.generate import _train_depth_cnn
+    from vtrack.bench.generate import _depth_features, _press_depth, _train_depth_cnn
     from vtrack.paths import shared_data_dir
-    from vtrack.sim.presses import press_depth_mm
     from vtrack.tactile.generate import data as gd
     from vtrack.tactile.generate.generator import TactileGenerator
     from vtrack.tactile.generate.train import REAL_HOLDOUT
@@ -306,20 +303,14 @@ def force_diagnosis(
     train, test = ps.split(REAL_HOLDOUT)
     bg = ps.background()
     H, W = bg.shape[:2]
-    R = ps.ball_radius_mm
     if quick:
         steps, seeds, n_per_ref = 300, 1, 6
 
     def depth(p) -> float:
-        return press_depth_mm(R, p.contact_radius_px * ps.mm_per_px)
+        return _press_depth(ps, p)
 
     def feats(imgs: list[np.ndarray]) -> np.ndarray:
-        bgf = bg.astype(np.float32)
-        out = [
-            cv2.resize(im.astype(np.float32) - bgf, (80, 60), interpolation=cv2.INTER_AREA).transpose(2, 0, 1) / 32.0
-            for im in imgs
-        ]
-        return np.ascontiguousarray(np.stack(out), np.float32)
+        return _depth_features(imgs, bg)
 
     Xtr = feats([ps.image(p) for p in train])
     Ytr = np.array([depth(p) for p in train], np.float32)
