@@ -15,7 +15,7 @@ _MODELS_HELP = "model folder from 'vtrack language train' (default: the weights 
 
 def register(app: typer.Typer) -> None:
     lang = typer.Typer(
-        help="Tactile-language: retrieve touches from text, describe touches (needs vtrack[language]).",
+        help="Tactile-language: retrieve touches from text, describe touches (needs vtrack\\[language]).",
         no_args_is_help=True,
     )
     app.add_typer(lang, name="language")
