@@ -90,6 +90,13 @@ class TrackerOptions:
     project_min_vision: int = 0
     #: ``project`` also in frames without any segmented vision point (touch only)
     project_without_vision: bool = True
+    #: weak-vision regime (heavy occlusion): in a frame with fewer segmented vision points than this (0: off; touch
+    #: only frames included) contacts are weighted as what carries the pose: ``sigma_touch_weak`` on both sides of
+    #: the surface and normals at ``sigma_normal_weak``, instead of ``sigma_touch`` / ``sigma_touch_inside`` /
+    #: ``sigma_normal`` (which, in SLAM, let contacts sit inside the surface at no cost because they read shallow)
+    touch_weak_vision: int = 0
+    sigma_touch_weak: float = 0.0015  #: m, contact point-to-surface sigma in weak-vision frames (both sides)
+    sigma_normal_weak: float = 0.0  #: contact normal sigma in weak-vision frames (0: ``sigma_normal``)
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
@@ -119,6 +126,13 @@ class TrackerOptions:
         if o.degenerate_mode not in ("project", "lift"):
             raise InputError(
                 "unknown degenerate mode", field="degenerate_mode", expected="project|lift", got=o.degenerate_mode
+            )
+        if o.touch_weak_vision > 0 and not o.sigma_touch_weak > 0:
+            raise InputError(
+                "sigma_touch_weak must be > 0 when the weak-vision regime is on",
+                field="sigma_touch_weak",
+                expected="> 0 m",
+                got=o.sigma_touch_weak,
             )
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
@@ -347,9 +361,15 @@ class WindowTracker:
         d, _ = self.sdf.query(se3.transform_points(_inv(T), P), with_grad=False)
         return float(np.mean(np.abs(d) < self.opts.inlier_dist))
 
-    def _frame_terms(self, T: np.ndarray, fr: TrackingFrame) -> tuple[np.ndarray, np.ndarray, float]:
-        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T."""
+    def _frame_terms(
+        self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
+        frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime)."""
         o = self.opts
+        nv = fr.n_vision if n_vision < 0 else n_vision
+        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
+        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
         Tinv = _inv(T)
         R = T[:3, :3]
         H = np.zeros((6, 6))
@@ -379,6 +399,10 @@ class WindowTracker:
             Jk = J[sl]
             if kind == "v":
                 sig, kern = o.sigma_vision, o.kernel_vision
+            elif kind == "t" and weak:
+                # vision sees too little to hold the pose: the contacts carry it, pulled onto the surface from both
+                # sides (their shallow bias, ~0.3 mm median on the YCB sessions, is below this sigma)
+                sig, kern = o.sigma_touch_weak, o.kernel_touch
             elif kind == "t":
                 sig, kern = o.sigma_touch, o.kernel_touch
                 if o.sigma_touch_inside > 0:
@@ -407,8 +431,8 @@ class WindowTracker:
                     rn = n_obj - ghat  # (m, 3)
                     # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected.
                     Jn = se3.hat(n_obj)  # (m, 3, 3)
-                    wn, rhon = _robust_weights(np.linalg.norm(rn, axis=1) / o.sigma_normal, o.robust, 2.0)
-                    wn = wn / o.sigma_normal**2
+                    wn, rhon = _robust_weights(np.linalg.norm(rn, axis=1) / sig_normal, o.robust, 2.0)
+                    wn = wn / sig_normal**2
                     cost += float(rhon.sum())
                     H[3:, 3:] += np.einsum("m,mki,mkj->ij", wn, Jn, Jn)
                     b[3:] += np.einsum("m,mki,mk->i", wn, Jn, rn)
@@ -496,12 +520,12 @@ class WindowTracker:
         datas = []
         for i, s in enumerate(slots):
             if s.proj is None:
-                Hi, bi, ci = self._frame_terms(s.T, s.frame)
+                Hi, bi, ci = self._frame_terms(s.T, s.frame, s.n_vision)
             else:
                 # the data says nothing reliable along the slot's weak directions: it sees (and pulls) only the
                 # strong part of the motion since T_lin; the motion prior alone carries the rest
                 T_eval = s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
-                Hi, bi, ci = self._frame_terms(T_eval, s.frame)
+                Hi, bi, ci = self._frame_terms(T_eval, s.frame, s.n_vision)
                 Hi, bi = s.proj.T @ Hi @ s.proj, s.proj.T @ bi
             datas.append(Hi)
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
