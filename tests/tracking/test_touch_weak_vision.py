@@ -105,3 +105,41 @@ def test_hidden_object_is_tracked_by_touch(mustard_seq_heavy):
     assert np.median([h.n_vision for h in tr.history[1:]]) < 150  # the regime was on
     assert err_v > 10.0
     assert err_vt < 7.0 and err_vt < 0.5 * err_v
+
+
+def test_contacts_do_not_pull_along_directions_their_normals_leave_free():
+    """Fingers along a cylinder's side (normals radial, a 6 cm band) constrain neither its spin nor a slide along
+    its axis: ``touch_blind_ratio`` removes exactly those two directions from the contacts' pull; a corner (three
+    faces) constrains everything and nothing is removed."""
+    tr = _slam_tracker(touch_blind_ratio=0.02)
+    rng = np.random.default_rng(1)
+    a = rng.uniform(0, 2 * np.pi, 60)
+    n = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)
+    side = TrackingFrame(
+        t=0.0, touch_points=n * 0.03 + [[0, 0, 1]] * rng.uniform(-0.03, 0.03, (60, 1)), touch_normals=n
+    )
+    P = tr._touch_projector(np.eye(4), side)
+    assert P is not None
+    spin, slide = np.array([0, 0, 0, 0, 0, 1.0]), np.array([0, 0, 1.0, 0, 0, 0])
+    assert np.abs(P @ spin).max() < 1e-9 and np.abs(P @ slide).max() < 1e-9
+    for k in (0, 1, 3, 4):  # radial translations and tilts are kept
+        e = np.eye(6)[k]
+        assert np.linalg.norm(P @ e - e) < 1e-6
+    # the same contacts with the object moved: the projector follows the object frame (spin about its own axis)
+    T = np.eye(4)
+    T[:3, 3] = [0.1, -0.05, 0.2]
+    moved = TrackingFrame(t=0.0, touch_points=side.touch_points + T[:3, 3], touch_normals=n)
+    assert np.abs(tr._touch_projector(T, moved) @ spin).max() < 1e-9
+    # a corner: three faces of a cube, each touched at several points
+    pts, nrm = [], []
+    for axis in range(3):
+        for _ in range(10):
+            p = rng.uniform(-0.02, 0.02, 3)
+            p[axis] = 0.02
+            pts.append(p)
+            nrm.append(np.eye(3)[axis])
+    assert (
+        tr._touch_projector(np.eye(4), TrackingFrame(t=0.0, touch_points=np.array(pts), touch_normals=np.array(nrm)))
+        is None
+    )
+    assert _slam_tracker()._touch_projector(np.eye(4), side) is None or SLAMOptions.split({})[2].touch_blind_ratio > 0

@@ -97,6 +97,11 @@ class TrackerOptions:
     touch_weak_vision: int = 0
     sigma_touch_weak: float = 0.0015  #: m, contact point-to-surface sigma in weak-vision frames (both sides)
     sigma_normal_weak: float = 0.0  #: contact normal sigma in weak-vision frames (0: ``sigma_normal``)
+    #: in weak-vision frames the contacts pull only along the directions their patches constrain by their MEASURED
+    #: normals (a patch fixes position along its normal; several fingers fix rotations): directions whose information
+    #: ``sum [n, q x n]^T [n, q x n]`` is below this fraction of the strongest (0: off) are removed from the contacts'
+    #: pull, e.g. a mug's spin under fingers on its body, which the map's small errors would otherwise hold at rest
+    touch_blind_ratio: float = 0.0
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
@@ -167,6 +172,8 @@ class _Slot:
     #: pose it was computed at: the data terms see only the projected part of the motion away from it
     proj: np.ndarray | None = None
     T_lin: np.ndarray | None = None
+    #: projector of a twist onto the directions the slot's contacts constrain by their measured normals (None: all)
+    proj_touch: np.ndarray | None = None
     n_vision: int = -1  #: segmented vision points of the frame when it was current (-1: count the slot's frame)
 
 
@@ -512,6 +519,43 @@ class WindowTracker:
             proj = S @ (np.eye(6) - Uw @ Uw.T) @ Sinv
         return Sinv @ Rs @ Sinv, n_weak, proj
 
+    def _touch_projector(self, T: np.ndarray, fr: TrackingFrame) -> np.ndarray | None:
+        """Projector of a twist onto the directions the frame's contacts constrain by their measured normals
+        (point-to-plane information ``[-n, q x n]`` per contact, object frame, rotation scaled by the object
+        radius); None when every direction is constrained, ``touch_blind_ratio`` is 0 or there are no normals."""
+        o = self.opts
+        if o.touch_blind_ratio <= 0 or fr.touch_points is None or fr.touch_normals is None or not fr.n_touch:
+            return None
+        ok = np.isfinite(fr.touch_normals).all(1) & np.isfinite(fr.touch_points).all(1)
+        if not ok.any():
+            return None
+        Tinv = _inv(T)
+        q = fr.touch_points[ok] @ Tinv[:3, :3].T + Tinv[:3, 3]
+        n = fr.touch_normals[ok] @ T[:3, :3]  # R^T n
+        L = o.object_radius
+        J = np.concatenate([-n, np.cross(n, q) / L], axis=1)  # scaled like _degeneracy's spectrum
+        lam, U = np.linalg.eigh(J.T @ J)
+        weak = lam < o.touch_blind_ratio * max(float(lam[-1]), 1e-12)
+        if not weak.any():
+            return None
+        S = np.diag([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
+        Uw = U[:, weak]
+        return S @ (np.eye(6) - Uw @ Uw.T) @ np.diag([1.0, 1.0, 1.0, L, L, L])
+
+    def _slot_terms(self, s: _Slot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """One slot's data terms at pose T; the contacts see only their constrained part of the motion since
+        ``T_lin`` when the slot has a touch projector (consistent cost: they are evaluated at that projected pose)."""
+        if s.proj_touch is None or s.T_lin is None:
+            return self._frame_terms(T, s.frame, s.n_vision)
+        fr = s.frame
+        rest = TrackingFrame(t=fr.t, vision_points=fr.vision_points, free_points=fr.free_points, info=fr.info)
+        touch = TrackingFrame(t=fr.t, touch_points=fr.touch_points, touch_normals=fr.touch_normals)
+        nv = s.n_vision if s.n_vision >= 0 else fr.n_vision
+        H, b, c = self._frame_terms(T, rest, nv)
+        P = s.proj_touch
+        Ht, bt, ct = self._frame_terms(s.T_lin @ _exp(P @ _log(_inv(s.T_lin) @ T)), touch, nv)
+        return H + P.T @ Ht @ P, b + P.T @ bt, c + ct
+
     def _total(self, slots, v_before, dt_first):
         n = len(slots)
         H = np.zeros((6 * n, 6 * n))
@@ -520,12 +564,12 @@ class WindowTracker:
         datas = []
         for i, s in enumerate(slots):
             if s.proj is None:
-                Hi, bi, ci = self._frame_terms(s.T, s.frame, s.n_vision)
+                Hi, bi, ci = self._slot_terms(s, s.T)
             else:
                 # the data says nothing reliable along the slot's weak directions: it sees (and pulls) only the
                 # strong part of the motion since T_lin; the motion prior alone carries the rest
                 T_eval = s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
-                Hi, bi, ci = self._frame_terms(T_eval, s.frame, s.n_vision)
+                Hi, bi, ci = self._slot_terms(s, T_eval)
                 Hi, bi = s.proj.T @ Hi @ s.proj, s.proj.T @ bi
             datas.append(Hi)
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
@@ -546,16 +590,18 @@ class WindowTracker:
         n = len(slots)
         dt_first = slots[-1].t - (self.t_last if self.t_last is not None else slots[-1].t - o.nominal_dt)
         for s in slots:
-            s.proj = None
+            s.proj = s.proj_touch = None
         H, b, cost, datas = self._total(slots, v_before, dt_first)
         dims = 0
         for i, s in enumerate(slots):
             nv = s.n_vision if s.n_vision >= 0 else s.frame.n_vision
             s.reg, d, s.proj = self._degeneracy(datas[i], nv)
             s.T_lin = s.T.copy()
+            if o.touch_weak_vision > 0 and nv < o.touch_weak_vision:
+                s.proj_touch = self._touch_projector(s.T, s.frame)
             if i == n - 1:
                 dims = d
-        if any(s.proj is not None for s in slots):
+        if any(s.proj is not None or s.proj_touch is not None for s in slots):
             H, b, cost, _ = self._total(slots, v_before, dt_first)
         lam = o.lm_lambda
         it = 0
