@@ -100,7 +100,8 @@ class TrackerOptions:
     #: in weak-vision frames the contacts pull only along the directions their patches constrain by their MEASURED
     #: normals (a patch fixes position along its normal; several fingers fix rotations): directions whose information
     #: ``sum [n, q x n]^T [n, q x n]`` is below this fraction of the strongest (0: off) are removed from the contacts'
-    #: pull, e.g. a mug's spin under fingers on its body, which the map's small errors would otherwise hold at rest
+    #: pull, e.g. a mug's spin under fingers on its body, which the map's small errors would otherwise hold at rest;
+    #: only in frames that see some vision points (in touch-only frames nothing else would hold those directions)
     touch_blind_ratio: float = 0.0
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
@@ -597,7 +598,9 @@ class WindowTracker:
             nv = s.n_vision if s.n_vision >= 0 else s.frame.n_vision
             s.reg, d, s.proj = self._degeneracy(datas[i], nv)
             s.T_lin = s.T.copy()
-            if o.touch_weak_vision > 0 and nv < o.touch_weak_vision:
+            if 0 < nv < o.touch_weak_vision:
+                # not in touch-only frames: there nothing else holds the directions the contacts leave free, and
+                # the map's errors at least keep them near rest (touch-only heavy sessions: 11.8 -> 33 mm with it)
                 s.proj_touch = self._touch_projector(s.T, s.frame)
             if i == n - 1:
                 dims = d
