@@ -164,3 +164,19 @@ def test_touch_only_frames_keep_every_direction_of_the_contacts():
         s = _Slot(T=np.eye(4), t=t, frame=fr, T_prior=np.eye(4), n_vision=0)
         tr._optimise([s], np.zeros(6))
         assert (s.proj_touch is not None) == projects, t
+
+
+def test_known_shape_with_vision_and_touch_uses_the_regime(tmp_path):
+    """Offline known shape with both modalities turns the regime on (touch alone keeps the tracker's defaults)."""
+    pytest.importorskip("open3d")
+    from vtrack.testing.sessions import write_sphere_session
+    from vtrack.tracking.run import KNOWN_TOUCH_WEAK_VISION, track_session
+
+    sess = write_sphere_session(tmp_path / "sphere", seconds=0.1)
+    kept: dict = {}
+    mesh = tmp_path / "sphere_sphere.ply"
+    track_session(
+        sess, "", shape="known_shape", mesh=mesh, init_pose=np.eye(4), write=False, keep_frames=kept, max_frames=1
+    )
+    o = kept["tracker"].opts
+    assert (o.touch_weak_vision, o.sigma_touch_weak) == KNOWN_TOUCH_WEAK_VISION
