@@ -17,4 +17,5 @@ STAGES: dict[str, str] = {
     "live": "vtrack.bench.live",
     "globalreg": "vtrack.bench.globalreg",
     "generate_downstream": "vtrack.bench.generate_downstream",
+    "heavy": "vtrack.bench.heavy",
 }
