@@ -209,6 +209,50 @@ def distractor_variance(
     }
 
 
+def error_breakdown(model, data: TactileSet, *, split: str = "test") -> dict:
+    """Where object-level retrieval fails: per direction, the R@1, the share of errors that get the texture
+    family / wavelength / relief / softness wrong (a wrong material usually differs in several), that confuse
+    two YCB objects or a YCB object with a procedural material; and the same for an image-only 1-NN from the
+    split's contacts to the training contacts (the tactile encoder's own ceiling, no text involved), plus how
+    often a material-level text is nearest to its own material's mean training image embedding (the text
+    side's placement)."""
+    sub = data.subset(data.split == split)
+    tr = data.subset(data.split == "train")
+    mats = np.unique(sub.material)
+    V = model.encode_images(sub.images, 0.0)
+    Vt = model.encode_images(tr.images, 0.0)
+    T = model.encode_text(sub.texts(mode=2, seed=EVAL_SEED), 0.0)
+    C = model.encode_text(class_texts(sub, mats), 0.0)
+    M = data.materials
+
+    def attrs(i: int) -> tuple:
+        m = M[int(i)]
+        return (m.family, m.wavelength, m.amplitude, m.softness)
+
+    def rows(pred: np.ndarray, true: np.ndarray) -> dict:
+        wrong = [(int(p), int(t)) for p, t in zip(pred, true, strict=True) if p != t]
+        n = max(len(wrong), 1)
+        out = {"r1": float(np.mean(pred == true)), "n_errors": len(wrong)}
+        ycb = [(attrs(p)[0] == "ycb", attrs(t)[0] == "ycb") for p, t in wrong]
+        out["err_ycb_ycb"] = sum(a and b for a, b in ycb) / n
+        out["err_ycb_procedural"] = sum(a != b for a, b in ycb) / n
+        proc = [(p, t) for (p, t), (a, b) in zip(wrong, ycb, strict=True) if not (a or b)]
+        for j, k in enumerate(("family", "wavelength", "relief", "softness")):
+            out[f"err_{k}"] = sum(attrs(p)[j] != attrs(t)[j] for p, t in proc) / n
+        is_y = np.array([attrs(t)[0] == "ycb" for t in true])
+        out["r1_ycb_queries"] = float(np.mean(pred[is_y] == true[is_y])) if is_y.any() else float("nan")
+        return out
+
+    proto = np.stack([Vt[tr.material == k].mean(0) for k in mats])
+    proto /= np.linalg.norm(proto, axis=1, keepdims=True).clip(1e-9)
+    return {
+        "text2touch": rows(sub.material[(T @ V.T).argmax(1)], sub.material),
+        "touch2text": rows(mats[(V @ C.T).argmax(1)], sub.material),
+        "image_1nn_to_train": rows(tr.material[(V @ Vt.T).argmax(1)], sub.material),
+        "class_text_nearest_own_image_mean": float(np.mean((C @ proto.T).argmax(1) == np.arange(len(mats)))),
+    }
+
+
 #: appearance words of the heavy-distractor texts: the colours / shapes of the training distractors plus
 #: appearance words never seen in training (some in the steering lexicon N, some not)
 APPEARANCE = (
