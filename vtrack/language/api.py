@@ -315,4 +315,26 @@ def evaluate_all(
             m, full, chosen, split=split
         )
         res["inference_steering_per_position"] = E.per_position_on_test(m, full, res["sweep_val"], split=split)
+        res["error_breakdown"] = E.error_breakdown(m, full, split=split)
+        res["distractor_variance"] = E.distractor_variance(m, full, split=split)
+        res["heavy_distractors"] = E.steering_heavy_distractors(m, full, split=split)
     return res
+
+
+def diagnostics(models: str | Path | None = None, *, seed: int = 0, split: str = "test") -> dict:
+    """What limits retrieval and what steering could remove, for the unsteered model in ``models``: the error
+    breakdown by attribute (:func:`vtrack.language.evaluate.error_breakdown`), the distractors' share of the text
+    embedding's variance (canonical and heavy-distractor texts) and P1 / P1w / P1p steering (A-N and A-only)
+    against heavy-distractor texts, strengths chosen on the validation split."""
+    from vtrack.language import evaluate as E
+    from vtrack.language.materials import generate
+
+    m, _ = load(models, "none")
+    data = generate(seed)
+    return {
+        "seed": seed,
+        "split": split,
+        "error_breakdown": E.error_breakdown(m, data, split=split),
+        "distractor_variance": E.distractor_variance(m, data, split=split),
+        "heavy_distractors": E.steering_heavy_distractors(m, data, split=split),
+    }

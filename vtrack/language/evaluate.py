@@ -57,13 +57,19 @@ def retrieval(
     p1w: float = 0.0,
     mode: int = 2,
     distractor: bool = True,
+    texts: tuple[list[str], list[str]] | None = None,
+    p1p: float = 0.0,
 ) -> dict:
     """Retrieval metrics on ``data`` (one split) with P1 / P2 / P1w steering at the given strengths
-    (``distractor`` False: the evaluation texts without their non-tactile clause)."""
+    (``distractor`` False: the evaluation texts without their non-tactile clause; ``texts``: explicit
+    (contact texts, material-level texts of ``np.unique(data.material)``) instead of the canonical ones)."""
     V = model.encode_images(data.images, p2)
-    T = model.encode_text(data.texts(mode=mode, seed=EVAL_SEED, distractor=distractor), p1, p1w)
     mats = np.unique(data.material)
-    C = model.encode_text(class_texts(data, mats, mode, distractor), p1, p1w)
+    if texts is None:
+        contact = data.texts(mode=mode, seed=EVAL_SEED, distractor=distractor)
+        texts = (contact, class_texts(data, mats, mode, distractor))
+    T = model.encode_text(texts[0], p1, p1w, p1p)
+    C = model.encode_text(texts[1], p1, p1w, p1p)
     s_ti = T @ V.T
     same = data.material[:, None] == data.material[None]
     eye = np.eye(len(V), dtype=bool)
@@ -135,6 +141,200 @@ def distractor_effect(model, data: TactileSet, *, split: str = "test") -> dict:
             w = model.net.word_weights(tok, mask, beta, sign)
             out[name] = float((w * is_d).sum(1).mean())
     out["distractor_token_share"] = float((is_d.sum(1) / mask.sum(1)).mean())
+    return out
+
+
+def distractor_variance(
+    model, data: TactileSet, *, split: str = "test", draws: int = 8, seed: int = 0, heavy: bool = False
+) -> dict:
+    """How much of the (unsteered) text embedding do the non-tactile words move? Every procedural contact text
+    of ``split`` is written ``draws`` times with different random colour / shape words (everything else equal);
+    the variance of the unit embeddings ``t`` across those draws (within a contact) is the distractors' share of
+    the total variance of ``t`` over all texts. Also: the share of that distractor variance along the P1
+    direction ``s_proj`` (1 / D_SHARED for a random direction) and the same share for the frozen GloVe mean
+    ``g(T)`` before any training (the contamination a frozen sentence encoder would carry). YCB contacts are
+    left out: their colour / shape words are the object's true ones, i.e. fixed per material. ``heavy``: the
+    draws are :func:`heavy_distractor_texts` (the clause present or not, 1-4 appearance words).
+
+    Why the share along ``s_proj`` matters: P1 adds ``a s_proj`` to every text before the normalisation, which
+    (to first order) shrinks every text's variation along the steered direction and leaves the rest; so
+    P1 can only suppress the part of the distractor variance that lies along ``s_proj``, and it shrinks the
+    tactile (between-contact) variance along ``s_proj`` as well.
+    """
+    from vtrack.language.materials import description
+    from vtrack.language.text import sentence_vectors
+
+    sub = data.subset(np.array([data.materials[int(m)].family != "ycb" for m in data.material]) & (data.split == split))
+    if len(sub.material) < 2:
+        return {"distractor_variance_share": float("nan")}
+    rng = np.random.default_rng(seed)
+    if heavy:  # presence and number of appearance words vary (heavy_distractor_texts)
+        texts = [heavy_distractor_texts(sub, seed=seed + k)[0] for k in range(draws)]
+    else:
+        texts = [
+            [description(sub.materials[int(m)], c, rng=rng) for m, c in zip(sub.material, sub.contacts, strict=True)]
+            for _ in range(draws)
+        ]
+    flat = [t for row in texts for t in row]
+    T = model.encode_text(flat, 0.0).reshape(draws, len(sub.material), -1)
+    G = sentence_vectors(flat).reshape(draws, len(sub.material), -1)
+
+    def share(E: np.ndarray) -> float:
+        within = float(((E - E.mean(0, keepdims=True)) ** 2).sum(-1).mean())
+        total = float(((E - E.reshape(-1, E.shape[-1]).mean(0)) ** 2).sum(-1).mean())
+        return within / max(total, 1e-12)
+
+    def along(E: np.ndarray, s: np.ndarray) -> tuple[float, float]:
+        """Shares of the within-contact (distractor) and the between-contact variance along unit ``s``."""
+        mu = E.mean(0, keepdims=True)
+        d = (E - mu).reshape(-1, E.shape[-1])
+        b = mu[0] - mu[0].mean(0)
+        f = lambda z: float(((z @ s) ** 2).sum() / max(float((z**2).sum()), 1e-12))  # noqa: E731
+        return f(d), f(b)
+
+    s_proj = model.net.s_proj().detach().numpy()
+    s_hat = model.net.s_hat.detach().numpy()
+    t_d, t_b = along(T, s_proj)
+    g_d, g_b = along(G, s_hat)
+    return {
+        "distractor_variance_share": share(T),
+        "distractor_variance_along_s_proj": t_d,
+        "contact_variance_along_s_proj": t_b,
+        "random_direction_share": 1.0 / T.shape[-1],
+        "distractor_variance_share_glove_mean": share(G),
+        "distractor_variance_along_s_hat_glove_mean": g_d,
+        "contact_variance_along_s_hat_glove_mean": g_b,
+        "random_direction_share_glove": 1.0 / G.shape[-1],
+        "n_texts": len(flat),
+    }
+
+
+def error_breakdown(model, data: TactileSet, *, split: str = "test") -> dict:
+    """Where object-level retrieval fails: per direction, the R@1, the share of errors that get the texture
+    family / wavelength / relief / softness wrong (a wrong material usually differs in several), that confuse
+    two YCB objects or a YCB object with a procedural material; and the same for an image-only 1-NN from the
+    split's contacts to the training contacts (the tactile encoder's own ceiling, no text involved), plus how
+    often a material-level text is nearest to its own material's mean training image embedding (the text
+    side's placement)."""
+    sub = data.subset(data.split == split)
+    tr = data.subset(data.split == "train")
+    mats = np.unique(sub.material)
+    V = model.encode_images(sub.images, 0.0)
+    Vt = model.encode_images(tr.images, 0.0)
+    T = model.encode_text(sub.texts(mode=2, seed=EVAL_SEED), 0.0)
+    C = model.encode_text(class_texts(sub, mats), 0.0)
+    M = data.materials
+
+    def attrs(i: int) -> tuple:
+        m = M[int(i)]
+        return (m.family, m.wavelength, m.amplitude, m.softness)
+
+    def rows(pred: np.ndarray, true: np.ndarray) -> dict:
+        wrong = [(int(p), int(t)) for p, t in zip(pred, true, strict=True) if p != t]
+        n = max(len(wrong), 1)
+        out = {"r1": float(np.mean(pred == true)), "n_errors": len(wrong)}
+        ycb = [(attrs(p)[0] == "ycb", attrs(t)[0] == "ycb") for p, t in wrong]
+        out["err_ycb_ycb"] = sum(a and b for a, b in ycb) / n
+        out["err_ycb_procedural"] = sum(a != b for a, b in ycb) / n
+        proc = [(p, t) for (p, t), (a, b) in zip(wrong, ycb, strict=True) if not (a or b)]
+        for j, k in enumerate(("family", "wavelength", "relief", "softness")):
+            out[f"err_{k}"] = sum(attrs(p)[j] != attrs(t)[j] for p, t in proc) / n
+        is_y = np.array([attrs(t)[0] == "ycb" for t in true])
+        out["r1_ycb_queries"] = float(np.mean(pred[is_y] == true[is_y])) if is_y.any() else float("nan")
+        return out
+
+    proto = np.stack([Vt[tr.material == k].mean(0) for k in mats])
+    proto /= np.linalg.norm(proto, axis=1, keepdims=True).clip(1e-9)
+    return {
+        "text2touch": rows(sub.material[(T @ V.T).argmax(1)], sub.material),
+        "touch2text": rows(mats[(V @ C.T).argmax(1)], sub.material),
+        "image_1nn_to_train": rows(tr.material[(V @ Vt.T).argmax(1)], sub.material),
+        "class_text_nearest_own_image_mean": float(np.mean((C @ proto.T).argmax(1) == np.arange(len(mats)))),
+    }
+
+
+#: appearance words of the heavy-distractor texts: the colours / shapes of the training distractors plus
+#: appearance words never seen in training (some in the steering lexicon N, some not)
+APPEARANCE = (
+    *("red", "blue", "green", "yellow", "purple", "orange", "white", "black", "grey", "pink"),
+    *("square", "round", "rectangular", "triangular", "oval", "circular"),
+    *("shiny", "transparent", "bright", "dark", "striped", "colorful", "glossy", "matte", "patterned", "pale"),
+)
+
+
+def heavy_distractor_texts(
+    data: TactileSet, *, seed: int = EVAL_SEED, p: float = 0.5, max_words: int = 4
+) -> tuple[list[str], list[str]]:
+    """(contact texts, material-level texts of ``np.unique(data.material)``) whose non-tactile content varies:
+    the tactile description (no distractor clause) followed, with probability ``p``, by "it looks w1, .. and
+    wk." with k = 1..``max_words`` appearance words. Training always shows exactly one colour and one shape,
+    so presence and amount vary only here: the variation that lies along mean e(N), i.e. what the paper's
+    steering vector can address. YCB texts keep their true colour / shape (object identity) and get the extra
+    clause too."""
+    rng = np.random.default_rng(seed)
+
+    def add(t: str) -> str:
+        if rng.random() >= p:
+            return t
+        k = int(rng.integers(1, max_words + 1))
+        w = [str(x) for x in rng.choice(APPEARANCE, k, replace=False)]
+        clause = w[0] if k == 1 else ", ".join(w[:-1]) + " and " + w[-1]
+        return t[:-1] + f". it looks {clause}."
+
+    ycb = {int(m) for m in np.unique(data.material) if data.materials[int(m)].family == "ycb"}
+    base = data.texts(mode=2, distractor=False)
+    true_d = data.texts(mode=2, seed=EVAL_SEED)  # YCB: keep the true colour / shape clause
+    contact = [add(true_d[i] if int(m) in ycb else base[i]) for i, m in enumerate(data.material)]
+    mats = np.unique(data.material)
+    cl = class_texts(data, mats, 2, distractor=False)
+    cl_true = class_texts(data, mats, 2, distractor=True)
+    return contact, [add(cl_true[j] if int(m) in ycb else cl[j]) for j, m in enumerate(mats)]
+
+
+P1W_ALPHAS = (0.2, 0.5, 1.0, 2.0)
+P1P_ALPHAS = (0.25, 0.5, 0.75, 1.0)
+
+
+def steering_heavy_distractors(
+    model, data: TactileSet, *, alphas=(0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5), split: str = "test", val: str = "val"
+) -> dict:
+    """P1 steering against variable distractor content (:func:`heavy_distractor_texts`), injected at inference
+    into ``model``: the steering vector A-N (the model's) and A-only, each strength chosen on ``val`` (best
+    object R@1, ties: the weaker), then scored on ``split``; also the text embedding's distractor variance
+    under these texts. Returns the per-vector sweeps, the choices and the test R@1s (none = strength 0)."""
+    from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector
+
+    torch = __import__("torch")
+    out: dict = {"sweep_val": {}, "chosen_on_val": {}, "test_r1": {}}
+    sv = data.subset(data.split == val)
+    st = data.subset(data.split == split)
+    tv, tt = heavy_distractor_texts(sv), heavy_distractor_texts(st)
+    keep = model.net.s_hat.clone()
+    try:
+        for name, neg in (("A-N", LEXICON_N), ("A", None)):
+            model.net.s_hat.copy_(torch.as_tensor(steering_vector(LEXICON_A, neg)))
+            rows = [(a, retrieval(model, sv, p1=a, p2=0.0, texts=tv)["r1"]) for a in alphas]
+            out["sweep_val"][name] = rows
+            a_best = max(rows, key=lambda r: (r[1], -r[0]))[0]
+            out["chosen_on_val"][name] = a_best
+            out["test_r1"][name] = retrieval(model, st, p1=a_best, p2=0.0, texts=tt)["r1"]
+    finally:
+        model.net.s_hat.copy_(keep)
+    # ours, not the paper's: P1w (per-word pooling steering, A-N vector)
+    rows = [(a, retrieval(model, sv, p1=0.0, p2=0.0, p1w=a, texts=tv)["r1"]) for a in (0.0, *P1W_ALPHAS)]
+    out["sweep_val"]["P1w A-N"] = rows
+    a_best = max(rows, key=lambda r: (r[1], -r[0]))[0]
+    out["chosen_on_val"]["P1w A-N"] = a_best
+    out["test_r1"]["P1w A-N"] = retrieval(model, st, p1=0.0, p2=0.0, p1w=a_best, texts=tt)["r1"]
+    # ours, not the paper's: P1p, the share ``a`` of each text's component along s_proj (A-N) projected out
+    rows = [(a, retrieval(model, sv, p1=0.0, p2=0.0, p1p=a, texts=tv)["r1"]) for a in (0.0, *P1P_ALPHAS)]
+    out["sweep_val"]["P1p A-N"] = rows
+    a_best = max(rows, key=lambda r: (r[1], -r[0]))[0]
+    out["chosen_on_val"]["P1p A-N"] = a_best
+    out["test_r1"]["P1p A-N"] = retrieval(model, st, p1=0.0, p2=0.0, p1p=a_best, texts=tt)["r1"]
+    out["test_r1"]["none"] = retrieval(model, st, p1=0.0, p2=0.0, texts=tt)["r1"]
+    out["test_r1"]["canonical_texts_none"] = retrieval(model, st, p1=0.0, p2=0.0)["r1"]
+    out |= {f"heavy_{k}": v for k, v in distractor_variance(model, data, split=split, heavy=True).items()}
     return out
 
 

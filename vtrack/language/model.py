@@ -128,8 +128,11 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
             """g(T): weighted mean of the (signed) word vectors (B, L, 50) -> (B, 50)."""
             return (self.word_weights(tok, mask, beta_w, sign)[..., None] * tok).sum(1)
 
-        def text_embed(self, tok, mask, alpha_p1: float = 0.0, beta_w: float = 0.0, sign=None):
+        def text_embed(self, tok, mask, alpha_p1: float = 0.0, beta_w: float = 0.0, sign=None, proj: float = 0.0):
             t = self.w_text(self.pool(tok, mask, beta_w, sign))
+            if proj:  # P1p (ours): remove a share ``proj`` of each text's component along s_proj
+                sp = self.s_proj()
+                t = t - proj * (t @ sp)[:, None] * sp[None]
             if alpha_p1:  # the paper's P1: added to the projected, not yet normalised text embedding
                 t = t + alpha_p1 * self.s_proj()[None]
             return t / t.norm(dim=1, keepdim=True).clamp_min(1e-9)
@@ -192,16 +195,18 @@ class TouchSteer:
     meta: dict = field(default_factory=dict)
 
     # ------------------------------------------------------------------ helpers
-    def encode_text(self, texts: list[str], alpha: float | None = None, beta_w: float = 0.0) -> np.ndarray:
+    def encode_text(
+        self, texts: list[str], alpha: float | None = None, beta_w: float = 0.0, proj: float = 0.0
+    ) -> np.ndarray:
         """(N, D_SHARED) unit text embeddings (P1 steering at ``alpha``, default the model's own; P1w at
-        ``beta_w``, inference only)."""
+        ``beta_w`` and P1p at ``proj`` (0-1), inference only)."""
         from vtrack.language.text import token_arrays
 
         torch = _torch()
         a = self.steering.p1 if alpha is None else alpha
         tok, mask, sign = token_arrays(texts, signs=True)
         with torch.no_grad():
-            t = self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign))
+            t = self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign), proj)
             return t.numpy()
 
     def _features(self, images: np.ndarray, batch: int = 256):
@@ -362,6 +367,7 @@ def train(
     cls_weight: float = 0.0,
     same_weight: float = 0.5,
     shift_px: int = 0,
+    class_text_weight: float = 0.0,
     log=None,
 ) -> TouchSteer:
     """Train on the ``train`` split of a :class:`~vtrack.language.materials.TactileSet`.
@@ -379,6 +385,12 @@ def train(
             rest on the own pair).
         shift_px: random circular shift of the image by up to this many pixels (0: none); the position
             word of a contact is coarse (centred / edge), so a few pixels keep it.
+        class_text_weight: weight of a class-text contrastive loss: every image of the batch against the
+            material-level descriptions of *all* training materials (re-drawn with augmentation and new
+            distractor words each epoch), cross-entropy on its material, at the InfoNCE temperature. The
+            in-batch InfoNCE sees ~1 same-material contact and a random handful of the 57 other materials per
+            step; this term shows every material's text as a negative at every step (the hard negatives that
+            object-level touch -> text ranking meets), and places each material's text where its images are.
     """
     from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector, token_arrays, word_vectors
 
@@ -410,6 +422,18 @@ def train(
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
     x_all = torch.as_tensor(tr.images)
     mat_all = torch.as_tensor(tr.material)
+    if class_text_weight > 0:
+        # material-level texts of every training material (8 augmented draws, as the contact texts)
+        from vtrack.language.materials import description
+
+        tmats = np.unique(tr.material)
+        col = torch.full((n_mat,), -1, dtype=torch.long)
+        col[torch.as_tensor(tmats)] = torch.arange(len(tmats))
+        crng = np.random.default_rng(seed * 100 + 77)
+        class_vars = [
+            token_arrays([description(tr.materials[int(k)], None, mode=mode, rng=crng, augment=True) for k in tmats])
+            for _ in range(8)
+        ]
     t0 = time.perf_counter()
     for ep in range(epochs):
         net.train()
@@ -439,6 +463,11 @@ def train(
             )
             if cls_head is not None:
                 loss = loss + cls_weight * torch.nn.functional.cross_entropy(cls_head(f), mat_all[b])
+            if class_text_weight > 0:
+                ct, cm = (torch.as_tensor(a) for a in class_vars[(ep * 31 + i // batch) % len(class_vars)])
+                c_emb = net.text_embed(ct, cm, steering.p1)
+                c_logits = net.logit_scale.exp().clamp(max=100) * v @ c_emb.T
+                loss = loss + class_text_weight * torch.nn.functional.cross_entropy(c_logits, col[mat_all[b]])
             tok = tgt[b]
             lm = net.decode_logits(f, tok[:, :-1], steering.p3, steering.p4)
             loss = loss + lm_weight * torch.nn.functional.cross_entropy(
@@ -458,5 +487,6 @@ def train(
     net.eval()
     meta = {"epochs": epochs, "mode": mode, "seed": seed, "pooling": pooling, "n_train": n}
     meta |= {"cls_weight": cls_weight, "same_weight": same_weight, "shift_px": shift_px}
+    meta["class_text_weight"] = class_text_weight
     meta["train_s"] = round(time.perf_counter() - t0, 1)
     return TouchSteer(net, vocab, steering, meta)
