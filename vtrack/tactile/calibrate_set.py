@@ -39,6 +39,7 @@ AUTO_CANDIDATES: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("mlp-h32", "mlp", {"mlp_hidden": 32}),
     ("mlp-h16", "mlp", {"mlp_hidden": 16}),
     ("mlp-rel", "mlp", {"mlp_features": "rel"}),
+    ("mlp-relpoly", "mlp", {"mlp_features": "relpoly"}),
     ("lut", "lut", {}),
     ("ps", "ps", {}),
 )

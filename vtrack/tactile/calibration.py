@@ -51,10 +51,6 @@ class TrainOptions:
     #: (and for relpoly its relative form) times quadratic monomials of the position, no free position term
     #: (see ``_mlp_features``). `--method auto` tries raw, rel and relpoly
     mlp_features: str = "raw"
-    #: extra loss weight on steep pixels: each training pixel weighs ``1 + k |n_xy|^2``. The steep rim of a
-    #: press is a small share of its pixels but sets the integrated depth (a rim read too flat makes the
-    #: reconstructed ball too large); 0 = plain mean loss (the original model)
-    mlp_steep_weight: float = 0.0
     inside_frac: float = 0.95  # use the labelled disc shrunk by this factor as gradient truth
     outside_frac: float = 1.15  # and pixels beyond this factor x radius as flat gel
     flat_per_press: int = 3000
@@ -518,7 +514,6 @@ def fit_mlp(feats: np.ndarray, target: np.ndarray, opts: TrainOptions) -> dict[s
     net = torch.nn.Sequential(*layers)
     X = torch.from_numpy(np.ascontiguousarray(feats, np.float32))
     Y = torch.from_numpy(np.ascontiguousarray(target, np.float32))
-    Wt = 1.0 + opts.mlp_steep_weight * (Y * Y).sum(1)
     opt = torch.optim.Adam(net.parameters(), lr=opts.mlp_lr)
     n = len(X)
     batch = 1024
@@ -529,11 +524,7 @@ def fit_mlp(feats: np.ndarray, target: np.ndarray, opts: TrainOptions) -> dict[s
         perm = torch.randperm(n, generator=g)
         for s in range(0, n, batch):
             b = perm[s : s + batch]
-            if opts.mlp_steep_weight:
-                per = torch.nn.functional.smooth_l1_loss(torch.tanh(net(X[b])), Y[b], beta=0.05, reduction="none")
-                loss = (per.sum(1) * Wt[b]).sum() / (2.0 * Wt[b].sum())
-            else:
-                loss = torch.nn.functional.smooth_l1_loss(torch.tanh(net(X[b])), Y[b], beta=0.05)
+            loss = torch.nn.functional.smooth_l1_loss(torch.tanh(net(X[b])), Y[b], beta=0.05)
             opt.zero_grad()
             loss.backward()
             opt.step()
