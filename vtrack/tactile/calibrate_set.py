@@ -11,7 +11,8 @@ on its own circles, a placement that draws them too small hid its poorly reconst
 score (simulated GelSight Mini: 0.5 chosen, 13.3 % against the true circles, where 1.0 gives 4.8 %).
 
 ``method="auto"`` then chooses the model (:data:`AUTO_CANDIDATES`: MLP of three widths, MLP on the colour
-change relative to the background, colour LUT, photometric stereo) by k-fold cross-validation over the
+change relative to the background, MLP on the colour change times position monomials, colour LUT,
+photometric stereo) by k-fold cross-validation over the
 training presses (folds of whole presses, never of pixels) and reports the cross-validated errors as what to
 expect on new presses of this sensor.
 
@@ -33,12 +34,14 @@ MAX_NORMAL_ERR_DEG = 15.0
 #: Models ``method="auto"`` chooses among by cross-validation on the training presses: (name, method,
 #: TrainOptions fields it overrides). The narrower MLPs are its capacity regularisation (fewer presses or
 #: another sensor's optics may favour a smaller net); ``mlp-rel`` normalises the colour change against the
-#: sensor's own background (see ``TrainOptions.mlp_features``).
+#: sensor's own background, ``mlp-relpoly`` multiplies it by quadratic monomials of the position instead of
+#: giving the position as free inputs (see ``TrainOptions.mlp_features``).
 AUTO_CANDIDATES: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("mlp", "mlp", {}),
     ("mlp-h32", "mlp", {"mlp_hidden": 32}),
     ("mlp-h16", "mlp", {"mlp_hidden": 16}),
     ("mlp-rel", "mlp", {"mlp_features": "rel"}),
+    ("mlp-relpoly", "mlp", {"mlp_features": "relpoly"}),
     ("lut", "lut", {}),
     ("ps", "ps", {}),
 )

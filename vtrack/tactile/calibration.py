@@ -47,7 +47,9 @@ class TrainOptions:
     mlp_lr: float = 3e-3
     #: MLP colour features besides the change: "raw" = the raw colour (the original model), "rel" = the change
     #: relative to the sensor's own background at that pixel, dI / (bg + 16): an LED's fall-off across the
-    #: gel scales bg and dI alike, so "rel" needs fewer presses to learn it (`--method auto` tries both)
+    #: gel scales bg and dI alike, so "rel" needs fewer presses to learn it; "poly" / "relpoly": the change
+    #: (and for relpoly its relative form) times quadratic monomials of the position, no free position term
+    #: (see ``_mlp_features``). `--method auto` tries raw, rel and relpoly
     mlp_features: str = "raw"
     inside_frac: float = 0.95  # use the labelled disc shrunk by this factor as gradient truth
     outside_frac: float = 1.15  # and pixels beyond this factor x radius as flat gel
@@ -440,7 +442,15 @@ def fit_lut(src: np.ndarray, target: np.ndarray, bins: int, lo: float, hi: float
 
 # ---------------------------------------------------------------------- MLP
 #: Feature sets of the MLP (stored in a calibration as their index, ``params["mlp_features"]``; absent = 0).
-MLP_FEATURES = ("raw", "rel")
+MLP_FEATURES = ("raw", "rel", "poly", "relpoly")
+
+
+def _monomials(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N, 6) float32 monomials 1, x, y, x^2, xy, y^2 of the pixel position normalised to [-1, 1]."""
+    H, W = shape
+    x = np.asarray(cols, np.float32) * (2.0 / W) - 1.0
+    y = np.asarray(rows, np.float32) * (2.0 / H) - 1.0
+    return np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
 
 
 def _mlp_features(
@@ -451,9 +461,22 @@ def _mlp_features(
     shape: tuple[int, int],
     kind: str = "raw",
 ) -> np.ndarray:
-    """(N, 8) float32 MLP inputs: colour change / 64, then the raw colour (``raw``: / 255 - 0.5) or the change
-    relative to the background colour (``rel``: 2 dI / (bg + 16), bg = raw - dI, grey levels), then the
-    pixel position normalised to [-1, 1] (x = column, y = row)."""
+    """MLP inputs (float32). ``raw`` / ``rel`` (N, 8): colour change / 64, then the raw colour (``raw``:
+    / 255 - 0.5) or the change relative to the background colour (``rel``: 2 dI / (bg + 16), bg = raw - dI,
+    grey levels), then the pixel position normalised to [-1, 1] (x = column, y = row).
+
+    ``poly`` (N, 18) / ``relpoly`` (N, 36): the colour change (and for ``relpoly`` also its relative form)
+    multiplied by the quadratic monomials of the position (:func:`_monomials`), and no position term of its
+    own. The first layer then computes ``sum_k m_k(x, y) W_k dI``: a linear map of the colour change that
+    varies smoothly (quadratically) over the gel, as an LED's direction and fall-off do. The model cannot
+    memorise "a normal at a place" (no colour, no activation beyond the bias), only how colour maps to slope
+    there, which carries over to places between and beyond the training presses."""
+    if kind in ("poly", "relpoly"):
+        m = _monomials(rows, cols, shape)
+        parts = [np.asarray(dI, np.float32) * (1.0 / 64.0)]
+        if kind == "relpoly":
+            parts.append(2.0 * dI / (np.asarray(raw, np.float32) - dI + 16.0))
+        return np.concatenate([(c[:, :, None] * m[:, None, :]).reshape(len(m), -1) for c in parts], 1)
     H, W = shape
     f = np.empty((len(rows), 8), np.float32)
     f[:, 0:3] = dI * (1.0 / 64.0)
