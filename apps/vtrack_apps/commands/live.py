@@ -35,6 +35,11 @@ def register(app: typer.Typer) -> None:
             "--touch-worker",
             help="track: tactile pipeline in a child 'process' (default), a 'thread' or 'off' (in the camera step)",
         ),
+        frames_worker: str = typer.Option(
+            None,
+            "--frames-worker",
+            help="track: segmentation in the child 'process' (default, a stage ahead of the tracker) or 'inline'",
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
         import os
@@ -56,6 +61,7 @@ def register(app: typer.Typer) -> None:
                 "mesh": mesh,
                 "init_pose": parse_pose(init_pose) if init_pose else None,
                 "touch_worker": touch_worker,
+                "frames_worker": frames_worker,
             },
             "reconstruct": {"poses": poses},
         }
