@@ -84,8 +84,8 @@ def _helper_process(
     """Child process of the ``track`` consumer (:class:`_Helper`). ``touch_conn``: tactile images in, contacts
     (sensor frame) out; the newest contact per sensor is kept here. ``frames_conn``: a camera frame's strided
     depth, joints and time in, its :class:`~vtrack.tracking.frame.TrackingFrame` out (segmentation by the
-    FK-posed hand with the newest contacts; with touch in another worker the request carries them). A camera
-    frame waiting is served before a tactile image (it is on the pose's latency path). ``None`` on either
+    FK-posed hand with the newest contacts; with touch in another worker the request carries them). When both
+    wait they are served in turn. ``None`` on either
     connection ends the process; it answers with its CPU seconds since it was ready."""
     import time
 
@@ -118,9 +118,13 @@ def _helper_process(
     touch_conn.send("ready")
     cpu0 = time.process_time()
     contacts: dict[str, Any] = {}
+    last = touch_conn
     while True:
         ready = wait([frames_conn, touch_conn])
-        conn = frames_conn if frames_conn in ready else touch_conn
+        # both waiting: take turns (a camera frame waits for at most one tactile image, ~2 ms, and a tactile
+        # image for at most one camera frame: neither stream can starve the other)
+        conn = ready[0] if len(ready) == 1 else (frames_conn if last is touch_conn else touch_conn)
+        last = conn
         try:
             msg = conn.recv()
         except EOFError:
