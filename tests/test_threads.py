@@ -31,4 +31,5 @@ def test_limit_threads_caps_blas_pools_loaded_before_it():
     before, after = json.loads(out.stdout.strip().splitlines()[-1])
     assert before and set(before) <= set(after)  # numpy's pool, loaded before the call (+ any loaded by it)
     assert all(n == 1 for n in after.values())
-    assert max(before.values()) == (os.cpu_count() or 1)  # the library default it overrode: one per core
+    if (os.cpu_count() or 1) > 1:
+        assert max(before.values()) > 1  # the library default it overrode (one thread per core)
