@@ -196,16 +196,19 @@ def test_track_consumer_runs_touch_as_the_images_arrive(tiny_session, mode):
             p.finish()
 
 
-def test_frames_stage_builds_in_the_child_process_what_the_tracker_would_build(tiny_session):
-    """Default live tracking: touch and segmentation run in the consumer's child process, the camera frame's
+@pytest.mark.parametrize("fmode", ["process", "shared"])
+def test_frames_stage_builds_in_the_child_process_what_the_tracker_would_build(tiny_session, fmode):
+    """Default live tracking: touch and segmentation run in child processes (``shared``: one, which keeps the
+    contacts it computed; ``process``: one each, the newest contacts go with the frame); the camera frame's
     tracking frame is forwarded to the tracker's mailbox as ``frames/<camera>``; it equals the frame built
-    inline from the same depth, joints and contacts (the child keeps the contacts it computed)."""
+    inline from the same depth, joints and contacts."""
     pytest.importorskip("open3d")
     from vtrack.live.consumers import FramesConsumer, TouchConsumer, TrackConsumer
     from vtrack.live.pipeline import DERIVED_PREFIX
     from vtrack.live.sources import FrameEvent
 
-    tc = TrackConsumer(tiny_session)  # defaults: touch_worker=process, frames_worker=process
+    tc = TrackConsumer(tiny_session, frames_worker=fmode)  # touch_worker: process (default)
+    assert (tc.frames_helper is tc.touch_helper) == (fmode == "shared")
     out: list[FrameEvent] = []
     try:
         touch, frames, track = tc.parts()
@@ -241,7 +244,8 @@ def test_frames_stage_builds_in_the_child_process_what_the_tracker_would_build(t
     finally:
         for p in tc.parts():
             p.finish()
-    assert not tc.helper.proc.is_alive() and touch.child_cpu_s > 0  # ended once, its CPU reported
+    assert not tc.touch_helper.proc.is_alive() and not tc.frames_helper.proc.is_alive()
+    assert touch.child_cpu_s > 0  # ended once, its CPU reported
     with pytest.raises(InputError, match="frames_worker"):
         TrackConsumer(tiny_session, frames_worker="gpu")
 

@@ -17,8 +17,9 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   measured in wall time is inflated).
 
 Variants: ``default`` (what ``vtrack live`` does: in a child process the tactile pipeline on every tactile image
-as it arrives and the segmentation of each camera frame, a stage ahead of the tracker; the replay decoding the
-session in another child process), ``frames inline`` (segmentation inside the tracker's step; last session's
+as it arrives, in another the segmentation of each camera frame, a stage ahead of the tracker; the replay
+decoding the session in a third), ``frames in the touch process`` (segmentation and touch share one child),
+``frames inline`` (segmentation inside the tracker's step; last session's
 configurations, with the reader in a process or a thread), ``touch thread`` (the tactile pipeline in a worker
 thread sharing the GIL with the tracker) and ``touch in camera step`` (the newest image of each sensor is
 processed inside the camera step, as offline tracking does; tactile images in between are never read).
@@ -38,6 +39,7 @@ from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
     "default (touch + frames process, reader process)": {},
+    "frames in the touch process": {"frames_worker": "shared", "reader": "process"},
     "frames inline, reader process": {"frames_worker": "inline", "reader": "process"},
     "frames inline, reader thread": {"frames_worker": "inline", "reader": "thread"},
     "touch thread": {"touch_worker": "thread", "frames_worker": "inline", "reader": "thread"},
@@ -116,6 +118,7 @@ def run(quick: bool = False) -> BenchTable:
                 dropped_camera_pct=sm.get("dropped_camera_pct"),
                 poses_per_s=sm.get("poses_per_s"),
                 cpu_s_per_session_s=sm.get("cpu_s_per_session_s"),
+                cpu_main_s_per_session_s=round(res["cpu"]["main_s"] / max(res["cpu"]["session_s"], 1e-9), 3),
                 speed=speed,
                 motion_err_mm=tr["result"].get("motion_err_mm", float("nan")),
                 ms=cam.get("cpu_ms_mean", float("nan")) + seg.get("cpu_ms_mean", 0.0),

@@ -31,8 +31,9 @@ class LiveTrackConfig:
     process: tactile images and tracking on two cores), ``thread`` (a worker thread of this process; it
     shares the GIL with the tracker) or ``off`` (on the newest image of each sensor inside the camera
     frame's step, as offline tracking does; the step is then longer and the images in between are never
-    read); frames_worker = where a camera frame is segmented and turned into the tracker's input: ``process``
-    (the child process, a stage of its own: frame k+1 is segmented while the tracker steps on frame k) or
+    read); frames_worker = where a camera frame is segmented and turned into the tracker's input, a stage of its
+    own (frame k+1 is segmented while the tracker steps on frame k) in a child process: ``process`` (its own;
+    the newest contacts go with each frame), ``shared`` (the touch process's, which keeps its contacts), or
     ``inline`` (in the tracker's step); touch_downsample /
     touch_stride = the tactile pipeline's working-resolution factor and point stride (tracking's defaults,
     :data:`vtrack.tracking.run.TRACK_TOUCH_DOWNSAMPLE`). The tracker's own options are
@@ -243,15 +244,15 @@ class TouchConsumer(Consumer):
         if self.mode != "process":
             c = self.owner.sf.touch.contact(s, ev.data["image"])  # type: ignore[union-attr]
         else:
-            P, N, pen, valid, cpu = _Helper.call(self.owner.helper.touch_conn, ("touch", s, ev.data["image"]))  # type: ignore[union-attr]
+            P, N, pen, valid, cpu = _Helper.call(self.owner.touch_helper.touch_conn, ("touch", s, ev.data["image"]))  # type: ignore[union-attr]
             c = Contact(P, N, pen, valid)
             self.offload_cpu_s = cpu
         self.owner.images[s] = c  # one dict item assignment: atomic for the camera step reading it
         self.owner.touch_steps += 1
 
     def finish(self) -> dict[str, Any]:
-        if self.owner.helper is not None:
-            self.child_cpu_s = self.owner.helper.close()
+        if self.owner.touch_helper is not None:
+            self.child_cpu_s = self.owner.touch_helper.close()
         return {"mode": self.mode}
 
 
@@ -287,8 +288,9 @@ class FramesConsumer(Consumer):
             return
         k = o.sf.depth_stride
         depth = np.ascontiguousarray(np.asarray(ev.data["depth"])[::k, ::k])
-        touch = None if (o._touch is not None and o._touch.mode == "process") else list(o.images.items())
-        fr, cpu = _Helper.call(o.helper.frames_conn, ("frame", ev.stream, ev.t, depth, self.q, touch))  # type: ignore[union-attr]
+        # the shared helper keeps the contacts it computed; else the newest ones (or raw images) go along
+        touch = None if o.frames_helper is o.touch_helper else list(o.images.items())
+        fr, cpu = _Helper.call(o.frames_helper.frames_conn, ("frame", ev.stream, ev.t, depth, self.q, touch))  # type: ignore[union-attr]
         self.offload_cpu_s = cpu
         if self.forward is not None:
             from vtrack.live.pipeline import DERIVED_PREFIX
@@ -296,9 +298,9 @@ class FramesConsumer(Consumer):
             self.forward(FrameEvent(DERIVED_PREFIX + ev.stream, ev.t, ev.index, {"frame": fr}, ev.wall))
 
     def finish(self) -> dict[str, Any]:
-        if self.owner.helper is not None:
-            self.child_cpu_s = self.owner.helper.close()
-        return {"mode": "process"}
+        if self.owner.frames_helper is not None:
+            self.child_cpu_s = self.owner.frames_helper.close()
+        return {"mode": self.owner.config.frames_worker}
 
 
 class TrackConsumer(Consumer):
@@ -356,12 +358,19 @@ class TrackConsumer(Consumer):
         if mode not in ("process", "thread", "off"):
             raise InputError("unknown touch worker", field="touch_worker", expected="process|thread|off", got=mode)
         fmode = self.config.frames_worker
-        if fmode not in ("process", "inline"):
-            raise InputError("unknown frames worker", field="frames_worker", expected="process|inline", got=fmode)
+        if fmode not in ("process", "shared", "inline"):
+            raise InputError(
+                "unknown frames worker", field="frames_worker", expected="process|shared|inline", got=fmode
+            )
         self._touch = TouchConsumer(self, mode) if (mode != "off" and self.touch_streams) else None
-        self._frames = FramesConsumer(self) if fmode == "process" else None
-        need_helper = self._frames is not None or (self._touch is not None and mode == "process")
-        self.helper: _Helper | None = _Helper(self) if need_helper else None
+        self._frames = FramesConsumer(self) if fmode != "inline" else None
+        self.touch_helper: _Helper | None = None
+        self.frames_helper: _Helper | None = None
+        if self._touch is not None and mode == "process":
+            self.touch_helper = _Helper(self)
+        if self._frames is not None:
+            shared = fmode == "shared" and self.touch_helper is not None
+            self.frames_helper = self.touch_helper if shared else _Helper(self)
         from vtrack.tracking.run import warm_up
 
         # imports (open3d, scipy, ...) before the replay starts, not in the first frame's latency
@@ -459,8 +468,9 @@ class TrackConsumer(Consumer):
         self.poses.append((ev.t, np.asarray(T)))
 
     def finish(self) -> dict[str, Any]:
-        if self.helper is not None:  # ended by a stage's finish; here too when the stages were not run
-            self.helper.close()
+        for h in (self.touch_helper, self.frames_helper):  # ended by a stage's finish; here too if not run
+            if h is not None:
+                h.close()
         out: dict[str, Any] = {
             "steps": len(self.poses),
             "touch_steps": self.touch_steps,
