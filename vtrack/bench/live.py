@@ -112,6 +112,10 @@ def run(quick: bool = False) -> BenchTable:
                 occlusion=occ,
                 real_time_factor=sm.get("real_time_factor"),
                 real_time_factor_cpu=sm.get("real_time_factor_cpu"),
+                # what the CPU figure predicts at real time when the replay ran at `speed` (capacity scales)
+                rtf_cpu_at_speed_1=None
+                if sm.get("real_time_factor_cpu") is None
+                else round(sm["real_time_factor_cpu"] * speed, 3),
                 latency_ms_mean=sm.get("latency_ms_mean"),
                 latency_ms_p95=sm.get("latency_ms_p95"),
                 dropped_tactile_pct=sm.get("dropped_tactile_pct"),
