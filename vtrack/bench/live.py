@@ -129,6 +129,12 @@ def run(quick: bool = False) -> BenchTable:
                 frames_cpu_ms=seg.get("cpu_ms_mean", float("nan")),
                 touch_cpu_ms=float(np.mean(touch_cpu)) if touch_cpu else float("nan"),
                 steps=tr["result"].get("steps", 0),
+                # per worker (stage): which one sets real_time_factor_cpu
+                rtf_cpu_by_worker="; ".join(
+                    f"{k} {v['real_time_factor_cpu']:g}"
+                    for k, v in res["consumers"].items()
+                    if v.get("real_time_factor_cpu") is not None
+                ),
                 load1=round(load1, 2),
                 wall_s=round(time.perf_counter() - t0, 1),
                 error=tr.get("first_error", ""),

@@ -143,8 +143,11 @@ class _Worker(threading.Thread):
             st = self.stats
             st.busy_s += t1 - t0
             st.busy_by_stream[ev.stream] = st.busy_by_stream.get(ev.stream, 0.0) + (t1 - t0)
-            # + CPU the consumer spent in a helper process for this frame (its own thread only waited)
+            # + CPU the consumer spent in a helper process for this frame (its own thread only waited); read once:
+            # a frame handled here (joints) must not count the previous frame's offloaded CPU again
             cpu = time.thread_time() - c0 + float(getattr(self.consumer, "offload_cpu_s", 0.0))
+            if hasattr(self.consumer, "offload_cpu_s"):
+                self.consumer.offload_cpu_s = 0.0
             st.cpu_by_stream[ev.stream] = st.cpu_by_stream.get(ev.stream, 0.0) + cpu
             st.latency_ms.append((t1 - ev.wall) * 1e3)
             st.latency_by_stream.setdefault(ev.stream, []).append((t1 - ev.wall) * 1e3)
