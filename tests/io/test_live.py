@@ -278,3 +278,30 @@ def test_summary_counts_a_chain_of_stages_against_the_source_schedule():
     assert sm["real_time_factor_cpu"] == pytest.approx(1 / 0.6, abs=1e-3)
     assert sm["latency_ms_mean"] == 55.0 and sm["poses_per_s"] == 20.0
     assert sm["cpu_s_per_session_s"] == 1.5
+
+
+def test_offloaded_cpu_counts_once_for_the_frame_it_was_spent_on():
+    """A stage that hands camera frames to a helper process reports that CPU (``offload_cpu_s``) for the
+    camera frame; joint states it handles next cost it nothing and must not count it again."""
+    from vtrack.live.sources import QueueSource
+
+    class Offload(Consumer):
+        name = "offload"
+
+        def __init__(self) -> None:
+            self.offload_cpu_s = 0.0
+
+        def process(self, ev) -> None:
+            if ev.stream == "camera/c":
+                self.offload_cpu_s = 0.5  # s, as if a child process had worked 500 ms on it
+
+    src = QueueSource()
+    for i in range(5):
+        src.push("camera/c", i / 30, {"depth": np.zeros((2, 2))})
+        src.push("joints", i / 30 + 0.01, {"q": np.zeros(3)})
+    src.close()
+    res = LivePipeline(src, [Offload()]).run()
+    st = res["consumers"]["offload"]["streams"]
+    assert st["camera/c"]["processed"] >= 1 and st["joints"]["processed"] >= 1
+    assert st["camera/c"]["cpu_ms_mean"] >= 500.0
+    assert st["joints"]["cpu_ms_mean"] < 100.0
