@@ -113,12 +113,14 @@ def test_live_known_shape_uses_the_offline_contact_weight_and_loss_check(tmp_pat
     from vtrack.tracking.run import KNOWN_SIGMA_TOUCH_WITH_VISION, Relocalisation
 
     sess = write_sphere_session(tmp_path / "sphere", seconds=0.2)
-    tc = TrackConsumer(sess, mesh=tmp_path / "sphere_sphere.ply", init_pose=np.eye(4), touch_worker="off")
+    tc = TrackConsumer(
+        sess, mesh=tmp_path / "sphere_sphere.ply", init_pose=np.eye(4), touch_worker="off", frames_worker="inline"
+    )
     assert "touch" in tc.sf.modalities
     tc._start(tc.sf.build(tc.sf.read(0)).tracking_frame())
     assert tc.tracker.opts.sigma_touch == KNOWN_SIGMA_TOUCH_WITH_VISION
     assert isinstance(tc.reloc, Relocalisation)
-    slam = TrackConsumer(sess, touch_worker="off")
+    slam = TrackConsumer(sess, touch_worker="off", frames_worker="inline")
     assert slam.reloc is None
 
 

@@ -167,7 +167,7 @@ def test_track_consumer_runs_touch_as_the_images_arrive(tiny_session, mode):
     from vtrack.live.consumers import TouchConsumer, TrackConsumer
     from vtrack.live.sources import FrameEvent
 
-    tc = TrackConsumer(tiny_session, touch_worker=mode)
+    tc = TrackConsumer(tiny_session, touch_worker=mode, frames_worker="inline")
     try:
         touch, track = tc.parts()
         assert isinstance(touch, TouchConsumer) and track is tc
@@ -194,3 +194,114 @@ def test_track_consumer_runs_touch_as_the_images_arrive(tiny_session, mode):
     finally:
         for p in tc.parts():
             p.finish()
+
+
+@pytest.mark.parametrize("fmode", ["process", "shared"])
+def test_frames_stage_builds_in_the_child_process_what_the_tracker_would_build(tiny_session, fmode):
+    """Default live tracking: touch and segmentation run in child processes (``shared``: one, which keeps the
+    contacts it computed; ``process``: one each, the newest contacts go with the frame); the camera frame's
+    tracking frame is forwarded to the tracker's mailbox as ``frames/<camera>``; it equals the frame built
+    inline from the same depth, joints and contacts."""
+    pytest.importorskip("open3d")
+    from vtrack.live.consumers import FramesConsumer, TouchConsumer, TrackConsumer
+    from vtrack.live.pipeline import DERIVED_PREFIX
+    from vtrack.live.sources import FrameEvent
+
+    tc = TrackConsumer(tiny_session, frames_worker=fmode)  # touch_worker: process (default)
+    assert (tc.frames_helper is tc.touch_helper) == (fmode == "shared")
+    out: list[FrameEvent] = []
+    try:
+        touch, frames, track = tc.parts()
+        assert isinstance(touch, TouchConsumer) and isinstance(frames, FramesConsumer) and track is tc
+        assert frames.wants("camera/cam0") and frames.wants("joints") and not tc.wants("camera/cam0")
+        assert tc.wants(DERIVED_PREFIX + "camera/cam0") and not frames.wants("tactile/digit_index")
+        frames.forward = out.append
+        sf = tc.sf
+        i = len(sf) // 2
+        raw = sf.read(i)
+        for s, img in raw["touch"]:
+            touch.process(FrameEvent(f"tactile/{s}", float(sf.times[i]), i, {"image": img}))
+        js = sf.reader["joints"]
+        j = int(js.index_at(sf.times[i])[0])
+        q_ev = FrameEvent("joints", float(js.t[j]), j, {"q": js["q"][j]})
+        frames.process(q_ev)
+        depth = sf.cams[0].stream["depth"][i]
+        frames.process(FrameEvent("camera/cam0", float(sf.times[i]), i, {"depth": depth}, wall=123.0))
+        assert len(out) == 1 and out[0].stream == DERIVED_PREFIX + "camera/cam0" and out[0].wall == 123.0
+        got = out[0].data["frame"]
+        k = sf.depth_stride
+        want = sf.build(
+            {"t": float(sf.times[i]), "q": tc._joints(q_ev), "cams": [(sf.cams[0], depth[::k, ::k], None)],
+             "touch": raw["touch"]}
+        ).tracking_frame()  # fmt: skip
+        assert got.vision_points is not None and len(got.vision_points) > 50
+        assert got.touch_points is not None and len(got.touch_points) > 0
+        np.testing.assert_allclose(got.vision_points, want.vision_points)
+        np.testing.assert_allclose(got.touch_points, want.touch_points)
+        assert frames.offload_cpu_s > 0  # the child's CPU per frame is accounted to the stage
+        tc.process(out[0])
+        assert len(tc.poses) == 1 and np.all(np.isfinite(tc.poses[0][1]))
+    finally:
+        for p in tc.parts():
+            p.finish()
+    assert not tc.touch_helper.proc.is_alive() and not tc.frames_helper.proc.is_alive()
+    assert touch.child_cpu_s > 0  # ended once, its CPU reported
+    with pytest.raises(InputError, match="frames_worker"):
+        TrackConsumer(tiny_session, frames_worker="gpu")
+
+
+def test_summary_counts_a_chain_of_stages_against_the_source_schedule():
+    """A camera frame lost at either stage of a chain (frames stage, then the tracker) is lost once each; the
+    tracker's demand is the source's schedule; latency is the tracker's, from the camera frame; CPU per
+    second of recording adds the child processes."""
+    from vtrack.live.pipeline import live_summary
+
+    def st(received, processed, dropped, busy, cpu, lat=None):
+        return {"received": received, "processed": processed, "dropped": dropped, "busy_ms_mean": busy,
+                "cpu_ms_mean": cpu, "latency_ms_mean": lat, "latency_ms_p95": lat}  # fmt: skip
+
+    res = {
+        "active_s": 1.0,
+        "source": {"emitted": {"camera/c": 28, "tactile/a": 60}, "skipped_late": {"camera/c": 2}},
+        "consumers": {
+            "track.frames": {"streams": {"camera/c": st(28, 25, 3, 10.0, 1.0)}},
+            "track": {"streams": {"frames/camera/c": st(25, 20, 5, 40.0, 20.0, 55.0)}, "result": {"steps": 20}},
+            "track.touch": {"streams": {"tactile/a": st(60, 60, 0, 5.0, 2.0)}},
+        },
+        "cpu": {"total_s": 1.5, "session_s": 1.0},
+    }
+    sm = live_summary(res, ["track"])
+    assert sm["dropped_camera_pct"] == pytest.approx(100 * (2 + 3 + 5) / 30, abs=0.01)
+    assert sm["dropped_tactile_pct"] == 0.0
+    # tracker: 40 ms x 30 scheduled camera frames = 1.2 s of work per second
+    assert sm["real_time_factor"] == pytest.approx(1 / 1.2, abs=1e-3)
+    assert sm["real_time_factor_cpu"] == pytest.approx(1 / 0.6, abs=1e-3)
+    assert sm["latency_ms_mean"] == 55.0 and sm["poses_per_s"] == 20.0
+    assert sm["cpu_s_per_session_s"] == 1.5
+
+
+def test_offloaded_cpu_counts_once_for_the_frame_it_was_spent_on():
+    """A stage that hands camera frames to a helper process reports that CPU (``offload_cpu_s``) for the
+    camera frame; joint states it handles next cost it nothing and must not count it again."""
+    from vtrack.live.sources import QueueSource
+
+    class Offload(Consumer):
+        name = "offload"
+
+        def __init__(self) -> None:
+            self.offload_cpu_s = 0.0
+
+        def process(self, ev) -> None:
+            if ev.stream == "camera/c":
+                self.offload_cpu_s = 0.5  # s, as if a child process had worked 500 ms on it
+
+    src = QueueSource()
+    for i in range(5):
+        src.push("camera/c", i / 30, {"depth": np.zeros((2, 2))})
+        src.push("joints", i / 30 + 0.01, {"q": np.zeros(3)})
+    src.close()
+    res = LivePipeline(src, [Offload()]).run()
+    st = res["consumers"]["offload"]["streams"]
+    assert st["camera/c"]["processed"] >= 1 and st["joints"]["processed"] >= 1
+    assert st["camera/c"]["cpu_ms_mean"] >= 500.0
+    assert st["joints"]["cpu_ms_mean"] < 100.0

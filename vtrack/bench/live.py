@@ -9,16 +9,20 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   ``real_time_factor_cpu`` (each worker thread's CPU time: what it reaches with a core to itself);
 - latency of a pose after its camera frame (mean / p95), dropped tactile / camera frames (%), poses/s;
 - ``motion_err_mm``: object-motion error of the live poses (ADD; ADD-S for symmetric objects);
-- ``ms``: CPU ms of one camera step of the tracker (segmentation + tracking; the tactile pipeline too in the
-  ``touch in camera step`` variant), ``touch_cpu_ms``: CPU ms per tactile image in the touch worker;
+- ``ms``: CPU ms of one camera frame (segmentation + tracking; the tactile pipeline too in the ``touch in
+  camera step`` variant), ``frames_cpu_ms``: its segmentation / frame-building part when that is a stage of its
+  own (in the child process), ``touch_cpu_ms``: CPU ms per tactile image in the touch worker;
+- ``cpu_s_per_session_s``: CPU seconds of all the pipeline's processes per second of recording;
 - ``load1``: the machine's 1-minute load average at the start of the row (2 cores: above 2, every figure
   measured in wall time is inflated).
 
-Variants: ``touch process`` (default: the tactile pipeline on every tactile image as it arrives, in a child
-process; with ``+ reader process`` the replay also decodes the session in a child process),
-``touch thread`` (the same in a worker thread sharing the GIL with the tracker) and ``touch in camera
-step`` (the newest image of each sensor is processed inside the camera step, as offline tracking does; tactile
-images in between are never read).
+Variants: ``default`` (what ``vtrack live`` does: in a child process the tactile pipeline on every tactile image
+as it arrives, in another the segmentation of each camera frame, a stage ahead of the tracker; the replay
+decoding the session in a third), ``frames in the touch process`` (segmentation and touch share one child),
+``frames inline`` (segmentation inside the tracker's step; last session's
+configurations, with the reader in a process or a thread), ``touch thread`` (the tactile pipeline in a worker
+thread sharing the GIL with the tracker) and ``touch in camera step`` (the newest image of each sensor is
+processed inside the camera step, as offline tracking does; tactile images in between are never read).
 
 Cases: 3 shared YCB objects, 5 s sessions, occlusion none, or ``VTRACK_BENCH_LIVE_CASES`` =
 ``"object|occlusion|seconds;..."``. Quick mode: one 2 s session, the default variant.
@@ -34,11 +38,14 @@ import numpy as np
 from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
-    "touch process": {"touch_worker": "process"},
-    "touch process + reader process": {"touch_worker": "process", "reader": "process"},
-    "touch thread": {"touch_worker": "thread"},
-    "touch in camera step": {"touch_worker": "off"},
+    "default (touch + frames process, reader process)": {},
+    "frames in the touch process": {"frames_worker": "shared", "reader": "process"},
+    "frames inline, reader process": {"frames_worker": "inline", "reader": "process"},
+    "frames inline, reader thread": {"frames_worker": "inline", "reader": "thread"},
+    "touch thread": {"touch_worker": "thread", "frames_worker": "inline", "reader": "thread"},
+    "touch in camera step": {"touch_worker": "off", "frames_worker": "inline", "reader": "thread"},
 }
+DEFAULT_VARIANT = "default (touch + frames process, reader process)"
 CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))
 
 
@@ -53,34 +60,49 @@ def _cases(quick: bool) -> list[tuple[str, str, float]]:
     return [("006_mustard_bottle", "none", 2.0)] if quick else list(CASES)
 
 
-def run_live(session, variant: dict) -> dict:
-    """One real-time replay of ``session`` into the ``track`` consumer (``variant``: its options, plus
-    ``reader`` = the replay's decoder, thread | process); the pipeline's result dict."""
+def _speed() -> float:
+    """Replay speed: ``VTRACK_BENCH_LIVE_SPEED`` (default 1 = real time). On a loaded machine a slower replay
+    (e.g. 0.25) processes every frame, so ``cpu_s_per_session_s`` is the full CPU demand of real time."""
+    return float(os.environ.get("VTRACK_BENCH_LIVE_SPEED", "1") or 1)
+
+
+def run_live(session, variant: dict, speed: float = 1.0) -> dict:
+    """One replay of ``session`` (``speed`` x real time) into the ``track`` consumer (``variant``: its
+    options, plus ``reader`` = the replay's decoder, process | thread); the pipeline's result dict."""
     from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
     from vtrack.live.pipeline import LivePipeline
     from vtrack.live.sources import SessionReplaySource
 
     variant = dict(variant)
-    reader = variant.pop("reader", "thread")
+    reader = variant.pop("reader", "process")
     cons = [make_consumer("track", session, **variant)]
-    src = SessionReplaySource(session, streams=replay_streams(session, cons), fields=replay_fields(cons), reader=reader)
+    src = SessionReplaySource(
+        session, streams=replay_streams(session, cons), fields=replay_fields(cons), reader=reader, speed=speed
+    )
     return LivePipeline(src, cons).run()
 
 
 def run(quick: bool = False) -> BenchTable:
+    from vtrack.live.pipeline import source_stream
     from vtrack.testing.sim import ycb_session
 
     table = BenchTable(stage="live", error_key="motion_err_mm", time_key="ms")
-    variants = {"touch process": VARIANTS["touch process"]} if quick else VARIANTS
+    variants = {DEFAULT_VARIANT: VARIANTS[DEFAULT_VARIANT]} if quick else VARIANTS
+    only = os.environ.get("VTRACK_BENCH_LIVE_VARIANTS")
+    if only:
+        variants = {k: v for k, v in variants.items() if any(o.strip() and o.strip() in k for o in only.split(";"))}
+    speed = _speed()
     for name, occ, seconds in _cases(quick):
         sess = ycb_session(name, occ, seconds)
         for vname, v in variants.items():
             load1 = os.getloadavg()[0]
             t0 = time.perf_counter()
-            res = run_live(sess, v)
+            res = run_live(sess, v, speed)
             sm = res["summary"]
             tr = res["consumers"]["track"]
-            cam = next((s for k, s in tr["streams"].items() if k.startswith("camera/")), {})
+            cam = next((s for k, s in tr["streams"].items() if source_stream(k).startswith("camera/")), {})
+            fr = res["consumers"].get("track.frames", {}).get("streams", {})
+            seg = next((s for k, s in fr.items() if k.startswith("camera/")), {})
             touch = res["consumers"].get("track.touch", {}).get("streams", {})
             touch_cpu = [s["cpu_ms_mean"] for s in touch.values() if s["processed"]]
             table.add(
@@ -90,15 +112,29 @@ def run(quick: bool = False) -> BenchTable:
                 occlusion=occ,
                 real_time_factor=sm.get("real_time_factor"),
                 real_time_factor_cpu=sm.get("real_time_factor_cpu"),
+                # what the CPU figure predicts at real time when the replay ran at `speed` (capacity scales)
+                rtf_cpu_at_speed_1=None
+                if sm.get("real_time_factor_cpu") is None
+                else round(sm["real_time_factor_cpu"] * speed, 3),
                 latency_ms_mean=sm.get("latency_ms_mean"),
                 latency_ms_p95=sm.get("latency_ms_p95"),
                 dropped_tactile_pct=sm.get("dropped_tactile_pct"),
                 dropped_camera_pct=sm.get("dropped_camera_pct"),
                 poses_per_s=sm.get("poses_per_s"),
+                cpu_s_per_session_s=sm.get("cpu_s_per_session_s"),
+                cpu_main_s_per_session_s=round(res["cpu"]["main_s"] / max(res["cpu"]["session_s"], 1e-9), 3),
+                speed=speed,
                 motion_err_mm=tr["result"].get("motion_err_mm", float("nan")),
-                ms=cam.get("cpu_ms_mean", float("nan")),
+                ms=cam.get("cpu_ms_mean", float("nan")) + seg.get("cpu_ms_mean", 0.0),
+                frames_cpu_ms=seg.get("cpu_ms_mean", float("nan")),
                 touch_cpu_ms=float(np.mean(touch_cpu)) if touch_cpu else float("nan"),
                 steps=tr["result"].get("steps", 0),
+                # per worker (stage): which one sets real_time_factor_cpu
+                rtf_cpu_by_worker="; ".join(
+                    f"{k} {v['real_time_factor_cpu']:g}"
+                    for k, v in res["consumers"].items()
+                    if v.get("real_time_factor_cpu") is not None
+                ),
                 load1=round(load1, 2),
                 wall_s=round(time.perf_counter() - t0, 1),
                 error=tr.get("first_error", ""),
@@ -107,6 +143,12 @@ def run(quick: bool = False) -> BenchTable:
         "Command: `vtrack --threads 1 bench live --out DIR`. Real-time replay (speed 1) of blind sessions; "
         "real_time_factor = capacity / demand of the busiest worker thread (wall time), real_time_factor_cpu = "
         "the same from thread CPU time (a core per worker); see vtrack/live/pipeline.py::live_summary."
+    )
+    table.notes.append(
+        "cpu_s_per_session_s: CPU seconds of all the pipeline's processes (main, touch, reader) per second of "
+        "recording, independent of the load; real time on 2 cores needs < 2 (with margin: the OS, the emitter's "
+        "timing). `VTRACK_BENCH_LIVE_SPEED=0.25` replays at quarter speed so that no frame is dropped and it is "
+        "the full demand; `VTRACK_BENCH_LIVE_VARIANTS='default;reader thread'` selects rows."
     )
     table.notes.append(
         "Measured on a shared 2-core machine: `load1` is the load average when the row started; with a load "

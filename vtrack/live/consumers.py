@@ -31,13 +31,17 @@ class LiveTrackConfig:
     process: tactile images and tracking on two cores), ``thread`` (a worker thread of this process; it
     shares the GIL with the tracker) or ``off`` (on the newest image of each sensor inside the camera
     frame's step, as offline tracking does; the step is then longer and the images in between are never
-    read); touch_downsample /
+    read); frames_worker = where a camera frame is segmented and turned into the tracker's input, a stage of its
+    own (frame k+1 is segmented while the tracker steps on frame k) in a child process: ``process`` (its own;
+    the newest contacts go with each frame), ``shared`` (the touch process's, which keeps its contacts), or
+    ``inline`` (in the tracker's step); touch_downsample /
     touch_stride = the tactile pipeline's working-resolution factor and point stride (tracking's defaults,
     :data:`vtrack.tracking.run.TRACK_TOUCH_DOWNSAMPLE`). The tracker's own options are
     :class:`vtrack.tracking.window.TrackerOptions` (passed through)."""
 
     depth_stride: int = 4
     touch_worker: str = "process"
+    frames_worker: str = "process"
     touch_downsample: int = TRACK_TOUCH_DOWNSAMPLE
     touch_stride: int = TRACK_TOUCH_STRIDE
 
@@ -69,33 +73,147 @@ class NullConsumer(Consumer):
         return {"checksum": self.checksum}
 
 
-def _touch_process(session: str, point_stride: int, downsample: int, conn: Any) -> None:
-    """Child process of a ``process`` touch worker: tactile images in, contacts (sensor frame) out."""
+def _helper_process(
+    session: str,
+    modalities: tuple[str, ...],
+    depth_stride: int,
+    touch_stride: int,
+    downsample: int,
+    touch_conn: Any,
+    frames_conn: Any,
+) -> None:
+    """Child process of the ``track`` consumer (:class:`_Helper`). ``touch_conn``: tactile images in, contacts
+    (sensor frame) out; the newest contact per sensor is kept here. ``frames_conn``: a camera frame's strided
+    depth, joints and time in, its :class:`~vtrack.tracking.frame.TrackingFrame` out (segmentation by the
+    FK-posed hand with the newest contacts; with touch in another worker the request carries them). When both
+    wait they are served in turn. ``None`` on either
+    connection ends the process; it answers with its CPU seconds since it was ready."""
+    import time
+
     try:
         from vtrack.threads import limit_threads
 
-        limit_threads(1)
-        import time
+        limit_threads(1)  # one stream of work per process: a BLAS pool would only spin beside the others
+        from multiprocessing.connection import wait
 
-        from vtrack.frames.touch import TouchSource
-        from vtrack.io.session import open_session
+        from vtrack.frames.session import SessionFrames
 
-        r = open_session(session)
-        ts = TouchSource(r, r.scene(check_files=False), "pipeline", point_stride=point_stride, downsample=downsample)
+        sf = SessionFrames(
+            session,
+            modalities=modalities,
+            depth_stride=depth_stride,
+            touch_stride=touch_stride,
+            touch_downsample=downsample,
+        )
+        cams = {f"camera/{c.name}": c for c in sf.cams}
+        if sf.cams and "vision" in sf.modalities:
+            # warm-up (lazy imports, ray-casting scenes, first-call costs) on the first depth image, before the
+            # replay: not in the first frame's latency. Touch is left out (the tactile pipeline takes its
+            # reference image from the first image it is given); the segmenter's state is reset after.
+            c, k = sf.cams[0], sf.depth_stride
+            sf.build({"i": 0, "cams": [(c, np.asarray(c.stream["depth"][0])[::k, ::k], None)], "touch": []})
+            sf.reset()
     except Exception as e:  # reported by the parent as one line
-        conn.send(f"{type(e).__name__}: {e}")
+        touch_conn.send(f"{type(e).__name__}: {e}")
         return
-    conn.send("ready")
+    touch_conn.send("ready")
+    cpu0 = time.process_time()
+    contacts: dict[str, Any] = {}
+    last = touch_conn
     while True:
-        msg = conn.recv()
+        ready = wait([frames_conn, touch_conn])
+        # both waiting: take turns (a camera frame waits for at most one tactile image, ~2 ms, and a tactile
+        # image for at most one camera frame: neither stream can starve the other)
+        conn = ready[0] if len(ready) == 1 else (frames_conn if last is touch_conn else touch_conn)
+        last = conn
+        try:
+            msg = conn.recv()
+        except EOFError:
+            return
         if msg is None:
+            conn.send(("cpu", time.process_time() - cpu0))
             return
         c0 = time.thread_time()
         try:
-            c = ts.contact(*msg)
-            conn.send((c.points, c.normals, c.penetration_mm, c.valid, time.thread_time() - c0))
+            if msg[0] == "touch":
+                _, sensor, image = msg
+                c = sf.touch.contact(sensor, image)  # type: ignore[union-attr]
+                contacts[sensor] = c
+                conn.send((c.points, c.normals, c.penetration_mm, c.valid, time.thread_time() - c0))
+            else:
+                _, stream, t, depth, q, touch = msg
+                raw = {
+                    "t": t,
+                    "q": q,
+                    "cams": [(cams[stream], depth, None)],
+                    "touch": [] if q is None else (list(contacts.items()) if touch is None else touch),
+                }
+                conn.send((sf.build(raw).tracking_frame(), time.thread_time() - c0))
         except Exception as e:
             conn.send(f"{type(e).__name__}: {e}")
+
+
+class _Helper:
+    """The ``track`` consumer's child process (:func:`_helper_process`): the tactile pipeline and/or the
+    frames layer (segmentation) off the tracker's process, so they run on the other core in parallel with the
+    tracker step instead of sharing its GIL."""
+
+    def __init__(self, owner: TrackConsumer) -> None:
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")  # no fork: the parent has threads (zarr's event loop)
+        self.touch_conn, c_touch = ctx.Pipe()
+        self.frames_conn, c_frames = ctx.Pipe()
+        cfg = owner.config
+        self.proc = ctx.Process(
+            target=_helper_process,
+            args=(
+                str(owner.session),
+                tuple(owner.sf.modalities),
+                owner.sf.depth_stride,
+                cfg.touch_stride,
+                cfg.touch_downsample,
+                c_touch,
+                c_frames,
+            ),
+            daemon=True,
+            name="live-track-helper",
+        )
+        self.proc.start()
+        if not self.touch_conn.poll(180):
+            self.proc.kill()
+            raise InputError("the live helper process did not start", path=owner.session)
+        first = self.touch_conn.recv()
+        if first != "ready":
+            raise InputError(f"live helper process failed: {first}", path=owner.session)
+        self.closed = False
+
+    @staticmethod
+    def call(conn: Any, msg: tuple) -> Any:
+        conn.send(msg)
+        got = conn.recv()
+        if isinstance(got, str):
+            raise RuntimeError(f"live helper process: {got}")
+        return got
+
+    def close(self) -> float:
+        """End the process (once); its CPU seconds over the run (0 when already closed)."""
+        if self.closed:
+            return 0.0
+        self.closed = True
+        cpu = 0.0
+        try:
+            self.touch_conn.send(None)
+            if self.touch_conn.poll(5):
+                got = self.touch_conn.recv()
+                if isinstance(got, tuple) and got[0] == "cpu":
+                    cpu = float(got[1])
+        except (BrokenPipeError, EOFError, OSError):
+            pass
+        self.proc.join(5)
+        if self.proc.is_alive():
+            self.proc.kill()
+        return cpu
 
 
 class TouchConsumer(Consumer):
@@ -104,9 +222,9 @@ class TouchConsumer(Consumer):
     step uses.
 
     ``mode="thread"`` runs the pipeline in this worker thread (it shares the GIL with the tracker's
-    thread); ``mode="process"`` in a child process (the worker thread only hands images over and waits
-    with the GIL released, so tactile images and tracking use two cores). The child's CPU time per image is
-    added to this worker's (``offload_cpu_s``)."""
+    thread); ``mode="process"`` in the consumer's child process (:class:`_Helper`; the worker thread only
+    hands images over and waits with the GIL released, so tactile images and tracking use two cores). The
+    child's CPU time per image is added to this worker's (``offload_cpu_s``)."""
 
     name = "track.touch"
 
@@ -114,27 +232,7 @@ class TouchConsumer(Consumer):
         self.owner = owner
         self.mode = mode
         self.offload_cpu_s = 0.0
-        self._proc: Any = None
-        self._conn: Any = None
-        if mode == "process":
-            import multiprocessing as mp
-
-            ctx = mp.get_context("spawn")  # no fork: the parent has threads (zarr's event loop)
-            self._conn, child = ctx.Pipe()
-            cfg = owner.config
-            self._proc = ctx.Process(
-                target=_touch_process,
-                args=(str(owner.session), cfg.touch_stride, cfg.touch_downsample, child),
-                daemon=True,
-                name="live-touch",
-            )
-            self._proc.start()
-            if not self._conn.poll(180):
-                self._proc.kill()
-                raise InputError("the live touch process did not start", path=owner.session)
-            first = self._conn.recv()
-            if first != "ready":
-                raise InputError(f"live touch process failed: {first}", path=owner.session)
+        self.child_cpu_s = 0.0  # CPU s of the child process over the run (when this stage ended it)
 
     def wants(self, stream: str) -> bool:
         return stream in self.owner.touch_streams
@@ -143,29 +241,66 @@ class TouchConsumer(Consumer):
         from vtrack.frames.touch import Contact
 
         s = ev.stream.split("/", 1)[1]
-        if self._conn is None:
+        if self.mode != "process":
             c = self.owner.sf.touch.contact(s, ev.data["image"])  # type: ignore[union-attr]
         else:
-            self._conn.send((s, ev.data["image"]))
-            got = self._conn.recv()
-            if isinstance(got, str):
-                raise RuntimeError(f"live touch process: {got}")
-            P, N, pen, valid, cpu = got
+            P, N, pen, valid, cpu = _Helper.call(self.owner.touch_helper.touch_conn, ("touch", s, ev.data["image"]))  # type: ignore[union-attr]
             c = Contact(P, N, pen, valid)
             self.offload_cpu_s = cpu
         self.owner.images[s] = c  # one dict item assignment: atomic for the camera step reading it
         self.owner.touch_steps += 1
 
     def finish(self) -> dict[str, Any]:
-        if self._proc is not None:
-            try:
-                self._conn.send(None)
-            except (BrokenPipeError, OSError):
-                pass
-            self._proc.join(5)
-            if self._proc.is_alive():
-                self._proc.kill()
+        if self.owner.touch_helper is not None:
+            self.child_cpu_s = self.owner.touch_helper.close()
         return {"mode": self.mode}
+
+
+class FramesConsumer(Consumer):
+    """The frames stage of :class:`TrackConsumer` (``frames_worker="process"``): each camera frame is
+    segmented and turned into a tracking frame in the consumer's child process, then handed to the tracker's
+    mailbox as stream ``frames/<camera stream>`` (:data:`vtrack.live.pipeline.DERIVED_PREFIX`; its emission
+    time is the camera frame's, so latency is from the camera). Segmenting frame k+1 while the tracker steps
+    on frame k takes segmentation off the camera path's critical step. With touch in this process
+    (``touch_worker`` ``thread``/``off``) the newest contacts / tactile images go with the request."""
+
+    name = "track.frames"
+
+    def __init__(self, owner: TrackConsumer) -> None:
+        self.owner = owner
+        self.offload_cpu_s = 0.0
+        self.child_cpu_s = 0.0
+        self.q: np.ndarray | None = None
+
+    def wants(self, stream: str) -> bool:
+        o = self.owner
+        if stream in o.touch_streams:
+            return o._touch is None  # touch_worker="off": the newest raw image goes with the frame
+        return stream in o.cams or (stream == "joints" and o.sf.kin is not None)
+
+    def process(self, ev: FrameEvent) -> None:
+        o = self.owner
+        if ev.stream == "joints":
+            self.q = o._joints(ev)
+            return
+        if ev.stream in o.touch_streams:
+            o.images[ev.stream.split("/", 1)[1]] = ev.data["image"]
+            return
+        k = o.sf.depth_stride
+        depth = np.ascontiguousarray(np.asarray(ev.data["depth"])[::k, ::k])
+        # the shared helper keeps the contacts it computed; else the newest ones (or raw images) go along
+        touch = None if o.frames_helper is o.touch_helper else list(o.images.items())
+        fr, cpu = _Helper.call(o.frames_helper.frames_conn, ("frame", ev.stream, ev.t, depth, self.q, touch))  # type: ignore[union-attr]
+        self.offload_cpu_s = cpu
+        if self.forward is not None:
+            from vtrack.live.pipeline import DERIVED_PREFIX
+
+            self.forward(FrameEvent(DERIVED_PREFIX + ev.stream, ev.t, ev.index, {"frame": fr}, ev.wall))
+
+    def finish(self) -> dict[str, Any]:
+        if self.owner.frames_helper is not None:
+            self.child_cpu_s = self.owner.frames_helper.close()
+        return {"mode": self.owner.config.frames_worker}
 
 
 class TrackConsumer(Consumer):
@@ -222,7 +357,20 @@ class TrackConsumer(Consumer):
         mode = self.config.touch_worker
         if mode not in ("process", "thread", "off"):
             raise InputError("unknown touch worker", field="touch_worker", expected="process|thread|off", got=mode)
+        fmode = self.config.frames_worker
+        if fmode not in ("process", "shared", "inline"):
+            raise InputError(
+                "unknown frames worker", field="frames_worker", expected="process|shared|inline", got=fmode
+            )
         self._touch = TouchConsumer(self, mode) if (mode != "off" and self.touch_streams) else None
+        self._frames = FramesConsumer(self) if fmode != "inline" else None
+        self.touch_helper: _Helper | None = None
+        self.frames_helper: _Helper | None = None
+        if self._touch is not None and mode == "process":
+            self.touch_helper = _Helper(self)
+        if self._frames is not None:
+            shared = fmode == "shared" and self.touch_helper is not None
+            self.frames_helper = self.touch_helper if shared else _Helper(self)
         from vtrack.tracking.run import warm_up
 
         # imports (open3d, scipy, ...) before the replay starts, not in the first frame's latency
@@ -230,7 +378,7 @@ class TrackConsumer(Consumer):
         import scipy.ndimage  # noqa: F401  (the SLAM grid update)
 
     def parts(self) -> list[Consumer]:
-        return [self] if self._touch is None else [self._touch, self]
+        return [p for p in (self._touch, self._frames) if p is not None] + [self]
 
     def streams(self) -> list[str]:
         s = list(self.cams) + self.touch_streams
@@ -246,9 +394,17 @@ class TrackConsumer(Consumer):
         return out
 
     def wants(self, stream: str) -> bool:
+        if self._frames is not None:  # frames come from the frames stage, built
+            from vtrack.live.pipeline import DERIVED_PREFIX
+
+            return stream.startswith(DERIVED_PREFIX) and stream[len(DERIVED_PREFIX) :] in self.cams
         if stream in self.touch_streams:
             return self._touch is None
         return stream in self.cams or (stream == "joints" and self.sf.kin is not None)
+
+    def _joints(self, ev: FrameEvent) -> np.ndarray:
+        q = np.asarray(ev.data["q"], dtype=np.float64)[None]
+        return self.sf.kin.reorder(q, self.sf.reader["joints"].attrs.get("joint_names"))[0]
 
     def _start(self, frame: Any) -> None:
         from vtrack.tracking.run import (
@@ -280,9 +436,11 @@ class TrackConsumer(Consumer):
                 self.tracker = build_tracker("slam", None, T0, **self.tracker_opts)
 
     def process(self, ev: FrameEvent) -> None:
+        if "frame" in ev.data:  # built by the frames stage
+            self._step(ev, ev.data["frame"])
+            return
         if ev.stream == "joints":
-            q = np.asarray(ev.data["q"], dtype=np.float64)[None]
-            self.q = self.sf.kin.reorder(q, self.sf.reader["joints"].attrs.get("joint_names"))[0]
+            self.q = self._joints(ev)
             return
         if ev.stream in self.touch_streams:
             self.images[ev.stream.split("/", 1)[1]] = ev.data["image"]
@@ -295,7 +453,10 @@ class TrackConsumer(Consumer):
             "cams": [(c, np.asarray(ev.data["depth"])[::k, ::k], None)],
             "touch": list(self.images.items()) if self.q is not None else [],
         }
-        frame = self.sf.build(raw).tracking_frame()
+        self._step(ev, self.sf.build(raw).tracking_frame())
+
+    def _step(self, ev: FrameEvent, frame: Any) -> None:
+        """One tracker step on a camera frame's tracking frame (the first frames start the tracker)."""
         if self.tracker is None:
             self._start(frame)
             if self.tracker is None:
@@ -307,10 +468,14 @@ class TrackConsumer(Consumer):
         self.poses.append((ev.t, np.asarray(T)))
 
     def finish(self) -> dict[str, Any]:
+        for h in (self.touch_helper, self.frames_helper):  # ended by a stage's finish; here too if not run
+            if h is not None:
+                h.close()
         out: dict[str, Any] = {
             "steps": len(self.poses),
             "touch_steps": self.touch_steps,
             "touch_worker": self._touch.mode if self._touch is not None else "off",
+            "frames_worker": "process" if self._frames is not None else "inline",
             "modalities": list(self.sf.modalities),
             "mode": "known_shape" if self.mesh is not None else "slam",
         }

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,14 +19,26 @@ import numpy as np
 
 from vtrack.live.sources import FrameEvent
 
+#: Prefix of a stream a consumer stage derives from a source stream and hands to a later stage
+#: (``frames/camera/cam0``: camera/cam0's tracking frames); its frames count as frames of the source stream.
+DERIVED_PREFIX = "frames/"
+
+
+def source_stream(stream: str) -> str:
+    """The source stream a (possibly derived) stream's frames come from."""
+    return stream[len(DERIVED_PREFIX) :] if stream.startswith(DERIVED_PREFIX) else stream
+
 
 class Consumer:
     """Base class: ``wants(stream)`` selects streams; ``process(event)`` handles one frame;
     ``finish()`` returns a JSON-able result dict. A consumer whose work splits into stages that may run
     concurrently (e.g. tactile images through the tactile pipeline at 60 Hz beside the tracker at the camera
-    rate) returns them from ``parts()``: each part gets its own worker thread and mailbox."""
+    rate) returns them from ``parts()``: each part gets its own worker thread and mailbox. A part that feeds a
+    later one calls ``forward(event)`` (set by the pipeline) with a stream named ``DERIVED_PREFIX + source
+    stream`` and the source frame's ``wall`` time; it goes to the mailboxes of the parts that want it."""
 
     name = "consumer"
+    forward: Callable[[FrameEvent], None] | None = None
 
     def wants(self, stream: str) -> bool:
         return True
@@ -130,8 +143,11 @@ class _Worker(threading.Thread):
             st = self.stats
             st.busy_s += t1 - t0
             st.busy_by_stream[ev.stream] = st.busy_by_stream.get(ev.stream, 0.0) + (t1 - t0)
-            # + CPU the consumer spent in a helper process for this frame (its own thread only waited)
+            # + CPU the consumer spent in a helper process for this frame (its own thread only waited); read once:
+            # a frame handled here (joints) must not count the previous frame's offloaded CPU again
             cpu = time.thread_time() - c0 + float(getattr(self.consumer, "offload_cpu_s", 0.0))
+            if hasattr(self.consumer, "offload_cpu_s"):
+                self.consumer.offload_cpu_s = 0.0
             st.cpu_by_stream[ev.stream] = st.cpu_by_stream.get(ev.stream, 0.0) + cpu
             st.latency_ms.append((t1 - ev.wall) * 1e3)
             st.latency_by_stream.setdefault(ev.stream, []).append((t1 - ev.wall) * 1e3)
@@ -146,6 +162,8 @@ class LivePipeline:
         self.switch_interval_s = switch_interval_s
         self.consumers = consumers
         self.workers = [_Worker(p) for c in consumers for p in c.parts()]
+        for w in self.workers:
+            w.consumer.forward = self._emit
 
     def _emit(self, ev: FrameEvent) -> None:
         for w in self.workers:
@@ -165,7 +183,7 @@ class LivePipeline:
         sys.setswitchinterval(self.switch_interval_s)
         for w in self.workers:
             w.start()
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         try:
             src_stats = self.source.run(self._emit)
         except KeyboardInterrupt:
@@ -174,11 +192,11 @@ class LivePipeline:
         finally:
             sys.setswitchinterval(old_switch)
         t_src = time.perf_counter() - t0
-        for w in self.workers:
+        for w in self.workers:  # in stage order: a stage may still forward its last frame to a later one
             w.close()
-        for w in self.workers:
             w.join()
         wall = time.perf_counter() - t0
+        cpu_main = time.process_time() - cpu0  # all threads of this process (workers, emitter, a reader thread)
         active = src_stats.active_s or t_src
         out: dict[str, Any] = {
             "wall_s": round(wall, 3),
@@ -198,6 +216,17 @@ class LivePipeline:
             if w.error is not None:
                 res["first_error"] = f"{type(w.error).__name__}: {w.error}"
             out["consumers"][w.consumer.name] = res
+        # child processes (a consumer's helper process, a reader process) report their own CPU time
+        cpu_children = float(getattr(src_stats, "reader_cpu_s", 0.0)) + sum(
+            float(getattr(w.consumer, "child_cpu_s", 0.0)) for w in self.workers
+        )
+        out["cpu"] = {
+            "main_s": round(cpu_main, 3),
+            "children_s": round(cpu_children, 3),
+            "total_s": round(cpu_main + cpu_children, 3),
+            # seconds of the recording replayed (the source's clock runs `speed` x the wall clock)
+            "session_s": round(active * float(getattr(self.source, "speed", 1.0)), 3),
+        }
         out["summary"] = live_summary(out, [c.name for c in self.consumers])
         return out
 
@@ -216,6 +245,10 @@ def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dic
     - ``latency_ms_mean`` / ``latency_ms_p95``: from a camera frame's emission to the end of its processing
       (the pose), in the ``track`` consumer (else the first consumer).
     - ``poses_per_s``: tracker steps / active seconds (``track`` consumer).
+    - ``cpu_s_per_session_s``: CPU seconds of every process of the pipeline (this one, a reader process, the
+      consumers' helper processes) per second of replayed recording. Independent of the machine's load (to
+      the extent CPU time is); real time on ``n`` cores needs it below ``n`` (frames dropped are not counted:
+      replay with ``speed`` < 1 to measure the full demand).
     """
     src = res["source"]
     active = max(float(res.get("active_s") or 0.0), 1e-9)
@@ -229,7 +262,11 @@ def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dic
         # demand: processing EVERY frame of the schedule (also those the source skipped or the mailbox replaced)
         # at the worker's mean time per processed frame of each stream
         for key, per in (("real_time_factor", "busy_ms_mean"), ("real_time_factor_cpu", "cpu_ms_mean")):
-            demand = sum(v[per] * scheduled.get(k, v["received"]) for k, v in c["streams"].items() if v["processed"])
+            demand = sum(
+                v[per] * scheduled.get(source_stream(k), v["received"])
+                for k, v in c["streams"].items()
+                if v["processed"]
+            )
             c[key] = round(1e3 * active / demand, 3) if demand > 0 else None
     for key in ("real_time_factor", "real_time_factor_cpu"):
         v = [c[key] for c in cons.values() if c.get(key) is not None]
@@ -242,12 +279,26 @@ def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dic
             continue
         lost = 0
         for k in names:
-            took = [c["streams"][k]["dropped"] for c in cons.values() if k in c["streams"]]
-            lost += src["skipped_late"].get(k, 0) + (max(took) if took else 0)
+            # a consumer's stages in a chain each drop frames (camera/x, then frames/camera/x): they add up;
+            # consumers side by side each see every frame: the worst one counts
+            took: dict[str, int] = {}
+            for name, c in cons.items():
+                for kk in (k, DERIVED_PREFIX + k):
+                    if kk in c["streams"]:
+                        root = name.split(".", 1)[0]
+                        took[root] = took.get(root, 0) + c["streams"][kk]["dropped"]
+            lost += src["skipped_late"].get(k, 0) + (max(took.values()) if took else 0)
         out[f"dropped_{kind}_pct"] = round(100.0 * lost / total, 2)
+    cpu = res.get("cpu")
+    if cpu and cpu.get("session_s"):
+        out["cpu_s_per_session_s"] = round(cpu["total_s"] / cpu["session_s"], 3)
     main = next((n for n in (consumers or []) if n == "track"), None) or next(iter(cons), None)
     if main is not None:
-        cams = {k: v for k, v in cons[main]["streams"].items() if k.startswith("camera/") and v["latency_ms_mean"]}
+        cams = {
+            k: v
+            for k, v in cons[main]["streams"].items()
+            if source_stream(k).startswith("camera/") and v["latency_ms_mean"]
+        }
         if cams:
             s0 = next(iter(cams.values()))
             out["latency_ms_mean"], out["latency_ms_p95"] = s0["latency_ms_mean"], s0["latency_ms_p95"]

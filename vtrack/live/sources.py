@@ -38,6 +38,7 @@ class SourceStats:
     skipped_late: dict[str, int] = field(default_factory=dict)
     seconds: float = 0.0
     max_lag_s: float = 0.0
+    reader_cpu_s: float = 0.0  #: CPU s of a reader child process (a reader thread counts in this process)
     first_wall: float | None = None
     last_wall: float | None = None
 
@@ -113,18 +114,28 @@ def _reader_process(
     cfg: tuple[float, float, float],
     fields: dict[str, list[str]] | None = None,
 ) -> None:
-    """Child-process reader: decoding runs outside the consumers' process (no GIL contention)."""
+    """Child-process reader: decoding runs outside the consumers' process (no GIL contention). Before its
+    end marker it reports its CPU seconds since it was ready (``("__cpu__", s)``)."""
     try:
         from vtrack.io.session import open_session
+        from vtrack.threads import limit_threads
 
+        limit_threads(1)  # decoding is one stream of work; a BLAS pool here would only spin beside the consumers
         reader = open_session(path)
     except Exception as e:
         q.put(f"{type(e).__name__}: {e}")
         return
     q.put("ready")
+    c0 = time.process_time()
     while wall0_v.value == 0.0 and not stop.is_set():
         time.sleep(0.001)
-    _decode_loop(reader, streams, items, q.put, lambda: wall0_v.value, cfg, stop, fields)
+
+    def put(x: Any) -> None:
+        if x is None:
+            q.put(("__cpu__", time.process_time() - c0))
+        q.put(x)
+
+    _decode_loop(reader, streams, items, put, lambda: wall0_v.value, cfg, stop, fields)
 
 
 class SessionReplaySource:
@@ -269,6 +280,9 @@ class SessionReplaySource:
                     break
                 if isinstance(got, str):  # error text from the reader process
                     raise InputError(f"replay reader failed: {got}", path=self.reader.path)
+                if got[0] == "__cpu__":  # the reader process's CPU time, sent just before its end marker
+                    st.reader_cpu_s = float(got[1])
+                    continue
                 (rep, rel, k, i), data = got
                 name = self.streams[k]
                 due = wall0 + (rel + rep * self.period) / self.speed
@@ -300,8 +314,10 @@ class SessionReplaySource:
                     q.get(timeout=0.01)
                 except Exception:
                     pass
-            if proc is not None and proc.is_alive():
-                proc.kill()
+            if proc is not None:
+                if proc.is_alive():
+                    proc.kill()
+                proc.join(1.0)
         st.seconds = time.monotonic() - wall0 + self.preroll_s
         return st
 

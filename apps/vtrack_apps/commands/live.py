@@ -18,7 +18,9 @@ def register(app: typer.Typer) -> None:
         loop: int = typer.Option(1, "--loop", help="replay the session this many times"),
         max_lag_ms: float = typer.Option(50.0, "--max-lag-ms", help="source skips frames later than this"),
         reader: str = typer.Option(
-            "thread", "--reader", help="decode frames in a child 'process' (no GIL contention) or a 'thread'"
+            "process",
+            "--reader",
+            help="decode frames in a child 'process' (default: no GIL contention with the tracker) or a 'thread'",
         ),
         json_out: Path = typer.Option(None, "--json", help="write the statistics as JSON"),
         mesh: Path = typer.Option(None, "--mesh", help="track: known object shape (object frame, m); default SLAM"),
@@ -33,8 +35,21 @@ def register(app: typer.Typer) -> None:
             "--touch-worker",
             help="track: tactile pipeline in a child 'process' (default), a 'thread' or 'off' (in the camera step)",
         ),
+        frames_worker: str = typer.Option(
+            None,
+            "--frames-worker",
+            help="track: segmentation in the child 'process' (default, a stage ahead of the tracker) or 'inline'",
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
+        import os
+
+        from vtrack.threads import THREAD_ENV, limit_threads
+
+        if not any(os.environ.get(k) for k in THREAD_ENV):
+            # The pipeline's parallelism is its processes (tracker, touch, reader); a BLAS/OpenMP pool in each
+            # only spins against the others on the cores they share. `vtrack --threads N live` overrides.
+            limit_threads(1)
         from vtrack.io.poses import parse_pose
         from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
         from vtrack.live.pipeline import LivePipeline
@@ -46,6 +61,7 @@ def register(app: typer.Typer) -> None:
                 "mesh": mesh,
                 "init_pose": parse_pose(init_pose) if init_pose else None,
                 "touch_worker": touch_worker,
+                "frames_worker": frames_worker,
             },
             "reconstruct": {"poses": poses},
         }
