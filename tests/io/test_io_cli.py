@@ -106,11 +106,11 @@ def test_live_command_known_shape_and_given_poses(tmp_path: Path) -> None:
 
 def test_live_known_shape_uses_the_offline_contact_weight_and_loss_check(tmp_path: Path) -> None:
     """The live known-shape tracker weighs image contacts as offline `track_session` does with vision + touch
-    (sigma 3 mm) and carries the same re-localisation."""
+    (sigma 3 mm, the weak-vision regime) and carries the same re-localisation."""
     pytest.importorskip("open3d")
     from vtrack.live.consumers import TrackConsumer
     from vtrack.testing.sessions import write_sphere_session
-    from vtrack.tracking.run import KNOWN_SIGMA_TOUCH_WITH_VISION, Relocalisation
+    from vtrack.tracking.run import KNOWN_SIGMA_TOUCH_WITH_VISION, KNOWN_TOUCH_WEAK_VISION, Relocalisation
 
     sess = write_sphere_session(tmp_path / "sphere", seconds=0.2)
     tc = TrackConsumer(
@@ -119,6 +119,7 @@ def test_live_known_shape_uses_the_offline_contact_weight_and_loss_check(tmp_pat
     assert "touch" in tc.sf.modalities
     tc._start(tc.sf.build(tc.sf.read(0)).tracking_frame())
     assert tc.tracker.opts.sigma_touch == KNOWN_SIGMA_TOUCH_WITH_VISION
+    assert (tc.tracker.opts.touch_weak_vision, tc.tracker.opts.sigma_touch_weak) == KNOWN_TOUCH_WEAK_VISION
     assert isinstance(tc.reloc, Relocalisation)
     slam = TrackConsumer(sess, touch_worker="off", frames_worker="inline")
     assert slam.reloc is None

@@ -409,6 +409,7 @@ class TrackConsumer(Consumer):
     def _start(self, frame: Any) -> None:
         from vtrack.tracking.run import (
             KNOWN_SIGMA_TOUCH_WITH_VISION,
+            KNOWN_TOUCH_WEAK_VISION,
             Relocalisation,
             build_tracker,
             centroid_frame,
@@ -428,6 +429,9 @@ class TrackConsumer(Consumer):
                 # the same contact weight as offline `track_session` with vision + touch (image contacts lie
                 # ~0.5 mm off the surface; a tight sigma pulls the depth fit off)
                 opts.setdefault("sigma_touch", KNOWN_SIGMA_TOUCH_WITH_VISION)
+                # and the same weak-vision regime: contacts carry the pose where few object pixels are seen
+                opts.setdefault("touch_weak_vision", KNOWN_TOUCH_WEAK_VISION[0])
+                opts.setdefault("sigma_touch_weak", KNOWN_TOUCH_WEAK_VISION[1])
             self.tracker = build_tracker("known_shape", self.mesh, T0, **opts)
             self.reloc = Relocalisation(self.tracker, self.mesh, symmetric)  # as offline: recover after a loss
         else:
