@@ -141,6 +141,7 @@ def register(app: typer.Typer) -> None:
     def merge(
         parts: list[Path] = typer.Argument(..., help="bundles with the same reconstruction net, different force nets"),
         out: Path = typer.Option(..., "--out", help="merged bundle"),
+        test: bool = typer.Option(True, "--test/--no-test", help="store the held-out metrics in the bundle"),
     ) -> None:
         """Merge the force nets of several bundles (e.g. parallel `vtrack dome retarget` runs) into one bundle and
         store its held-out metrics."""
@@ -148,7 +149,7 @@ def register(app: typer.Typer) -> None:
 
         from vtrack.dome.train import merge_bundles
 
-        info = merge_bundles(list(parts), out)
+        info = merge_bundles(list(parts), out, evaluate_test=test)
         typer.echo(json.dumps(info.get("test", {}), indent=1))
 
     @dome_app.command("eval")
@@ -160,6 +161,7 @@ def register(app: typer.Typer) -> None:
         markers: bool = typer.Option(True, "--markers/--no-markers", help="marker detection: U-Net vs classic"),
         n_markers: int = typer.Option(100, "--n-markers", min=4, help="held-out simulated frames for markers"),
         handpose: bool = typer.Option(True, "--handpose/--no-handpose", help="hand-pose nets (S24-S27), 500 grasps"),
+        methods: str = typer.Option("gnn,cnn", "--methods", help="comma list of gnn, cnn"),
     ) -> None:
         """Metrics of GNN and CNN on the held-out simulated test set (mm, N, ms); ``force``: the Table S6
         ablation (with / without pressure, per axis; ``oracle_no_p`` = the floor of any estimator blind to P);
@@ -168,7 +170,12 @@ def register(app: typer.Typer) -> None:
         from vtrack.dome.evaluate import EVAL_KEYS, evaluate, force_table, marker_eval
         from vtrack_apps.output import print_table
 
-        res: dict = evaluate(weights, n_test, seed)
+        kinds = tuple(m.strip() for m in methods.split(",") if m.strip())
+        if not kinds or any(k not in ("gnn", "cnn") for k in kinds):
+            from vtrack.errors import InputError
+
+            raise InputError("unknown method", field="--methods", expected="gnn and/or cnn", got=methods)
+        res: dict = evaluate(weights, n_test, seed, kinds)
         print_table("dome eval", [{"method": m, **{k: round(r[k], 4) for k in EVAL_KEYS}} for m, r in res.items()])
         res["force"] = force_table(res)
         if seed == 12345 and n_test == 300:  # floor of any no-pressure estimator blind to P (vtrack.dome.pressure)
