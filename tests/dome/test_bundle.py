@@ -60,7 +60,7 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
 
     from vtrack.dome.bundle import bundle_dome_config, bundle_train_config, load_bundle, read_bundle, weights_dir
 
-    b = read_bundle(weights_dir() / "gnn.pt")
+    b = read_bundle(weights_dir() / "cnn.pt")  # the CNN bundle keeps the decoder-feature heads (legacy_*)
     # an old bundle: no version, no force_arch, the decoder-feature heads as force_p / force_nop
     new_keys = ("version", "force_arch", "force_archs", "force_p", "force_nop", "force_plain_p", "force_plain_nop")
     new_keys += ("force_legacy_p", "force_legacy_nop")
