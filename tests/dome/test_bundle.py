@@ -60,7 +60,7 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
 
     from vtrack.dome.bundle import bundle_dome_config, bundle_train_config, load_bundle, read_bundle, weights_dir
 
-    b = read_bundle(weights_dir() / "gnn.pt")
+    b = read_bundle(weights_dir() / "cnn.pt")  # the CNN bundle keeps the decoder-feature heads (legacy_*)
     # an old bundle: no version, no force_arch, the decoder-feature heads as force_p / force_nop
     new_keys = ("version", "force_arch", "force_archs", "force_p", "force_nop", "force_plain_p", "force_plain_nop")
     new_keys += ("force_legacy_p", "force_legacy_nop")
@@ -81,3 +81,39 @@ def test_version_1_bundle_takes_the_old_behaviour_for_missing_keys(tmp_path):
     torch.save({**b, "force_archs": {**b["force_archs"], "p": "transformer"}}, bad)
     with pytest.raises(InputError, match="force architecture"):
         load_bundle(bad)
+
+
+def test_shipped_bundles_are_the_confined_inflation_sensor_and_merge_keeps_every_head(tmp_path):
+    """The shipped nets are for today's default sensor (inflation confined, issue #26); bundles whose force heads
+    were trained in separate processes merge into one, and only bundles sharing the reconstruction net may."""
+    import torch
+
+    from vtrack.dome.bundle import load_bundle, read_bundle, weights_dir
+    from vtrack.dome.model import DomeConfig
+    from vtrack.dome.train import merge_bundles, retarget_bundle
+
+    src = weights_dir() / "gnn.pt"
+    b = read_bundle(src)
+    assert b["cfg"] == DomeConfig().to_dict() and b["cfg"]["inflation_mm_per_kpa"] == 0.0
+    assert read_bundle(weights_dir() / "cnn.pt")["cfg"] == b["cfg"]
+    heads = [k for k in b["force_archs"]]
+    assert {"p", "nop"} <= set(heads)
+    parts = []
+    for i, keep in enumerate((["p"], [k for k in heads if k != "p"])):
+        part = {k: v for k, v in b.items() if not k.startswith("force_")}
+        part["force_archs"] = {k: b["force_archs"][k] for k in keep}
+        part.update({f"force_{k}": b[f"force_{k}"] for k in keep})
+        parts.append(tmp_path / f"part{i}.pt")
+        torch.save(part, parts[-1])
+    merge_bundles(parts, tmp_path / "merged.pt", evaluate_test=False)
+    _, merged, _, _ = load_bundle(tmp_path / "merged.pt")
+    assert set(merged) == set(heads)
+    other = read_bundle(parts[1])
+    first = next(k for k, v in other["recon"].items() if v.is_floating_point())
+    other["recon"][first] = other["recon"][first] + 1
+    torch.save(other, parts[1])
+    with pytest.raises(InputError, match="reconstruction weights"):
+        merge_bundles(parts, tmp_path / "bad.pt", evaluate_test=False)
+    # the reconstruction net transfers only across the inflation (it sees the frame relative to its reference)
+    with pytest.raises(InputError, match="do not transfer"):
+        retarget_bundle(src, tmp_path / "x.pt", DomeConfig(radius_mm=25.0))

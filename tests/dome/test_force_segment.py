@@ -102,14 +102,20 @@ def test_shipped_bundles_carry_spec_force_nets_and_pressure_helps():
     assert read_bundle(weights_dir() / "cnn.pt")["force_arch"] == "cnn_film"
     assert read_bundle(weights_dir() / "gnn.pt")["version"] == BUNDLE_VERSION == 3
     _, heads, _, _ = load_bundle(weights_dir() / "gnn.pt")
-    assert set(heads) == {"p", "nop", "plain_p", "plain_nop", "legacy_p", "legacy_nop"}
-    assert heads["plain_p"].arch == "patch_graph_plain" and heads["legacy_p"].arch == "decoder_film"
+    # since the confined-inflation sensor (2026-11-26) the GNN bundle holds the main nets only (ablation heads of
+    # the previous sensor not retrained); the CNN bundle keeps the previous decoder heads as a row
+    assert set(heads) == {"p", "nop"} and heads["p"].arch == "patch_graph"
+    _, cheads, _, _ = load_bundle(weights_dir() / "cnn.pt")
+    assert set(cheads) == {"p", "nop", "legacy_p", "legacy_nop"} and cheads["legacy_p"].arch == "decoder_film"
     res = evaluate(data=make_dataset(40, 4242, cache=False), timing_frames=2)
     ft = force_table(res)
     assert set(ft) >= {"gnn_patch_with_p", "gnn_patch_no_p", "cnn_with_p", "cnn_no_p"}
     for v in ft.values():
         assert set(v) == {"mae", "rmse", "mae_fx", "mae_fy", "mae_fz"} and np.isfinite(list(v.values())).all()
-    assert ft["gnn_patch_with_p"]["mae"] < 0.95 * ft["gnn_patch_no_p"]["mae"]  # measured 0.323 vs 0.359 N
+    # the image does not show P on the confined sensor: the pressure input is worth a large share of the error
+    # (measured on these 40 presses: GNN + patch 0.337 vs 0.437 N, CNN with P 0.485 N)
+    assert ft["gnn_patch_with_p"]["mae"] < 0.85 * ft["gnn_patch_no_p"]["mae"]
+    assert ft["gnn_patch_with_p"]["mae"] < ft["cnn_with_p"]["mae"]
 
 
 def test_gamma_matching_reaches_the_reference_brightness():

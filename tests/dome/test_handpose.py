@@ -214,3 +214,33 @@ def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
         r = CliRunner().invoke(app, [*base, *extra])
         assert isinstance(r.exception, InputError) and r.exception.field == field
     assert not (tmp_path / "w.pt").exists()
+
+
+def test_contact_grasp_set_puts_every_fingertip_on_the_shell() -> None:
+    """The faithful grasp set (FusionTouch's participants grasp and deform the dome): every digit's distal
+    phalanx presses >= 0.5 mm into the shell, so every digit shows in the IR frame; the mixed set lifts digits."""
+    from vtrack.dome.handsim import TIP_MIN_PRESS_MM, handpose_dataset_path
+
+    hand = HandModel()
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        q, yaw, grasp = hand.sample(rng, "contact")
+        assert grasp == "power" and abs(yaw) <= 8.0
+        assert np.all(np.abs(q - hand.nominal()) <= 5.0 + 1e-9)  # the touching digits' variation box
+        assert min(hand.tip_press_mm(d, q) for d in DIGITS) >= TIP_MIN_PRESS_MM
+    # the mixed set's power grasps leave about a third of the fingertips off the shell (measured 0.67 touch)
+    tips = []
+    for _ in range(200):
+        q, _, grasp = hand.sample(rng, "mixed")
+        if grasp == "power":
+            tips += [hand.tip_press_mm(d, q) >= TIP_MIN_PRESS_MM for d in DIGITS]
+    assert 0.4 < np.mean(tips) < 0.9
+    sim = HandDomeSimulator(grasp_set="contact")
+    s = sim.sample(np.random.default_rng(5))
+    q = s["angles_deg"].astype(np.float64)
+    assert s["n_contacts"] >= len(DIGITS) and min(sim.hand.tip_press_mm(d, q) for d in DIGITS) >= 0.49
+    # the mixed set keeps its cache key (cached simulations stay valid); the contact set gets its own
+    assert handpose_dataset_path(10, 1) != handpose_dataset_path(10, 1, "contact")
+    assert "grasp_set" not in str(handpose_dataset_path(10, 1))
+    with pytest.raises(ValueError, match="grasp set"):
+        hand.sample(rng, "open")

@@ -9,10 +9,26 @@ from vtrack.dome.markers import build_graph, extract_markers, node_features
 from vtrack.dome.model import DomeConfig, DomeGeometry, knn_np, tactip_layout
 from vtrack.dome.simulate import DomeSimulator, Press
 
+#: a single-layer shell that inflates (the default before 2026-11-26): the inflation tests need it
+INFLATING = DomeConfig(inflation_mm_per_kpa=0.03)
+
 
 @pytest.fixture(scope="module")
 def sim() -> DomeSimulator:
-    return DomeSimulator(DomeConfig())
+    return DomeSimulator(INFLATING)
+
+
+def test_default_dome_confines_the_inflation() -> None:
+    """The default sensor is FusionTouch's double shell: the pressure does not move the markers (images and
+    reference frames are the same at every P), it only stiffens the shell."""
+    cfg = DomeConfig()
+    assert cfg.inflation_mm_per_kpa == 0.0
+    s = DomeSimulator(cfg)
+    assert np.array_equal(s.reference_image(0.0), s.reference_image(10.0))
+    press = lambda p: Press("sphere", np.array([0.0, 0.0, 1.0]), 1.0, 3.0, 0.0, np.zeros(2), p)  # noqa: E731
+    a, b = s.deform(press(0.0)), s.deform(press(10.0))
+    assert np.array_equal(a["disp_markers"], b["disp_markers"])
+    assert b["force"][2] < 2.0 * a["force"][2] < 0  # k_n(10 kPa) = 5 k0, plus P on the contact patch
 
 
 def test_layout_and_camera_roundtrip() -> None:
@@ -148,7 +164,7 @@ def test_dataset_references_follow_the_protocol() -> None:
 
     from vtrack.dome.simulate import make_dataset
 
-    cfg = DomeConfig()
+    cfg = INFLATING
     assert cfg.reference_at_pressure  # the default protocol
     d = make_dataset(3, 5, cfg, cache=False)
     assert d["reference_image"].shape == (3, cfg.image_size, cfg.image_size)

@@ -77,6 +77,14 @@ GRASPS = {
     "pinch": ("thumb", "index"),
     "hook": ("index", "middle", "ring", "little"),
 }
+#: grasp sets (:meth:`HandModel.sample`). ``mixed``: the grasp types of :data:`GRASPS`, lifted digits
+#: included (their distal joints are invisible to both cameras; a harder task than the paper's). ``contact``:
+#: every digit on the shell, every fingertip pressing (>= :data:`TIP_MIN_PRESS_MM`), as in FusionTouch's data:
+#: the participants grasp and deform the dome (Fig. S21), and its IR-only net reaches 99.8 % @5 deg (Table S7),
+#: which a marker image cannot give for a digit that does not touch.
+GRASP_SETS = ("mixed", "contact")
+#: ``contact`` set: the distal phalanx of every digit presses at least this far into the shell (mm)
+TIP_MIN_PRESS_MM = 0.5
 #: per-joint uniform variation (deg) of a touching digit around the nominal wrap
 JOINT_VAR_DEG = 5.0
 HAND_YAW_DEG = 8.0
@@ -191,8 +199,35 @@ class HandModel:
         self._nominal = q
         return q
 
-    def sample(self, rng: np.random.Generator) -> tuple[np.ndarray, float, str]:
-        """A random grasp: joint vector (deg), hand yaw (deg), grasp type."""
+    def tip_press_mm(self, d: Digit, q: np.ndarray) -> float:
+        """How far (mm) the distal phalanx of digit ``d`` reaches into the shell (negative: off the shell).
+        Hand yaw is a rotation about the dome axis and does not change it."""
+        pts = self._chain(d, q, 0.0)
+        a, b = pts[-2], pts[-1]
+        ab = b - a
+        t = float(np.clip(-(a @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
+        return self.R + d.radius - float(np.linalg.norm(a + t * ab))
+
+    def sample(self, rng: np.random.Generator, grasp_set: str = "mixed") -> tuple[np.ndarray, float, str]:
+        """A random grasp of ``grasp_set`` (:data:`GRASP_SETS`): joint vector (deg), hand yaw (deg), grasp type.
+
+        ``contact``: the power grasp with every fingertip on the shell: each digit's joints are drawn around the
+        nominal wrap as for a touching digit (+- :data:`JOINT_VAR_DEG`), redrawn until its distal phalanx presses
+        >= :data:`TIP_MIN_PRESS_MM` into the shell (rejection sampling per digit, so the variation stays uniform
+        over the joint box that keeps the tip down)."""
+        if grasp_set not in GRASP_SETS:
+            raise ValueError(f"unknown grasp set {grasp_set!r} ({', '.join(GRASP_SETS)})")
+        if grasp_set == "contact":
+            q = self.nominal().copy()
+            q[0] += rng.uniform(-JOINT_VAR_DEG, JOINT_VAR_DEG)  # thumb abduction
+            for d in DIGITS:
+                for _ in range(1000):
+                    q[list(d.joints)] = self.nominal()[list(d.joints)] + rng.uniform(
+                        -JOINT_VAR_DEG, JOINT_VAR_DEG, len(d.joints)
+                    )
+                    if self.tip_press_mm(d, q) >= TIP_MIN_PRESS_MM:
+                        break
+            return q, float(rng.uniform(-HAND_YAW_DEG, HAND_YAW_DEG)), "power"
         grasp = str(rng.choice(list(GRASPS)))
         q = self.nominal() + rng.uniform(-JOINT_VAR_DEG, JOINT_VAR_DEG, len(JOINTS))
         for d in DIGITS:
@@ -205,9 +240,12 @@ class HandModel:
 class HandDomeSimulator:
     """Render (RGB, IR) image pairs of the hand holding the dome."""
 
-    def __init__(self, cfg: DomeConfig = HAND_DOME, rgb_size: int = RGB_SIZE) -> None:
+    def __init__(self, cfg: DomeConfig = HAND_DOME, rgb_size: int = RGB_SIZE, grasp_set: str = "mixed") -> None:
         from vtrack.dome.simulate import DomeSimulator
 
+        if grasp_set not in GRASP_SETS:
+            raise ValueError(f"unknown grasp set {grasp_set!r} ({', '.join(GRASP_SETS)})")
+        self.grasp_set = grasp_set
         self.cfg = cfg
         self.sim = DomeSimulator(cfg)
         self.hand = HandModel(cfg.radius_mm)
@@ -276,7 +314,7 @@ class HandDomeSimulator:
         return self.sim.render(self.sim.geo.marker_rest + disp, rng, noise=noise)
 
     def sample(self, rng: np.random.Generator, noise: float = 1.0) -> dict:
-        q, yaw, grasp = self.hand.sample(rng)
+        q, yaw, grasp = self.hand.sample(rng, self.grasp_set)
         caps = self.hand.capsules(q, yaw)
         return {
             "rgb": self.render_rgb(caps, rng, noise),
@@ -292,23 +330,27 @@ class HandDomeSimulator:
         return self.sim.reference_image(0.0)
 
 
-def handpose_dataset_path(n: int, seed: int) -> Path:
+def handpose_dataset_path(n: int, seed: int, grasp_set: str = "mixed") -> Path:
     from vtrack.paths import cache_dir
 
     key = {"n": n, "seed": seed, "cfg": HAND_DOME.to_dict(), "rgb": RGB_SIZE, "v": DATA_VERSION}
+    if grasp_set != "mixed":  # the mixed set keeps its original cache key
+        key["grasp_set"] = grasp_set
     h = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:10]
     return cache_dir() / "dome" / f"handpose_{n}_{seed}_{h}.npz"
 
 
-def make_handpose_dataset(n: int, seed: int, *, cache: bool = True, progress: bool = False) -> dict[str, np.ndarray]:
+def make_handpose_dataset(
+    n: int, seed: int, *, cache: bool = True, progress: bool = False, grasp_set: str = "mixed"
+) -> dict[str, np.ndarray]:
     """``n`` simulated grasps stacked into arrays (cached .npz in ``vtrack.paths.cache_dir()``): ``rgb``
     (n, 64, 64, 3), ``ir`` (n, 128, 128) uint8, ``angles_deg`` (n, 12), ``yaw_deg``, ``grasp``, ``n_contacts``
-    and ``ir_reference`` (128, 128)."""
-    path = handpose_dataset_path(n, seed)
+    and ``ir_reference`` (128, 128). ``grasp_set``: :data:`GRASP_SETS`."""
+    path = handpose_dataset_path(n, seed, grasp_set)
     if cache and path.exists():
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
-    sim = HandDomeSimulator()
+    sim = HandDomeSimulator(grasp_set=grasp_set)
     rng = np.random.default_rng(seed)
     out: dict[str, list] = {}
     for i in range(n):

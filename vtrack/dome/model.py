@@ -21,6 +21,10 @@ class DomeConfig:
 
     Internal pressure ``P`` (kPa, ``0..pressure_max_kpa``) inflates the shell radially by
     ``inflation_mm_per_kpa * P`` (a sensor calibration: the no-contact shape at pressure P) and stiffens it.
+    Default 0: the **confined-inflation** double shell of FusionTouch (S3: the outer fabric shell confines the
+    inflation of the pressurised inner layer; the fabric's own stretch, ~0.0005 mm/kPa scaled to this dome, is a
+    0.003 px marker shift at 10 kPa, 20x below the renderer's 1/16 px sub-pixel grid). Bundles trained before
+    2026-11-26 used 0.03 mm/kPa (a single inflating shell) and keep it in their stored config.
     ``reference_at_pressure`` is the reference-frame protocol: True (default) = the no-contact reference
     frame is captured at the operating pressure, as a pneumatic sensor is re-zeroed after inflating, so the
     image shows only the contact deformation and the pressure must come from the pressure sensor; False =
@@ -39,7 +43,7 @@ class DomeConfig:
     n_coarse: int = 256
     n_dense: int = 1024
     pressure_max_kpa: float = 10.0
-    inflation_mm_per_kpa: float = 0.03
+    inflation_mm_per_kpa: float = 0.0
     reference_at_pressure: bool = True
 
     @property

@@ -524,3 +524,90 @@ def train_all(
         save_bundle(out_dir / f"{kind}.pt", kind, model, heads, cfg, tc, {"test": m})
         results[kind] = m
     return results
+
+
+#: DomeConfig fields a bundle's reconstruction weights do not depend on once the reference frame is captured at
+#: the operating pressure: the inflation is then common to the frame and its reference, and the nets predict the
+#: displacement from that inflated no-contact state (the decoder adds the calibrated inflation itself)
+RETARGETABLE_FIELDS = ("inflation_mm_per_kpa",)
+
+
+def retarget_bundle(
+    src: Path,
+    out: Path,
+    cfg: DomeConfig | None = None,
+    tc: TrainConfig | None = None,
+    keys: tuple[str, ...] = ("legacy", "p", "nop", "plain_p", "plain_nop"),
+    log=print,
+) -> dict:
+    """Keep the reconstruction weights of bundle ``src``, move it to the sensor config ``cfg`` (default: today's
+    ``DomeConfig()``) and train the force nets ``keys`` (:func:`train_spec_force`) on that config's simulated
+    presses; refit the contact calibration on them; write ``out`` (only the heads trained here).
+
+    Only :data:`RETARGETABLE_FIELDS` may differ between the two configs (anything else changes what the
+    reconstruction net sees): InputError otherwise. Several calls with disjoint ``keys`` (parallel processes)
+    are combined by :func:`merge_bundles`."""
+    import torch
+
+    from vtrack.errors import InputError
+
+    b = read_bundle(src)
+    tc = tc or bundle_train_config(b)
+    torch.set_num_threads(tc.threads)
+    model, _, cfg0, _ = load_bundle(src, with_heads=False)
+    cfg = cfg or DomeConfig()
+    d0, d1 = cfg0.to_dict(), cfg.to_dict()
+    bad = [k for k in d1 if k not in RETARGETABLE_FIELDS and d0.get(k) != d1[k]]
+    if bad:
+        raise InputError("reconstruction weights do not transfer to this sensor config", path=src, field=",".join(bad))
+    model = build_model(b["kind"], DomeGeometry(cfg), tc.hidden, tc.gnn_k, tc.gnn_layers, tc.gnn_edge_strain)
+    model.load_state_dict(load_bundle(src, with_heads=False)[0].state_dict())
+    model.eval()
+    geo = DomeGeometry(cfg)
+    tr, _ = load_sets(tc, cfg, progress=True)
+    btr = Batcher(b["kind"], tr, geo, f"{tc.n_train}-{tc.seed}-{cfg.to_dict()}")
+    feats = force_features(model, btr)
+    model.decoder.contact_calib = fit_contact_calibration(model, btr, feats)
+    heads = train_spec_force(model, b["kind"], btr, tc, log, feats, keys=keys)
+    info = {"retargeted_from": {"cfg": d0, "changed": {k: (d0.get(k), d1[k]) for k in RETARGETABLE_FIELDS}}}
+    save_bundle(Path(out), b["kind"], model, heads, cfg, tc, info)
+    return info
+
+
+def merge_bundles(parts: list[Path], out: Path, evaluate_test: bool = True) -> dict:
+    """One bundle from bundles that share the reconstruction net and config but hold different force heads
+    (e.g. :func:`retarget_bundle` run in parallel processes with disjoint keys); with ``evaluate_test`` the
+    held-out metrics go to ``info["test"]``."""
+    import torch
+
+    from vtrack.errors import InputError
+
+    blobs = [read_bundle(p) for p in parts]
+    base = dict(blobs[0])
+    base["force_archs"] = dict(base.get("force_archs", {}))
+    for p, bl in zip(parts[1:], blobs[1:], strict=True):
+        if bl["cfg"] != base["cfg"] or bl["kind"] != base["kind"]:
+            raise InputError("bundles to merge differ in sensor config or kind", path=p, field="cfg")
+        same = all(torch.equal(bl["recon"][k], v) for k, v in base["recon"].items())
+        if not same:
+            raise InputError("bundles to merge have different reconstruction weights", path=p, field="recon")
+        for k, arch in bl.get("force_archs", {}).items():
+            base[f"force_{k}"] = bl[f"force_{k}"]
+            base["force_archs"][k] = arch
+    base["force_arch"] = base["force_archs"].get("p", base.get("force_arch", "decoder_film"))
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    torch.save(base, out)
+    if evaluate_test:
+        from vtrack.dome.metrics import evaluate_predictions, set_ground_truth
+
+        model, heads, cfg, _ = load_bundle(Path(out))
+        tc = bundle_train_config(base)
+        _, te = load_sets(tc, cfg)
+        geo = DomeGeometry(cfg)
+        bte = Batcher(base["kind"], te, geo, f"{tc.n_test}-{tc.test_seed}-{cfg.to_dict()}")
+        base["info"] = {
+            **base.get("info", {}),
+            "test": evaluate_predictions(predict(model, heads, bte), set_ground_truth(te, geo.dense_rest)),
+        }
+        torch.save(base, out)
+    return base.get("info", {})
