@@ -83,6 +83,7 @@ class BackendOptions:
     #: closes no loop
     spin_search_peak: float = 0.06
     spin_search_probe: float = 0.5  #: rad
+    spin_axis_max_rms: float = 0.006  #: axis of revolution accepted up to this trimmed RMS (normal lines), m
     min_keyframes: int = 3  #: fewer keyframes: nothing to refine
     object_radius: float = 0.05  #: m, scales rotation against translation in the observability test
     weak_ratio: float = 1e-3  #: registration directions weaker than this x the strongest are unobserved
@@ -103,7 +104,7 @@ class BackendOptions:
         positive = (
             "kf_trans kf_rot kf_max_gap_s icp_dist sigma_point point_correlation loop_point_correlation max_rmse "
             "map_window_s sigma_odom_trans sigma_odom_rot loop_max_trans loop_max_rot loop_view_angle loop_voxel "
-            "object_radius weak_ratio spin_search_max_trans spin_search_probe"
+            "object_radius weak_ratio spin_search_max_trans spin_search_probe spin_axis_max_rms"
         ).split()
         for name in positive:
             v = float(getattr(o, name))
@@ -450,13 +451,17 @@ def _fit_share(src: np.ndarray, C: np.ndarray, tree: Any, dist: float, support: 
     return float(np.mean(d[near] <= dist)) if near.sum() >= 10 else 0.0
 
 
-def _turned(C: np.ndarray, angle: float) -> np.ndarray:
-    """``C`` followed by a further turn of ``angle`` rad about its own screw axis (through its fixed point)."""
-    w = se3.so3_log(C[:3, :3])
-    th = float(np.linalg.norm(w))
-    a = w / max(th, 1e-12)
-    # a point of the screw axis: (I - R) c = t minus its part along the axis (least squares)
-    c = np.linalg.lstsq(np.eye(3) - C[:3, :3], C[:3, 3] - a * (a @ C[:3, 3]), rcond=None)[0]
+def _turned(C: np.ndarray, angle: float, axis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """``C`` followed by a further turn of ``angle`` rad about ``axis`` = (point, unit direction), or about
+    ``C``'s own screw axis (through its fixed point) when None."""
+    if axis is None:
+        w = se3.so3_log(C[:3, :3])
+        th = float(np.linalg.norm(w))
+        a = w / max(th, 1e-12)
+        # a point of the screw axis: (I - R) c = t minus its part along the axis (least squares)
+        c = np.linalg.lstsq(np.eye(3) - C[:3, :3], C[:3, 3] - a * (a @ C[:3, 3]), rcond=None)[0]
+    else:
+        c, a = axis
     Rx = se3.so3_exp(a * angle)
     return se3.make_transform(Rx, c - Rx @ c) @ C
 
@@ -492,7 +497,10 @@ def relocalise_spin(keyframes: list[Keyframe], X: np.ndarray, o: BackendOptions)
     allq = np.concatenate([se3.transform_points(se3.invert(X[k]), kf.points) for k, kf in enumerate(keyframes)])
     alln = np.concatenate([se3.rotate_vectors(se3.invert(X[k]), kf.normals) for k, kf in enumerate(keyframes)])
     fit = revolution_axis(allq, alln, max_points=1500)
-    axis = None if fit is None else (fit[0], fit[1])
+    # the axis the clouds revolve about best: the spin search turns about it, and the symmetry test too (a
+    # correction is believed only if the cloud fits worse once turned about it: the surface is not a surface of
+    # revolution there); a fit worse than spin_axis_max_rms means no such axis: C's own axis is probed
+    axis = None if fit is None or fit[2] > o.spin_axis_max_rms else (fit[0], fit[1])
     i = 0
     while i < K:
         if times[i] - times[0] < o.loop_min_gap_s or len(keyframes[i].points) < 30:
@@ -541,23 +549,41 @@ def relocalise_spin(keyframes: list[Keyframe], X: np.ndarray, o: BackendOptions)
             # would otherwise make any surface look peaked at the correction
             sup = 3.0 * o.icp_dist
             g0 = _fit_share(Qi, C, tree, o.icp_dist, sup)
-            g_side = max(_fit_share(Qi, _turned(C, s * o.spin_search_probe), tree, o.icp_dist, sup) for s in (-1, 1))
+            # probe about the axis the matched pair revolves about (the old map and the corrected cloud): a
+            # consistent pair gives the object's own axis even when the drifted run as a whole is smeared
+            pair = revolution_axis(
+                np.concatenate([M, Qi @ C[:3, :3].T + C[:3, 3]]),
+                np.concatenate([MN, Ni @ C[:3, :3].T]),
+                max_points=1000,
+                n_dirs=100,
+            )
+            pax = None if pair is None or pair[2] > o.spin_axis_max_rms else (pair[0], pair[1])
+            g_side = max(
+                _fit_share(Qi, _turned(C, s * o.spin_search_probe, pax), tree, o.icp_dist, sup) for s in (-1, 1)
+            )
             if g0 < g_side + o.spin_search_peak:
                 rep["spin_rejected_symmetric"] += 1
                 continue
-            if best is None or f0 > best[0]:
-                best = (f0, j, C)
+            # the most distinctive match wins (what the symmetric part cannot explain), not the best-covered one
+            if best is None or g0 - g_side > best[3]:
+                best = (f0, j, C, g0 - g_side)
         if best is None:
             i += o.spin_search_every
             continue
-        _, j, C = best
+        _, j, C, peak = best
         e = _log(se3.invert(C))  # object-frame correction of keyframe i: X_i' = X_i C^-1
         for k in range(j + 1, K):
             a = min(1.0, (times[k] - times[j]) / max(times[i] - times[j], 1e-9))
             X[k] = X[k] @ _exp(a * e)
         rep["spin_relocalised"] += 1
         rep["spin_fixes"].append(
-            {"i": i, "j": j, "deg": float(np.degrees(se3.rotation_angle(C))), "fit": round(float(best[0]), 3)}
+            {
+                "i": i,
+                "j": j,
+                "deg": float(np.degrees(se3.rotation_angle(C))),
+                "fit": round(float(best[0]), 3),
+                "peak": round(float(peak), 3),
+            }
         )
         i += o.spin_search_every
     return X, rep
