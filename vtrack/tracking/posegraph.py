@@ -4,6 +4,9 @@ The front end (:class:`~vtrack.tracking.slam.SLAMTracker`) tracks each frame aga
 drifts where the map is thin or a motion direction is unobservable. The back end re-optimises the
 poses of its **keyframes** once the whole (or a longer part of the) session is known:
 
+0. a spin the front end lost by more than the loop gate (1 rad) is re-localised first (:func:`relocalise_spin`:
+   a search over the full rotation range against old keyframes, with a symmetry test), and the keyframes after
+   the loss are re-posed; the odometry edges then come from these poses;
 1. every keyframe keeps a subsample of its segmented depth points and their normals (world frame, m);
 2. with the current keyframe poses ``X_k = T_world_object(t_k)`` their clouds are moved into the object
    frame; pairs of keyframes whose object-frame clouds overlap are registered by robust point-to-plane
