@@ -72,9 +72,10 @@ class BackendOptions:
     loop_global: bool = True  #: FPFH + RANSAC when ICP from the current estimate fails
     loop_voxel: float = 0.004  #: FPFH voxel, m
     #: global re-localisation of a lost spin before the graph (:func:`relocalise_spin`): a keyframe's cloud is
-    #: registered (FPFH + RANSAC, then ICP) against old keyframes over the full rotation range; a correction
-    #: larger than ``loop_max_rot`` that passes the gates and the symmetry test re-poses the keyframes after
-    #: the old one (ramped in time) before the graph is built
+    #: registered (a 1-D search about the axis of revolution + FPFH/RANSAC, then ICP) against old keyframes over
+    #: the full rotation range; a correction larger than ``loop_max_rot`` that passes the gates and the symmetry
+    #: test re-poses the keyframes after the old one (ramped in time) before the graph is built. Only with
+    #: ``loop_closure``
     spin_search: bool = True
     spin_search_every: int = 4  #: try every this many keyframes
     spin_search_candidates: int = 8  #: old keyframes tried per search (evenly spread in time)
@@ -495,7 +496,7 @@ def relocalise_spin(keyframes: list[Keyframe], X: np.ndarray, o: BackendOptions)
     K = len(keyframes)
     times = np.array([kf.t for kf in keyframes])
     rep: dict[str, Any] = {"spin_searches": 0, "spin_relocalised": 0, "spin_rejected_symmetric": 0, "spin_fixes": []}
-    if not o.spin_search or K < 4:
+    if not (o.spin_search and o.loop_closure) or K < 4:  # a loop closure too: off with --no-loop-closure
         return X, rep
     allq = np.concatenate([se3.transform_points(se3.invert(X[k]), kf.points) for k, kf in enumerate(keyframes)])
     alln = np.concatenate([se3.rotate_vectors(se3.invert(X[k]), kf.normals) for k, kf in enumerate(keyframes)])
