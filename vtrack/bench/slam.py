@@ -2,8 +2,9 @@
 
 One SLAM front-end run per case, then the keyframe back end (:mod:`vtrack.tracking.posegraph`) in three
 variants on the same keyframes: none (the front end's poses), pose graph without loop edges
-(registration to the local map only), pose graph with loop closure (`vtrack track --refine`; the back end is
-off by default). Rows: object-motion
+(registration to the local map only), pose graph with loop closure, and with loop closure after the global
+re-localisation of a lost spin (:func:`~vtrack.tracking.posegraph.relocalise_spin`; `vtrack track --refine`
+runs this last one; the back end is off by default). Rows: object-motion
 error (ADD, ADD-S for symmetric objects; first-frame alignment, GT for scoring only), back-end seconds
 (CPU of this process, 1 thread), keyframes and edges.
 
@@ -29,8 +30,9 @@ from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
     "slam (no refinement)": None,
-    "slam + pose graph (no loops)": {"loop_closure": False},
-    "slam + pose graph + loops": {"loop_closure": True},
+    "slam + pose graph (no loops)": {"loop_closure": False, "spin_search": False},
+    "slam + pose graph + loops": {"loop_closure": True, "spin_search": False},
+    "slam + pose graph + loops + spin re-localisation": {"loop_closure": True, "spin_search": True},
 }
 
 
@@ -61,6 +63,7 @@ def _variants(table: BenchTable, tracker, times, front, score, row: dict) -> Non
             registration_edges=int(rep.get("registration_edges", 0)),
             loop_edges=int(rep.get("loop_edges", 0)),
             loop_rejected=int(rep.get("loop_rejected", 0)),
+            spin_relocalised=int(rep.get("spin_relocalised", 0)),
         )
 
 

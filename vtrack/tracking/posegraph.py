@@ -4,6 +4,9 @@ The front end (:class:`~vtrack.tracking.slam.SLAMTracker`) tracks each frame aga
 drifts where the map is thin or a motion direction is unobservable. The back end re-optimises the
 poses of its **keyframes** once the whole (or a longer part of the) session is known:
 
+0. a spin the front end lost by more than the loop gate (1 rad) is re-localised first (:func:`relocalise_spin`:
+   a search over the full rotation range against old keyframes, with a symmetry test), and the keyframes after
+   the loss are re-posed; the odometry edges then come from these poses;
 1. every keyframe keeps a subsample of its segmented depth points and their normals (world frame, m);
 2. with the current keyframe poses ``X_k = T_world_object(t_k)`` their clouds are moved into the object
    frame; pairs of keyframes whose object-frame clouds overlap are registered by robust point-to-plane
@@ -68,6 +71,23 @@ class BackendOptions:
     loop_view_angle: float = 0.8  #: place recognition: object-frame view directions within this, rad
     loop_global: bool = True  #: FPFH + RANSAC when ICP from the current estimate fails
     loop_voxel: float = 0.004  #: FPFH voxel, m
+    #: global re-localisation of a lost spin before the graph (:func:`relocalise_spin`): a keyframe's cloud is
+    #: registered (a 1-D search about the axis of revolution + FPFH/RANSAC, then ICP) against old keyframes over
+    #: the full rotation range; a correction larger than ``loop_max_rot`` that passes the gates and the symmetry
+    #: test re-poses the keyframes after the old one (ramped in time) before the graph is built. Only with
+    #: ``loop_closure``
+    spin_search: bool = True
+    spin_search_every: int = 4  #: try every this many keyframes
+    spin_search_candidates: int = 8  #: old keyframes tried per search (evenly spread in time)
+    spin_search_steps: int = 12  #: ICP starts of the 1-D search about the axis of revolution (every 360/steps deg)
+    spin_search_max_trans: float = 0.04  #: translation of an accepted correction at most, m
+    #: symmetry test: the fit (share of the cloud within icp_dist of the old map, among the points within
+    #: 3 icp_dist of it) at the correction must beat the fit at the correction turned by +-spin_search_probe
+    #: about its own axis by this much; a surface that turns into itself (a can, a ball) fits as well there and
+    #: closes no loop
+    spin_search_peak: float = 0.06
+    spin_search_probe: float = 0.5  #: rad
+    spin_axis_max_rms: float = 0.006  #: axis of revolution accepted up to this trimmed RMS (normal lines), m
     min_keyframes: int = 3  #: fewer keyframes: nothing to refine
     object_radius: float = 0.05  #: m, scales rotation against translation in the observability test
     weak_ratio: float = 1e-3  #: registration directions weaker than this x the strongest are unobserved
@@ -88,16 +108,22 @@ class BackendOptions:
         positive = (
             "kf_trans kf_rot kf_max_gap_s icp_dist sigma_point point_correlation loop_point_correlation max_rmse "
             "map_window_s sigma_odom_trans sigma_odom_rot loop_max_trans loop_max_rot loop_view_angle loop_voxel "
-            "object_radius weak_ratio"
+            "object_radius weak_ratio spin_search_max_trans spin_search_probe spin_axis_max_rms"
         ).split()
         for name in positive:
             v = float(getattr(o, name))
             if not (np.isfinite(v) and v > 0):
                 raise InputError("SLAM back-end option must be a positive number", field=name, expected="> 0", got=v)
-        for name in ("robust_k", "loop_min_gap_s", "min_overlap", "loop_min_overlap"):
+        for name in ("robust_k", "loop_min_gap_s", "min_overlap", "loop_min_overlap", "spin_search_peak"):
             v = float(getattr(o, name))
             if not (np.isfinite(v) and v >= 0):
                 raise InputError("SLAM back-end option must be >= 0", field=name, expected=">= 0", got=v)
+        if o.spin_search_every < 1 or o.spin_search_candidates < 1 or o.spin_search_steps < 1:
+            raise InputError(
+                "spin_search_every and spin_search_candidates must be >= 1",
+                field="spin_search_every/spin_search_candidates",
+                got=(o.spin_search_every, o.spin_search_candidates),
+            )
         if o.kf_max < o.min_keyframes:
             raise InputError(
                 "kf_max must be at least min_keyframes", field="kf_max", expected=f">= {o.min_keyframes}", got=o.kf_max
@@ -379,6 +405,194 @@ def registration_edges(
     return edges, rep
 
 
+def revolution_axis(
+    points: np.ndarray, normals: np.ndarray, max_points: int = 800, n_dirs: int = 150, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The axis a surface of revolution would have, from points (N, 3) and unit normals (N, 3), m: ``(c, a,
+    rms)`` = a point of the axis, its unit direction and the trimmed RMS (best 80 %) distance of the normal lines
+    to it, m (every normal line of a surface of revolution meets its axis; a handle's do not, hence the trim).
+    Direction search as :func:`vtrack.fusion.symmetry.fit_revolution`'s, without its profile (the search needs
+    the axis only, at ~20 ms). None with fewer than 50 points with a normal."""
+    from vtrack.fusion.symmetry import _axis_point, _fibonacci_hemisphere, _trimmed_rms
+
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    N = np.asarray(normals, np.float64).reshape(-1, 3)
+    ok = (np.linalg.norm(N, axis=1) > 0.5) & np.isfinite(P).all(1)
+    P, N = P[ok], N[ok]
+    if len(P) < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    if len(P) > max_points:
+        sel = rng.choice(len(P), max_points, replace=False)
+        P, N = P[sel], N[sel]
+    ref = P.mean(0)
+    dirs = _fibonacci_hemisphere(n_dirs)
+    fits = [_axis_point(P, N, a, ref) for a in dirs]
+    errs = np.array([_trimmed_rms(r) for _, r in fits])
+    k = int(np.argmin(errs))
+    a, c, e = dirs[k], fits[k][0], float(errs[k])
+    step = 0.1
+    for _ in range(40):  # local refinement by shrinking random perturbations
+        a2 = a + step * rng.normal(size=3)
+        a2 /= np.linalg.norm(a2)
+        c2, r2 = _axis_point(P, N, a2, ref)
+        e2 = _trimmed_rms(r2)
+        if e2 < e:
+            a, c, e = a2, c2, e2
+        else:
+            step *= 0.9
+    return c, a, e
+
+
+def _fit_share(src: np.ndarray, C: np.ndarray, tree: Any, dist: float, support: float = 0.0) -> float:
+    """Share of ``src`` points (N, 3) moved by ``C`` that have a point of ``tree`` within ``dist`` (m); with
+    ``support`` > 0, the share among the moved points within ``support`` (m) of the tree's points only (so a
+    cloud turned off the edge of a partial map is not counted against the turn; 0 when none is)."""
+    d, _ = tree.query(src @ C[:3, :3].T + C[:3, 3], distance_upper_bound=max(dist, support))
+    if support <= 0:
+        return float(np.mean(d <= dist))
+    near = d <= support
+    return float(np.mean(d[near] <= dist)) if near.sum() >= 10 else 0.0
+
+
+def _turned(C: np.ndarray, angle: float, axis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """``C`` followed by a further turn of ``angle`` rad about ``axis`` = (point, unit direction), or about
+    ``C``'s own screw axis (through its fixed point) when None."""
+    if axis is None:
+        w = se3.so3_log(C[:3, :3])
+        th = float(np.linalg.norm(w))
+        a = w / max(th, 1e-12)
+        # a point of the screw axis: (I - R) c = t minus its part along the axis (least squares)
+        c = np.linalg.lstsq(np.eye(3) - C[:3, :3], C[:3, 3] - a * (a @ C[:3, 3]), rcond=None)[0]
+    else:
+        c, a = axis
+    Rx = se3.so3_exp(a * angle)
+    return se3.make_transform(Rx, c - Rx @ c) @ C
+
+
+def relocalise_spin(keyframes: list[Keyframe], X: np.ndarray, o: BackendOptions) -> tuple[np.ndarray, dict]:
+    """Keyframe poses with a lost spin re-localised (global place recognition over the full rotation range).
+
+    A front end that lost an object's spin by more than ``loop_max_rot`` shows its faces at the wrong place in
+    the object frame, so neither the view-direction candidates nor the correction gate of the loop edges can
+    close that loop. Here every ``spin_search_every``-th keyframe ``i`` (in time order, at least
+    ``loop_min_gap_s`` after the first) is registered against the local maps of up to
+    ``spin_search_candidates`` old keyframes spread over the earlier run, by FPFH + seeded RANSAC then ICP
+    (any rotation). A correction ``C`` (``X_i' = X_i C^-1``) is accepted when it is larger than
+    ``loop_max_rot`` (smaller ones are the loop edges' job), moves the origin by at most
+    ``spin_search_max_trans``, passes the loop gates (overlap, inlier RMSE) and the **symmetry test**: the
+    cloud must fit the old map at ``C`` better, by ``spin_search_peak`` of its points, than at ``C`` turned by
+    ``+-spin_search_probe`` about its own axis (a can or a ball fits everywhere and is never corrected). The
+    best accepted correction re-poses the keyframes after the old one ``j``: ramped linearly in time from
+    none at ``j`` to all of it at ``i``, all of it after ``i`` (the front end tracks the relative motion after
+    the loss, so its error is a constant object-frame offset). Returns the new poses and a report.
+    """
+    from scipy.spatial import cKDTree
+
+    from vtrack.tracking.globalreg import _feature_ransac
+    from vtrack.tracking.window import _exp, _log
+
+    X = np.asarray(X, np.float64).copy()
+    K = len(keyframes)
+    times = np.array([kf.t for kf in keyframes])
+    rep: dict[str, Any] = {"spin_searches": 0, "spin_relocalised": 0, "spin_rejected_symmetric": 0, "spin_fixes": []}
+    if not (o.spin_search and o.loop_closure) or K < 4:  # a loop closure too: off with --no-loop-closure
+        return X, rep
+    allq = np.concatenate([se3.transform_points(se3.invert(X[k]), kf.points) for k, kf in enumerate(keyframes)])
+    alln = np.concatenate([se3.rotate_vectors(se3.invert(X[k]), kf.normals) for k, kf in enumerate(keyframes)])
+    fit = revolution_axis(allq, alln, max_points=1500)
+    # the axis the clouds revolve about best: the spin search turns about it, and the symmetry test too (a
+    # correction is believed only if the cloud fits worse once turned about it: the surface is not a surface of
+    # revolution there); a fit worse than spin_axis_max_rms means no such axis: C's own axis is probed
+    axis = None if fit is None or fit[2] > o.spin_axis_max_rms else (fit[0], fit[1])
+    i = 0
+    while i < K:
+        if times[i] - times[0] < o.loop_min_gap_s or len(keyframes[i].points) < 30:
+            i += 1
+            continue
+        old = [j for j in range(K) if times[i] - times[j] >= o.loop_min_gap_s and len(keyframes[j].points) >= 30]
+        if not old:
+            i += 1
+            continue
+        rep["spin_searches"] += 1
+        pick = np.unique(np.linspace(0, len(old) - 1, min(o.spin_search_candidates, len(old))).round().astype(int))
+        Xinv_i = se3.invert(X[i])
+        Qi = se3.transform_points(Xinv_i, keyframes[i].points)
+        Ni = se3.rotate_vectors(Xinv_i, keyframes[i].normals)
+        Pi, Fi = _fpfh(Qi, Ni, o.loop_voxel)
+        # the spin a front end loses is the one about the object's (near) symmetry axis: a 1-D search about the
+        # axis of revolution the earlier clouds fit best, beside the feature-based hypothesis
+        starts = []
+        if axis is not None:
+            c, a = axis
+            for th in np.arange(1, o.spin_search_steps) * (2 * np.pi / o.spin_search_steps):
+                R = se3.so3_exp(a * th)
+                starts.append(se3.make_transform(R, c - R @ c))
+        best = None
+        for j in (old[k] for k in pick):
+            sub = [k for k in (j - 1, j, j + 1) if 0 <= k < K and times[i] - times[k] >= o.loop_min_gap_s]
+            M = np.concatenate([se3.transform_points(se3.invert(X[k]), keyframes[k].points) for k in sub])
+            MN = np.concatenate([se3.rotate_vectors(se3.invert(X[k]), keyframes[k].normals) for k in sub])
+            Pm, Fm = _fpfh(M, MN, o.loop_voxel)
+            T0 = _feature_ransac(Pi, Fi, Pm, Fm, np.random.default_rng(7919 * i + j), 3000, 1.5 * o.loop_voxel)
+            tree = cKDTree(M)
+            found = None
+            for S0 in ([T0] if T0 is not None else []) + starts:
+                C, _, st = icp_point_to_plane(Qi, M, MN, tree, o.icp_iters, o.icp_dist, o.sigma_point, C0=S0)
+                if st["overlap"] < o.loop_min_overlap or st["rmse"] > o.max_rmse:
+                    continue
+                if found is None or st["overlap"] > found[1]["overlap"]:
+                    found = (C, st)
+            if found is None:
+                continue
+            C, st = found
+            if float(se3.rotation_angle(C)) <= o.loop_max_rot or np.linalg.norm(C[:3, 3]) > o.spin_search_max_trans:
+                continue
+            f0 = _fit_share(Qi, C, tree, o.icp_dist)
+            # the symmetry test counts only points that land on (near) the old map after the turn: a partial map
+            # would otherwise make any surface look peaked at the correction
+            sup = 3.0 * o.icp_dist
+            g0 = _fit_share(Qi, C, tree, o.icp_dist, sup)
+            # probe about the axis the matched pair revolves about (the old map and the corrected cloud): a
+            # consistent pair gives the object's own axis even when the drifted run as a whole is smeared
+            pair = revolution_axis(
+                np.concatenate([M, Qi @ C[:3, :3].T + C[:3, 3]]),
+                np.concatenate([MN, Ni @ C[:3, :3].T]),
+                max_points=1000,
+                n_dirs=100,
+            )
+            pax = None if pair is None or pair[2] > o.spin_axis_max_rms else (pair[0], pair[1])
+            g_side = max(
+                _fit_share(Qi, _turned(C, s * o.spin_search_probe, pax), tree, o.icp_dist, sup) for s in (-1, 1)
+            )
+            if g0 < g_side + o.spin_search_peak:
+                rep["spin_rejected_symmetric"] += 1
+                continue
+            # the most distinctive match wins (what the symmetric part cannot explain), not the best-covered one
+            if best is None or g0 - g_side > best[3]:
+                best = (f0, j, C, g0 - g_side)
+        if best is None:
+            i += o.spin_search_every
+            continue
+        _, j, C, peak = best
+        e = _log(se3.invert(C))  # object-frame correction of keyframe i: X_i' = X_i C^-1
+        for k in range(j + 1, K):
+            a = min(1.0, (times[k] - times[j]) / max(times[i] - times[j], 1e-9))
+            X[k] = X[k] @ _exp(a * e)
+        rep["spin_relocalised"] += 1
+        rep["spin_fixes"].append(
+            {
+                "i": i,
+                "j": j,
+                "deg": float(np.degrees(se3.rotation_angle(C))),
+                "fit": round(float(best[0]), 3),
+                "peak": round(float(peak), 3),
+            }
+        )
+        i += o.spin_search_every
+    return X, rep
+
+
 def odometry_edges(X_front: np.ndarray, o: BackendOptions) -> list[Edge]:
     """Consecutive-keyframe edges carrying the front end's relative motion."""
     sig = np.array([o.sigma_odom_trans] * 3 + [o.sigma_odom_rot] * 3)
@@ -397,8 +611,10 @@ def refine_keyframes(
     if len(keyframes) < o.min_keyframes:
         rep["seconds"] = time.perf_counter() - t0
         return X0.copy(), rep
-    odo = odometry_edges(X0, o)
-    X = X0.copy()
+    X, spin_rep = relocalise_spin(keyframes, X0, o)
+    rep.update(spin_rep)
+    # a re-localised spin is the new front end: odometry from the corrected poses
+    odo = odometry_edges(X, o)
     for _ in range(o.rounds):
         reg, r = registration_edges(keyframes, X, o, loops=o.loop_closure)
         Xn = optimise_pose_graph(X, odo + reg, fixed=0)

@@ -188,11 +188,14 @@ def drifting_keyframes(
     n_points: int = 400,
     camera_origin=(0.0, -0.35, 0.22),
     seed: int = 0,
+    centre=None,
 ) -> list:
     """Back-end keyframes (:class:`~vtrack.tracking.posegraph.Keyframe`) of every frame of ``seq`` with the
     drift a SLAM front end shows: the spin about the world ``axis`` (through the object centre) lags by
     ``lag_per_frame`` rad per frame over the first ``lag_frames`` frames and then stays behind, plus
-    ``trans_noise`` m of position noise. Normals: Open3D PCA facing the camera of :func:`make_sequence`."""
+    ``trans_noise`` m of position noise. Normals: Open3D PCA facing the camera of :func:`make_sequence`.
+    ``centre``: the object-frame point (m) the lag turns about (default the object centre); a front end that
+    loses a mug's spin keeps its body on the data, so its error turns about the body's axis."""
     from vtrack.tracking.posegraph import Keyframe
     from vtrack.tracking.slam import estimate_normals
 
@@ -203,7 +206,7 @@ def drifting_keyframes(
     kfs = []
     for i, f in enumerate(seq.frames):
         R = se3.so3_exp(ax * (-lag_per_frame * min(i, lag_frames)))
-        c = se3.transform_points(seq.gt[i], seq.centre[None])[0]
+        c = se3.transform_points(seq.gt[i], np.asarray(seq.centre if centre is None else centre, float)[None])[0]
         T = se3.make_transform(R, c - R @ c) @ seq.gt[i]
         T[:3, 3] += rng.normal(0.0, trans_noise, 3)
         V = f.vision_points
