@@ -8,6 +8,7 @@ import numpy as np
 from vtrack.fusion.cloud import TOUCH, VISION
 from vtrack.fusion.observations import Observation
 from vtrack.fusion.posefit import PoseFitConfig, align_frames, apply_corrections, corrected_poses
+from vtrack.fusion.reconstruct import reconstruct_observations
 from vtrack.geometry import se3
 
 HALF = np.array([0.03, 0.02, 0.045])  # box half-sizes, m (no symmetry an SDF could slide along)
@@ -104,3 +105,14 @@ def test_degenerate_inputs():
     # an SDF returning NaN does not poison the corrections
     times, C, _ = align_frames(lambda P: (np.full(len(P), np.nan), np.zeros((len(P), 3))), make_frames(K=3)[0])
     assert np.all(np.isfinite(C)) and np.allclose(C, np.eye(4))
+
+
+def test_reconstruct_observations_refines_and_reports_poses():
+    """The offline option: a drifted copy of the box frames is refitted; corrections come back, first = identity."""
+    obs, _ = make_frames(K=8)
+    res = reconstruct_observations(obs, "neural_sdf", n_iters=15, pose_rounds=1, pose_iters=15, mesh_cell_mm=4.0)
+    times, C = res["pose_corrections"]
+    assert len(times) == 8 and C.shape == (8, 4, 4) and np.all(np.isfinite(C))
+    assert np.allclose(C[0], np.eye(4))
+    assert len(res["observations"]) == len(obs) and len(res["pose_refine"]) == 1
+    assert len(res["vertices"]) > 0
