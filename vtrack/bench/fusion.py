@@ -116,6 +116,7 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
     from vtrack.eval.session_gt import SessionGroundTruth
     from vtrack.frames.session import SessionFrames
     from vtrack.fusion.observations import observations_from_frames
+    from vtrack.fusion.reconstruct import TOUCH_DOWNSAMPLE, TOUCH_STRIDE
     from vtrack.geometry import se3
     from vtrack.io.mesh import load_mesh
     from vtrack.io.poses import PoseTrack
@@ -127,8 +128,19 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
     info: dict = {}
     if blind:
         kept: dict = {}
+        # the tactile settings of `vtrack reconstruct` (denser contacts than tracking's own), so the front-end row
+        # is what the CLI does
         m, (times, est) = track_session(
-            path, "", shape="slam", write=False, return_poses=True, keep_frames=kept, keep_step=2, refine=True
+            path,
+            "",
+            shape="slam",
+            write=False,
+            return_poses=True,
+            keep_frames=kept,
+            keep_step=2,
+            refine=True,
+            touch_stride=TOUCH_STRIDE,
+            touch_downsample=TOUCH_DOWNSAMPLE,
         )
         info = {
             "motion_err_mm": m.get("motion_err_mm"),

@@ -22,6 +22,16 @@ from vtrack.io.jsonio import write_json
 
 METHODS = ("neural_sdf", "tsdf")
 
+#: Tactile pipeline settings of the mapping run (point stride; working resolution from the image size): denser
+#: contacts than tracking's own (``vtrack.tracking.run.TRACK_TOUCH_STRIDE`` / ``TRACK_TOUCH_DOWNSAMPLE``).
+TOUCH_STRIDE = 3
+TOUCH_DOWNSAMPLE = "auto"
+
+#: Offline neural SDF: rounds of per-frame pose refinement against the fitted SDF (0 = fuse the poses as given).
+POSE_ROUNDS = 0
+#: Iterations of the fits that only serve the pose refinement (the final fit uses ``n_iters``).
+POSE_ITERS = 400
+
 
 def _parse_modalities(modalities: Any) -> tuple[str, ...]:
     if isinstance(modalities, str):
@@ -37,9 +47,13 @@ def reconstruct_observations(
 ) -> dict[str, Any]:
     """Run a reconstructor on object-frame observations. Returns mesh, timing and the model.
 
-    Neural SDF options: ``n_iters`` (offline iterations), ``time_budget_s``, plus any
-    :class:`~vtrack.fusion.neural_sdf.NeuralSDFReconstructor` argument. ``online=True`` feeds frames
-    one by one with ``step(time_budget_ms=frame_budget_ms)`` and reports ms per frame.
+    Neural SDF options: ``n_iters`` (offline iterations), ``time_budget_s``, ``pose_rounds`` (offline joint pose
+    and shape, :mod:`vtrack.fusion.posefit`: rounds of fit -> align every frame to the SDF -> fit again; default
+    :data:`POSE_ROUNDS`; the first fits use ``pose_iters`` iterations), plus any
+    :class:`~vtrack.fusion.neural_sdf.NeuralSDFReconstructor` argument. The result's ``pose_corrections`` =
+    ``(times, (K, 4, 4))`` object-frame corrections per observation time (:func:`~vtrack.fusion.posefit.
+    corrected_poses` turns them into poses); ``observations`` = the observations as finally fused.
+    ``online=True`` feeds frames one by one with ``step(time_budget_ms=frame_budget_ms)`` and reports ms per frame.
     TSDF options: any :class:`~vtrack.fusion.tsdf.TSDFReconstructor` argument.
     """
     if method not in METHODS:
@@ -72,6 +86,22 @@ def reconstruct_observations(
             n_iters = OFFLINE_ITERS
         n_iters = int(n_iters)
         budget = o2.pop("time_budget_s", None)
+        rounds = 0 if online else int(o2.pop("pose_rounds", POSE_ROUNDS))
+        pose_iters = int(o2.pop("pose_iters", POSE_ITERS))
+        if rounds > 0 and budget is None:
+            from vtrack.fusion.posefit import align_frames, apply_corrections
+
+            t_p = time.perf_counter()
+            C_all = None
+            pose_info: list[dict] = []
+            for _ in range(rounds):
+                pre = cls(**o2)
+                pre.fit(obs, n_iters=pose_iters)
+                times_c, C, info = align_frames(pre.query, obs)
+                obs = apply_corrections(obs, times_c, C)
+                C_all = C if C_all is None else np.einsum("nij,njk->nik", C, C_all)
+                pose_info.append(info)
+            out.update(pose_corrections=(times_c, C_all), pose_refine=pose_info, pose_seconds=time.perf_counter() - t_p)
         rec = cls(**o2)
         if online:
             pts = [o.points for o in obs if len(o)]
@@ -98,7 +128,7 @@ def reconstruct_observations(
         t_int = time.perf_counter()
         V, F = rec.extract_mesh()
         out["mesh_seconds"] = time.perf_counter() - t_int
-    out.update(vertices=V, faces=F, model=rec, seconds=time.perf_counter() - t0)
+    out.update(vertices=V, faces=F, model=rec, observations=obs, seconds=time.perf_counter() - t0)
     return out
 
 
@@ -117,7 +147,7 @@ def reconstruct_session(
     screenshot: bool = True,
     frame_step: int = 2,
     vision_stride: int = 4,
-    touch_stride: int = 3,
+    touch_stride: int = TOUCH_STRIDE,
     threads: int | None = 1,
     track_opts: dict | None = None,
     **opts: Any,
@@ -139,7 +169,7 @@ def reconstruct_session(
     """
     from vtrack.eval.session_gt import SessionGroundTruth
     from vtrack.frames.session import SessionFrames
-    from vtrack.fusion.observations import observations_from_frames
+    from vtrack.fusion.observations import SessionObservations, observations_from_frames
     from vtrack.io.export import export_mesh
     from vtrack.io.poses import PoseTrack, read_poses_csv, write_poses_csv
 
@@ -175,7 +205,7 @@ def reconstruct_session(
             return_poses=True,
             keep_frames=kept,
             keep_step=frame_step,
-            **{"touch_stride": touch_stride, "touch_downsample": "auto", **(track_opts or {})},
+            **{"touch_stride": touch_stride, "touch_downsample": TOUCH_DOWNSAMPLE, **(track_opts or {})},
         )
         frames, built = kept["frames"], kept["built"]
         track = PoseTrack(times, est)
@@ -216,6 +246,14 @@ def reconstruct_session(
     V, F = res["vertices"], res["faces"]
     seconds = time.perf_counter() - t_start
     used_t = np.array([frames.times[i] for i, _ in built])
+    if "pose_corrections" in res:
+        # joint pose and shape: the fused frames were re-aligned to the SDF; their poses move with them (the first
+        # frame's correction is the identity, so the object frame is the one the poses defined)
+        from vtrack.fusion.posefit import corrected_poses
+
+        tc, C = res["pose_corrections"]
+        track = PoseTrack(used_t, corrected_poses(used_t, track.at(used_t), tc, C))
+        cloud = SessionObservations(res["observations"], so.sensor_names, so.info).cloud()
     metrics: dict[str, Any] = {
         "method": method,
         "modalities": list(mods),
@@ -254,6 +292,8 @@ def reconstruct_session(
                 "alignment",
             )
         }
+    if "pose_refine" in res:
+        metrics["pose_refine"] = {"rounds": res["pose_refine"], "seconds": res["pose_seconds"]}
     for k in ("iterations", "ms_per_frame_p95", "cpu_ms_per_frame"):
         if k in res:
             metrics[k] = res[k]
