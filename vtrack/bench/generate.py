@@ -100,7 +100,13 @@ def _soft_argmax_net(n_out: int = 4):
             self.e2 = nn.Sequential(blk(16, 32, 2), blk(32, 32, 1))  # 20x15
             self.e3 = nn.Sequential(blk(32, 48, 2), blk(48, 48, 1))  # 10x8
             self.up = nn.Upsample(size=(30, 40), mode="bilinear", align_corners=False)
-            self.heat = nn.Sequential(blk(16 + 32 + 48, 32, 1), nn.Conv2d(32, 1, 3, padding=1))
+            # 1x1 mixing of the three scales, then one 3x3 conv to the map (cheap at 40x30)
+            self.heat = nn.Sequential(
+                nn.Conv2d(16 + 32 + 48, 16, 1),
+                nn.BatchNorm2d(16),
+                nn.ReLU(inplace=True),
+                nn.Conv2d(16, 1, 3, padding=1),
+            )
             # n_out == 2: position only (the real ball presses have no angle)
             self.ang = nn.Sequential(nn.Linear(48, 64), nn.ReLU(inplace=True), nn.Linear(64, n_out - 2))
             self.n_out = n_out
@@ -176,6 +182,7 @@ def pose_study(
     seed: int = 0,
     heads: tuple[str, ...] = ("flat",),
     gen_refs: int = 1,
+    sets: tuple[str, ...] = ("real-only", "generated"),
 ) -> list[dict]:
     """Contact-pose (x, y, theta) regression on SIMULATED presses (paper Table 2 analogue; stated as such).
 
@@ -186,7 +193,7 @@ def pose_study(
     ``gen_refs`` of them (random pose and depth, two-stage generator); ``PCA`` = centroid and principal axis
     of the detected contact (no training). ``seed`` draws the 24 training presses, the generated poses and the
     CNN initialisation (seed 0 = the draws of the earlier single-seed runs); every head in ``heads``
-    (:data:`POSE_HEADS`) is trained on both sets.
+    (:data:`POSE_HEADS`) is trained on each of ``sets`` (``real-only``, ``generated``; e.g. one per process).
     """
     import cv2
     import torch
@@ -240,6 +247,8 @@ def pose_study(
     gD = rng.uniform(0.3, 1.2, n_gen)
     reqs = []
     for k, (p, d) in enumerate(zip(gP, gD, strict=True)):
+        if "generated" not in sets:  # the draws above keep every set's stream the same
+            break
         r = k % max(1, min(gen_refs, n_real))
         ref_mask = gd.detect_contact(real_imgs[r], bg)
         rp = gd.mask_pose(ref_mask)
@@ -259,18 +268,19 @@ def pose_study(
                 ref_mask=ref_mask,
             )
         )
-    gen_imgs = np.stack(gen.generate_many(reqs, bg))
     Xt = torch.from_numpy(feats(test_imgs))
     src = f"{min(gen_refs, n_real)} reference{'s' * (gen_refs > 1)}"
-    budgets = [
-        ("CNN real-only", f"{n_real} real", feats(real_imgs), real_P),
-        (
-            "CNN real + generated",
-            f"{n_real} real + {n_gen} generated from {src}",
-            np.concatenate([feats(real_imgs), feats(gen_imgs)]),
-            np.concatenate([real_P, gP.astype(np.float32)]),
-        ),
-    ]
+    budgets = [("CNN real-only", f"{n_real} real", feats(real_imgs), real_P)] if "real-only" in sets else []
+    if "generated" in sets:
+        gen_imgs = np.stack(gen.generate_many(reqs, bg))
+        budgets.append(
+            (
+                "CNN real + generated",
+                f"{n_real} real + {n_gen} generated from {src}",
+                np.concatenate([feats(real_imgs), feats(gen_imgs)]),
+                np.concatenate([real_P, gP.astype(np.float32)]),
+            )
+        )
     for head in heads:
         for name, train, X, P in budgets:
             net, done = _train_pose_cnn(X, _pose_targets(P, W, H, sym), seconds, seed=seed, steps=steps, head=head)
@@ -281,6 +291,7 @@ def pose_study(
                 {"method": label, "train": f"{train}, {done} steps", "head": head, "seed": seed}
                 | _pose_errors(pred, test_P, W, H, sym)
             )
+            log.info("pose study seed %d: %s", seed, rows[-1])
     return rows
 
 
@@ -289,10 +300,16 @@ def pose_study_seeds(
 ) -> list[dict]:
     """:func:`pose_study` over ``seeds`` at a fixed step budget; per method mean and sd of each error (sd with
     ddof 1) plus the per-seed values."""
-    runs = [pose_study(seed=s, steps=steps, heads=heads, **kw) for s in seeds]
+    return aggregate_pose_seeds([pose_study(seed=s, steps=steps, heads=heads, **kw) for s in seeds])
+
+
+def aggregate_pose_seeds(runs: list[list[dict]]) -> list[dict]:
+    """Per-method mean, sd (ddof 1) and per-seed values of the errors of several :func:`pose_study` runs (one
+    list of rows per seed, rows in the same order)."""
+    seeds = [r[-1].get("seed", k) for k, r in enumerate(runs)]
     out = []
     for k, r0 in enumerate(runs[0]):
-        row = {"method": r0["method"], "train": r0["train"].rsplit(",", 1)[0], "seeds": len(seeds)}
+        row = {"method": r0["method"], "train": r0["train"].rsplit(",", 1)[0], "seeds": seeds}
         for m in ("x_err_px", "y_err_px", "angle_err_deg"):
             v = np.array([r[k][m] for r in runs])
             row[m] = float(v.mean())
