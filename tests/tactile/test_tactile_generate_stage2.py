@@ -57,6 +57,7 @@ def _blobs(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     return X, T
 
 
+@pytest.mark.slow  # two 150-step trainings: ~20 CPU-s
 def test_soft_argmax_head_localises_a_moved_contact_from_few_examples():
     """Trained on 24 contacts for 150 steps, the soft-argmax head places unseen contacts within 3 px (of 80) in
     x and y, and better than the flat head with the same data and steps (the reason it was added)."""
