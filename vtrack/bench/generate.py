@@ -78,6 +78,59 @@ def _pose_net(n_out: int = 4):
     ).to(torch.float32)  # fmt: skip
 
 
+def _soft_argmax_net(n_out: int = 4):
+    """Pose CNN whose x, y come from a spatial soft-argmax over a predicted contact map (the expected pixel
+    coordinate under a softmax over the 40x30 map), and whose angle (cos, sin) comes from pooled features.
+
+    The position path is translation-equivariant: it sees the colour change only (the 2 coordinate channels of
+    the input are dropped) and the coordinates enter only in the final expectation. A contact moved across
+    the gel moves the map with it, so a generated contact moved to a new place teaches the same map as the
+    reference; the flat head of :func:`_pose_net` must instead learn each position from its own examples
+    through a dense layer over 5x4 cells (64 px wide at 320x240)."""
+    import torch
+    from torch import nn
+
+    def blk(i: int, o: int, s: int) -> nn.Module:
+        return nn.Sequential(nn.Conv2d(i, o, 3, stride=s, padding=1), nn.BatchNorm2d(o), nn.ReLU(inplace=True))
+
+    class SoftArgmaxPose(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.e1 = blk(3, 16, 2)  # 40x30
+            self.e2 = nn.Sequential(blk(16, 32, 2), blk(32, 32, 1))  # 20x15
+            self.e3 = nn.Sequential(blk(32, 48, 2), blk(48, 48, 1))  # 10x8
+            self.up = nn.Upsample(size=(30, 40), mode="bilinear", align_corners=False)
+            # 1x1 mixing of the three scales, then one 3x3 conv to the map (cheap at 40x30)
+            self.heat = nn.Sequential(
+                nn.Conv2d(16 + 32 + 48, 16, 1),
+                nn.BatchNorm2d(16),
+                nn.ReLU(inplace=True),
+                nn.Conv2d(16, 1, 3, padding=1),
+            )
+            # n_out == 2: position only (the real ball presses have no angle)
+            self.ang = nn.Sequential(nn.Linear(48, 64), nn.ReLU(inplace=True), nn.Linear(64, n_out - 2))
+            self.n_out = n_out
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            f1 = self.e1(x[:, :3])
+            f2 = self.e2(f1)
+            f3 = self.e3(f2)
+            h = self.heat(torch.cat([f1, self.up(f2), self.up(f3)], 1))  # (B, 1, 30, 40)
+            B, _, Hh, Wh = h.shape
+            p = torch.softmax(h.reshape(B, -1), 1).reshape(B, Hh, Wh)
+            # pixel-centre coordinates in [-1, 1] (the same normalisation as the targets)
+            gx = (torch.arange(Wh, dtype=x.dtype) + 0.5) / Wh * 2 - 1
+            gy = (torch.arange(Hh, dtype=x.dtype) + 0.5) / Hh * 2 - 1
+            xy = torch.stack([(p.sum(1) * gx).sum(1), (p.sum(2) * gy).sum(1)], 1)
+            return xy if self.n_out == 2 else torch.cat([xy, self.ang(f3.mean((2, 3)))], 1)
+
+    return SoftArgmaxPose().to(torch.float32)
+
+
+#: pose-regressor heads of :func:`pose_study`
+POSE_HEADS = {"flat": _pose_net, "softargmax": _soft_argmax_net}
+
+
 def _pose_targets(poses: np.ndarray, W: int, H: int, sym: int) -> np.ndarray:
     a = np.radians(poses[:, 2]) * sym
     return np.stack([poses[:, 0] / W * 2 - 1, poses[:, 1] / H * 2 - 1, np.cos(a), np.sin(a)], 1).astype(np.float32)
@@ -96,13 +149,16 @@ def _pose_errors(pred: np.ndarray, poses: np.ndarray, W: int, H: int, sym: int) 
     }
 
 
-def _train_pose_cnn(imgs: np.ndarray, targets: np.ndarray, seconds: float, seed: int = 0, steps: int = 0):
+def _train_pose_cnn(
+    imgs: np.ndarray, targets: np.ndarray, seconds: float, seed: int = 0, steps: int = 0, head: str = "flat"
+):
     """Small CNN regressor (x, y, cos k*theta, sin k*theta) on colour-change images, Adam, wall-clock budget
-    (or exactly ``steps`` > 0 steps: on a loaded machine a wall-clock budget buys fewer steps)."""
+    (or exactly ``steps`` > 0 steps: on a loaded machine a wall-clock budget buys fewer steps); ``head`` one of
+    :data:`POSE_HEADS`."""
     import torch
 
     torch.manual_seed(seed)
-    net = _pose_net()
+    net = POSE_HEADS[head]()
     opt = torch.optim.Adam(net.parameters(), lr=2e-3)
     X = torch.from_numpy(imgs)
     Y = torch.from_numpy(targets)
@@ -119,14 +175,25 @@ def _train_pose_cnn(imgs: np.ndarray, targets: np.ndarray, seconds: float, seed:
     return net.eval(), n_done
 
 
-def pose_study(quick: bool = False, seconds: float = 60.0, steps: int = 0) -> list[dict]:
+def pose_study(
+    quick: bool = False,
+    seconds: float = 60.0,
+    steps: int = 0,
+    seed: int = 0,
+    heads: tuple[str, ...] = ("flat",),
+    gen_refs: int = 1,
+    sets: tuple[str, ...] = ("real-only", "generated"),
+) -> list[dict]:
     """Contact-pose (x, y, theta) regression on SIMULATED presses (paper Table 2 analogue; stated as such).
 
     The "real" sensor is a unit of the independent optical model never used in generator training (seed
     4242) on the real GelSight background at 320x240; the object is the cross (4-fold symmetric, angle mod
-    90 deg). Test: 150 presses at random poses and depths 0.3-1.2 mm. Training budgets: ``real-only`` = 24
-    labelled presses; ``generated`` = the same 24 + 400 generated from ONE of them (random pose and depth,
-    two-stage generator); ``PCA`` = centroid and principal axis of the detected contact (no training).
+    90 deg). Test: 150 presses at random poses and depths 0.3-1.2 mm (the same for every ``seed``). Training
+    budgets: ``real-only`` = 24 labelled presses; ``generated`` = the same 24 + 400 generated from
+    ``gen_refs`` of them (random pose and depth, two-stage generator); ``PCA`` = centroid and principal axis
+    of the detected contact (no training). ``seed`` draws the 24 training presses, the generated poses and the
+    CNN initialisation (seed 0 = the draws of the earlier single-seed runs); every head in ``heads``
+    (:data:`POSE_HEADS`) is trained on each of ``sets`` (``real-only``, ``generated``; e.g. one per process).
     """
     import cv2
     import torch
@@ -141,7 +208,7 @@ def pose_study(quick: bool = False, seconds: float = 60.0, steps: int = 0) -> li
     model = OpticalModel.for_sensor("gelsight", seed=4242)
     rng = np.random.default_rng(7)
 
-    def sample(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sample(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         P = np.stack([rng.uniform(70, W - 70, n), rng.uniform(70, H - 70, n), rng.uniform(0, 90, n)], 1)
         D = rng.uniform(0.3, 1.2, n)
         imgs = [
@@ -151,8 +218,10 @@ def pose_study(quick: bool = False, seconds: float = 60.0, steps: int = 0) -> li
         return np.stack(imgs), P.astype(np.float32), D
 
     n_test, n_real, n_gen = (60, 24, 150) if quick else (150, 24, 400)
-    test_imgs, test_P, _ = sample(n_test)
-    real_imgs, real_P, real_D = sample(n_real)
+    test_imgs, test_P, _ = sample(n_test, rng)
+    # seed 0 continues the test set's stream (the earlier runs' draws); other seeds draw their own
+    rng = rng if seed == 0 else np.random.default_rng((7, seed))
+    real_imgs, real_P, real_D = sample(n_real, rng)
 
     def feats(imgs: np.ndarray) -> np.ndarray:
         d = imgs.astype(np.float32) - bg.astype(np.float32)
@@ -172,46 +241,82 @@ def pose_study(quick: bool = False, seconds: float = 60.0, steps: int = 0) -> li
     a = np.radians(pcs[:, 2]) * sym
     pred = np.stack([pcs[:, 0] / W * 2 - 1, pcs[:, 1] / H * 2 - 1, np.cos(a), np.sin(a)], 1)
     rows.append({"method": "PCA (contact moments)", "train": "none"} | _pose_errors(pred, test_P, W, H, sym))
-    # generated set from one reference press
+    # generated set from gen_refs reference presses
     gen = TactileGenerator(threads=0)
-    ref = real_imgs[0]
-    ref_mask = gd.detect_contact(ref, bg)
-    rp = gd.mask_pose(ref_mask)
     gP = np.stack([rng.uniform(70, W - 70, n_gen), rng.uniform(70, H - 70, n_gen), rng.uniform(0, 90, n_gen)], 1)
     gD = rng.uniform(0.3, 1.2, n_gen)
-    # the reference's own angle label gives the footprint's orientation offset (moments cannot for a cross)
-    reqs = [
-        gen.prepare(
-            ref,
-            bg,
-            ref_depth_mm=float(real_D[0]),
-            target_depth_mm=float(d),
-            target_pose=gd.Pose(
-                float(p[0]) + (rp.x - real_P[0, 0]),
-                float(p[1]) + (rp.y - real_P[0, 1]),
-                rp.theta_deg + float(p[2] - real_P[0, 2]),
-            ),
-            ref_mask=ref_mask,
+    reqs = []
+    for k, (p, d) in enumerate(zip(gP, gD, strict=True)):
+        if "generated" not in sets:  # the draws above keep every set's stream the same
+            break
+        r = k % max(1, min(gen_refs, n_real))
+        ref_mask = gd.detect_contact(real_imgs[r], bg)
+        rp = gd.mask_pose(ref_mask)
+        # the reference's own angle label gives the footprint's orientation offset (moments cannot for a cross)
+        target = gd.Pose(
+            float(p[0]) + (rp.x - real_P[r, 0]),
+            float(p[1]) + (rp.y - real_P[r, 1]),
+            rp.theta_deg + float(p[2] - real_P[r, 2]),
         )
-        for p, d in zip(gP, gD, strict=True)
-    ]
-    gen_imgs = np.stack(gen.generate_many(reqs, bg))
+        reqs.append(
+            gen.prepare(
+                real_imgs[r],
+                bg,
+                ref_depth_mm=float(real_D[r]),
+                target_depth_mm=float(d),
+                target_pose=target,
+                ref_mask=ref_mask,
+            )
+        )
     Xt = torch.from_numpy(feats(test_imgs))
-    budgets = [
-        ("CNN real-only", f"{n_real} real", feats(real_imgs), real_P),
-        (
-            "CNN real + generated",
-            f"{n_real} real + {n_gen} generated from 1 reference",
-            np.concatenate([feats(real_imgs), feats(gen_imgs)]),
-            np.concatenate([real_P, gP.astype(np.float32)]),
-        ),
-    ]
-    for name, train, X, P in budgets:
-        net, done = _train_pose_cnn(X, _pose_targets(P, W, H, sym), seconds, steps=steps)
-        with torch.inference_mode():
-            pred = net(Xt).numpy()
-        rows.append({"method": name, "train": f"{train}, {done} steps"} | _pose_errors(pred, test_P, W, H, sym))
+    src = f"{min(gen_refs, n_real)} reference{'s' * (gen_refs > 1)}"
+    budgets = [("CNN real-only", f"{n_real} real", feats(real_imgs), real_P)] if "real-only" in sets else []
+    if "generated" in sets:
+        gen_imgs = np.stack(gen.generate_many(reqs, bg))
+        budgets.append(
+            (
+                "CNN real + generated",
+                f"{n_real} real + {n_gen} generated from {src}",
+                np.concatenate([feats(real_imgs), feats(gen_imgs)]),
+                np.concatenate([real_P, gP.astype(np.float32)]),
+            )
+        )
+    for head in heads:
+        for name, train, X, P in budgets:
+            net, done = _train_pose_cnn(X, _pose_targets(P, W, H, sym), seconds, seed=seed, steps=steps, head=head)
+            with torch.inference_mode():
+                pred = net(Xt).numpy()
+            label = name if head == "flat" else f"{name} ({head} head)"
+            rows.append(
+                {"method": label, "train": f"{train}, {done} steps", "head": head, "seed": seed}
+                | _pose_errors(pred, test_P, W, H, sym)
+            )
+            log.info("pose study seed %d: %s", seed, rows[-1])
     return rows
+
+
+def pose_study_seeds(
+    seeds: tuple[int, ...] = (0, 1, 2), steps: int = 2500, heads: tuple[str, ...] = ("flat", "softargmax"), **kw
+) -> list[dict]:
+    """:func:`pose_study` over ``seeds`` at a fixed step budget; per method mean and sd of each error (sd with
+    ddof 1) plus the per-seed values."""
+    return aggregate_pose_seeds([pose_study(seed=s, steps=steps, heads=heads, **kw) for s in seeds])
+
+
+def aggregate_pose_seeds(runs: list[list[dict]]) -> list[dict]:
+    """Per-method mean, sd (ddof 1) and per-seed values of the errors of several :func:`pose_study` runs (one
+    list of rows per seed, rows in the same order)."""
+    seeds = [r[-1].get("seed", k) for k, r in enumerate(runs)]
+    out = []
+    for k, r0 in enumerate(runs[0]):
+        row = {"method": r0["method"], "train": r0["train"].rsplit(",", 1)[0], "seeds": seeds}
+        for m in ("x_err_px", "y_err_px", "angle_err_deg"):
+            v = np.array([r[k][m] for r in runs])
+            row[m] = float(v.mean())
+            row[m + "_sd"] = float(v.std(ddof=1)) if len(v) > 1 else 0.0
+            row[m + "_runs"] = [round(float(x), 2) for x in v]
+        out.append(row)
+    return out
 
 
 def _depth_net():

@@ -116,6 +116,8 @@ def real_pose_study(
     seeds: int = 2,
     budgets: tuple[int, ...] = (6, 24),
     n_gen: int = 240,
+    head: str = "flat",
+    sets: tuple[str, ...] = ("real only", "real + shifted", "real + generated"),
 ) -> list[dict]:
     """Contact-centre regression on REAL GelSight ball presses (paper Table 2 analogue where labels allow: the
     balls give x, y, no angle). Train pool = the generator's 24 training presses (even indices), test = the 24
@@ -123,11 +125,12 @@ def real_pose_study(
     at random; rows ``real only``; ``+ shifted`` (each real press's colour change translated to random centres,
     label moved with it: geometric augmentation, no network); ``+ generated`` (``n_gen`` images generated from
     ONE of the ``k`` presses to random centres and depths, two-stage generator, label = the requested centre);
-    and the detected contact's centroid (no training). Errors: mean |x|, |y| and Euclidean px at 640x480."""
+    and the detected contact's centroid (no training). Errors: mean |x|, |y| and Euclidean px at 640x480.
+    ``head``: the pose CNN's head (:data:`vtrack.bench.generate.POSE_HEADS`); ``sets``: the CNN rows to train."""
     import cv2
     import torch
 
-    from vtrack.bench.generate import _pose_net, _press_depth
+    from vtrack.bench.generate import POSE_HEADS, _press_depth
     from vtrack.paths import shared_data_dir
     from vtrack.tactile.generate import data as gd
     from vtrack.tactile.generate.generator import TactileGenerator
@@ -224,7 +227,7 @@ def real_pose_study(
                 for c in g_xy
             ]
             g_d = [im.astype(np.float32) - bgf for im in gen.generate_many(reqs, bg)]
-            sets = {
+            train_sets = {
                 "real only": (Xk, Yk, f"{k} real"),
                 "real + shifted": (
                     np.concatenate([Xk, feats(sh_d)]),
@@ -237,8 +240,10 @@ def real_pose_study(
                     f"{k} real + {n_gen} generated from 1 of them",
                 ),
             }
-            for name, (X, Y, desc) in sets.items():
-                net = _train_pose(X, Y, steps, seed=s, pose_net=_pose_net)
+            for name, (X, Y, desc) in train_sets.items():
+                if name not in sets:
+                    continue
+                net = _train_pose(X, Y, steps, seed=s, pose_net=POSE_HEADS[head])
                 with torch.inference_mode():
                     p = net(torch.from_numpy(Xte)).numpy()
                 xy = np.stack([(p[:, 0] + 1) / 2 * W, (p[:, 1] + 1) / 2 * H], 1)
@@ -248,7 +253,7 @@ def real_pose_study(
         k, name, desc = key.split("|")
         row = {kk: float(np.mean([e[kk] for e in v])) for kk in v[0]}
         row["xy_err_std_px"] = float(np.std([e["xy_err_px"] for e in v]))
-        method = name if name.startswith("centroid") else f"CNN {name}"
+        method = name if name.startswith("centroid") else f"CNN {name}" + (f" ({head} head)" if head != "flat" else "")
         train_desc = desc if name.startswith("centroid") else f"{desc}, {steps} steps"
         rows.append({"method": method, "train": train_desc, "seeds": len(v)} | row)
     for r in rows:

@@ -127,7 +127,11 @@ def register_generate(tac: typer.Typer) -> None:
             "--extras",
             help="extra baselines, comma-separated: separate (position-only model after stage 1), flow "
             "(few-step rectified-flow stage 1), flowx (the same, predicting the clean target); "
-            "each adds 3-6 min to a full run",
+            "each adds 3-6 min to a full run; with --update also stage2 (retrain the control branch on the "
+            "file's frozen stage 1, --stage2-steps steps)",
+        ),
+        stage2_steps: int = typer.Option(
+            0, "--stage2-steps", help="--extras stage2: optimiser steps (0 = the file's hybrid steps)"
         ),
         update: Path = typer.Option(
             None,
@@ -161,9 +165,10 @@ def register_generate(tac: typer.Typer) -> None:
             threads=threads,
             seed=seed,
             extras=ex,
+            stage2_max_steps=max(0, stage2_steps),
         )
         if update is not None:  # the step counts decide; the minutes only cap each extra
-            cfg.position_seconds = cfg.flow_seconds = total / len(ex)
+            cfg.position_seconds = cfg.flow_seconds = cfg.stage2_seconds = total / len(ex)
         path = train(cfg, out if out is not None or update is None else update, pressset, update=update)
         print_table("generate-train", cfg.log)
         typer.echo(f"wrote {path}")

@@ -65,11 +65,15 @@ class TrainConfig:
     flow_max_steps: int = 0
     #: > 0 caps the position model's steps (to match the hybrid's, also trained from scratch)
     position_max_steps: int = 0
+    #: extra "stage2" (with ``update``): retrain the control branch on the file's frozen stage 1 for this many
+    #: steps (0 = the hybrid's steps in the file: a step-matched comparison), at ``stage2_lr`` (0 = ``lr``)
+    stage2_max_steps: int = 0
+    stage2_lr: float = 0.0
     log: list = field(default_factory=list)
 
 
 #: Extra baselines :func:`train` can add (``extras``), each stored under its own key in the weights.
-EXTRAS = ("separate", "flow", "flowx")
+EXTRAS = ("separate", "flow", "flowx", "stage2")
 
 
 def _pairs(
@@ -135,15 +139,24 @@ def _precompute(bank: gd.PressBank, pairs: np.ndarray, contact_weight: float) ->
 
 
 def _fit(
-    net, params, data: dict[str, Any], seconds: float, cfg: TrainConfig, rng, name: str, max_steps: int = 0
+    net,
+    params,
+    data: dict[str, Any],
+    seconds: float,
+    cfg: TrainConfig,
+    rng,
+    name: str,
+    max_steps: int = 0,
+    lr: float = 0.0,
 ) -> dict[str, float]:
     """Adam with cosine decay over a wall-clock budget (or ``max_steps`` > 0 steps, whichever ends first; the
     decay then follows the steps); half of every batch from real pairs (when any). A net with a ``loss``
-    method (the flow) computes its own loss."""
+    method (the flow) computes its own loss. ``lr`` > 0 overrides ``cfg.lr``."""
     import torch
 
     net.to(memory_format=torch.channels_last)  # ~2x faster small convolutions on CPU
-    opt = torch.optim.Adam(params, lr=cfg.lr)
+    lr = lr if lr > 0 else cfg.lr
+    opt = torch.optim.Adam(params, lr=lr)
     real = np.flatnonzero(data["real"].numpy())
     sim = np.flatnonzero(~data["real"].numpy())
     t0 = time.perf_counter()
@@ -154,7 +167,7 @@ def _fit(
             break
         frac = max(el / seconds, step / max_steps if max_steps > 0 else 0.0)
         for g in opt.param_groups:
-            g["lr"] = cfg.lr * 0.5 * (1 + np.cos(np.pi * min(1.0, frac)))
+            g["lr"] = lr * 0.5 * (1 + np.cos(np.pi * min(1.0, frac)))
         nr = cfg.batch // 2 if len(real) and len(sim) else (cfg.batch if len(real) else 0)
         idx = np.concatenate(
             [rng.choice(real, nr), rng.choice(sim, cfg.batch - nr)] if len(sim) else [rng.choice(real, nr)]
@@ -172,7 +185,7 @@ def _fit(
         opt.step()
         losses.append(float(loss.detach()))
         step += 1
-    out = {"stage": name, "steps": step, "seconds": round(time.perf_counter() - t0, 1)}
+    out = {"stage": name, "steps": step, "seconds": round(time.perf_counter() - t0, 1), "lr": lr}
     out["loss_last50"] = float(np.mean(losses[-50:])) if losses else float("nan")
     cfg.log.append(out)
     return out
@@ -248,6 +261,7 @@ def train(
         done = {r["stage"]: r["steps"] for r in cfg.log}
         cfg.flow_max_steps = cfg.flow_max_steps or done.get("stage1", 0)
         cfg.position_max_steps = cfg.position_max_steps or done.get("hybrid", 0)
+        cfg.stage2_max_steps = cfg.stage2_max_steps or done.get("hybrid", 0)
         if press_dir is None and om.get("data", {}).get("press_set"):
             press_dir = om["data"]["press_set"]
     bank, info = build_bank(cfg, press_dir)
@@ -256,7 +270,7 @@ def train(
 
     t0 = time.perf_counter()
     d1 = _precompute(bank, s1, cfg.contact_weight)
-    d2 = _precompute(bank, s2, cfg.contact_weight) if old is None else None
+    d2 = _precompute(bank, s2, cfg.contact_weight) if old is None or "stage2" in cfg.extras else None
     info["pair_seconds"] = round(time.perf_counter() - t0, 1)
     if old is None:
         base = UNet(ch=cfg.channels)
@@ -273,6 +287,27 @@ def train(
     else:
         state = {k: v for k, v in old.items() if k != "meta"}
         info = old["meta"]["data"] | {k: v for k, v in info.items() if k.endswith("_pairs")}
+    if "stage2" in cfg.extras and old is not None:
+        # a new control branch on the file's frozen stage 1 (replaces the file's branch; stage 1 is unchanged);
+        # the replaced branch's log entry is kept, renamed
+        cfg.log = [r | {"stage": "stage2 (replaced)"} if r["stage"] == "stage2" else r for r in cfg.log]
+        base = UNet(ch=cfg.channels)
+        base.load_state_dict({n: t.float() for n, t in old["base"].items()})
+        for p in base.parameters():
+            p.requires_grad_(False)
+        two = TwoStage(base, ControlBranch(base))
+        _fit(
+            two,
+            two.control.parameters(),
+            d2,
+            cfg.stage2_seconds,
+            cfg,
+            rng,
+            "stage2",
+            max_steps=cfg.stage2_max_steps,
+            lr=cfg.stage2_lr,
+        )
+        state["control"] = two.control.state_dict()
     if "separate" in cfg.extras:
         sp = _position_pairs(bank, cfg.position_max_dd_mm)
         info["position_pairs"] = len(sp)
