@@ -34,7 +34,7 @@ def test_a_mug_spin_lost_beyond_one_radian_is_relocalised(shared_data):
 
     seq, kfs = _keyframes(shared_data, "025_mug", centre=(-0.019, 0.0174, 0.048))  # the body axis (mesh frame)
     X0 = np.stack([k.T for k in kfs])
-    X, rep = relocalise_spin(kfs, X0, BackendOptions(spin_search_candidates=6))
+    X, rep = relocalise_spin(kfs, X0, BackendOptions(spin_search=True, spin_search_candidates=6))
     assert rep["spin_relocalised"] >= 1
     assert all(f["deg"] > np.degrees(1.0) for f in rep["spin_fixes"])  # beyond what the loop gate lets through
     late = slice(16, None)
@@ -54,7 +54,7 @@ def test_symmetric_can_closes_no_false_spin_loop(shared_data):
 
     _, kfs = _keyframes(shared_data, "005_tomato_soup_can")
     X0 = np.stack([k.T for k in kfs])
-    X, rep = relocalise_spin(kfs, X0, BackendOptions(spin_search_candidates=4, spin_search_every=6))
+    X, rep = relocalise_spin(kfs, X0, BackendOptions(spin_search=True, spin_search_candidates=4, spin_search_every=6))
     assert rep["spin_searches"] >= 2  # the search ran
     assert rep["spin_relocalised"] == 0
     assert np.array_equal(X, X0)

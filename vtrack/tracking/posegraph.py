@@ -75,8 +75,9 @@ class BackendOptions:
     #: registered (a 1-D search about the axis of revolution + FPFH/RANSAC, then ICP) against old keyframes over
     #: the full rotation range; a correction larger than ``loop_max_rot`` that passes the gates and the symmetry
     #: test re-poses the keyframes after the old one (ramped in time) before the graph is built. Only with
-    #: ``loop_closure``
-    spin_search: bool = True
+    #: ``loop_closure``. Opt-in: it takes the 20 s mug session from 57.8 to 32.2 mm but closed 12 / 10 false turns
+    #: on the 20 s synthetic mustard runs (none 3.2 -> 48.0 mm, medium 26.2 -> 39.5; `bench slam` 2026-11-26)
+    spin_search: bool = False
     spin_search_every: int = 4  #: try every this many keyframes
     spin_search_candidates: int = 8  #: old keyframes tried per search (evenly spread in time)
     spin_search_steps: int = 12  #: ICP starts of the 1-D search about the axis of revolution (every 360/steps deg)

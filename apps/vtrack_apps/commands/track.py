@@ -33,6 +33,12 @@ def register(app: typer.Typer) -> None:
         loop_closure: bool = typer.Option(
             True, "--loop-closure/--no-loop-closure", help="SLAM: loop-closure edges in the pose graph"
         ),
+        spin_search: bool = typer.Option(
+            False,
+            "--spin-search/--no-spin-search",
+            help="SLAM back end: re-localise a spin lost by more than 1 rad (a search over the full turn with a "
+            "symmetry test; needs --refine and loop closure; opt-in: it can close false turns, see docs/tracking.md)",
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -71,7 +77,7 @@ def register(app: typer.Typer) -> None:
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
-                opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure)
+                opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure, spin_search=spin_search)
         m = track_session(
             session,
             out,
