@@ -10,7 +10,7 @@ import pytest
 
 from vtrack.errors import InputError
 from vtrack.tracking.frame import TrackingFrame
-from vtrack.tracking.slam import SLAMOptions
+from vtrack.tracking.slam import SLAM_TOUCH_WEAK_VISION, SLAMOptions
 from vtrack.tracking.window import TrackerOptions, WindowTracker
 
 R_SPHERE = 0.03
@@ -26,7 +26,8 @@ class _Sphere:
 
 
 def _slam_tracker(**opts) -> WindowTracker:
-    return WindowTracker(_Sphere(), np.eye(4), SLAMOptions.split(opts)[2])
+    """A window tracker with SLAM's options and the heavy-occlusion preset (``opts`` override both)."""
+    return WindowTracker(_Sphere(), np.eye(4), SLAMOptions.split({**SLAM_TOUCH_WEAK_VISION, **opts})[2])
 
 
 def _contacts(offset: float, n: int = 40) -> TrackingFrame:
@@ -37,8 +38,9 @@ def _contacts(offset: float, n: int = 40) -> TrackingFrame:
     return TrackingFrame(t=0.0, touch_points=d * (R_SPHERE + offset), touch_normals=d)
 
 
-def test_slam_defaults_turn_the_regime_on_below_150_vision_points():
-    o = SLAMOptions.split({})[2]
+def test_slam_preset_turns_the_regime_on_below_150_vision_points():
+    assert SLAMOptions.split({})[2].touch_weak_vision == 0  # opt-in for SLAM (see SLAM_TOUCH_WEAK_VISION)
+    o = SLAMOptions.split(dict(SLAM_TOUCH_WEAK_VISION))[2]
     assert o.touch_weak_vision == 150 and o.sigma_touch_weak == pytest.approx(0.0015)
     assert o.touch_blind_ratio == pytest.approx(0.1)
     # known shape and the plain tracker: off unless asked
@@ -93,7 +95,7 @@ def test_hidden_object_is_tracked_by_touch(mustard_seq_heavy):
         f0 = frames[0]
         T0 = np.eye(4)
         T0[:3, 3] = np.concatenate([f0.vision_points, f0.touch_points]).mean(0)
-        tr = SLAMTracker(T0, **opts)
+        tr = SLAMTracker(T0, **{**SLAM_TOUCH_WEAK_VISION, **opts})
         est = []
         for f in frames:
             t = f if touch else TrackingFrame(t=f.t, vision_points=f.vision_points)

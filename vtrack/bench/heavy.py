@@ -28,15 +28,23 @@ def run(quick: bool = False) -> BenchTable:
     from vtrack.paths import shared_data_dir
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
     from vtrack.tracking.run import track_session
+    from vtrack.tracking.slam import SLAM_TOUCH_WEAK_VISION
 
     table = BenchTable(stage="heavy_occlusion", error_key="motion_err_mm", time_key="ms", threads=1)
     seconds = float(os.environ.get("VTRACK_BENCH_HEAVY_SECONDS", "2"))
     occs = os.environ.get("VTRACK_BENCH_HEAVY_OCC", "heavy" if quick else "none,medium,heavy").split(",")
     objects = [DEFAULT_OBJECT] if quick else ycb_objects()
     runs = [(f"slam/{m}", dict(shape="slam", modalities=mods)) for m, mods in MODES.items()]
+    # the SLAM heavy-occlusion preset (opt-in) beside the default
+    runs += [
+        (
+            "slam/vision+touch weak-vision preset",
+            dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_TOUCH_WEAK_VISION),
+        )
+    ]
     runs += [(f"known/{m}", dict(shape="known_shape", modalities=MODES[m])) for m in ("vision", "vision+touch")]
     if quick:
-        runs = [r for r in runs if r[0] in ("slam/vision", "slam/vision+touch")]
+        runs = [r for r in runs if r[0] in ("slam/vision", "slam/vision+touch", "slam/vision+touch weak-vision preset")]
     t0 = time.perf_counter()
     for occ in occs:
         for obj in objects:

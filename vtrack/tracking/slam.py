@@ -112,6 +112,20 @@ def estimate_normals(
     return N
 
 
+#: Heavy-occlusion preset of SLAM (opt-in: ``track_session(..., **SLAM_TOUCH_WEAK_VISION)``): in a frame that sees
+#: fewer than 150 segmented points the contacts carry the pose, at 1.5 mm on both sides of the surface instead of
+#: one-sided at 5 mm, and (frames with some vision) only along the directions their measured normals constrain
+#: (> 10 % of the strongest). 2 s heavy-occlusion YCB sessions (docs/benchmarks/heavy_occlusion.md): visuo-tactile
+#: mean motion error 5.74 -> 4.48 mm (vision-only 4.79); none / medium unchanged on 2 s. Not the default: together
+#: with ``sigma_free`` 3 mm it smeared the reconstruction of the hidden baseball at medium occlusion (5 s session,
+#: `vtrack reconstruct` settings: F@5 0.725 with it, 0.994 without; coordinator's run 2026-11-26).
+SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
+    "touch_weak_vision": 150,
+    "sigma_touch_weak": 0.0015,
+    "touch_blind_ratio": 0.1,
+}
+
+
 @dataclass
 class SLAMOptions:
     """Map of the SLAM tracker (metres, frames); defaults in one place. Tracker options
@@ -169,15 +183,6 @@ class SLAMOptions:
         # touch-only frames that followed (5 s session: 11.6 -> 3.1 mm lifted; touch-only tracking of the heavy-
         # occlusion can, where nothing else holds the object, 6.98 -> 8.80 mm).
         rest.setdefault("project_without_vision", False)
-        # Heavy occlusion: in a frame that sees fewer than 150 segmented points the contacts carry the pose, at 1.5 mm
-        # on both sides of the surface instead of one-sided at 5 mm, and (frames with some vision) only along the
-        # directions their measured normals constrain (> 10 % of the strongest): fingers on a mug's body leave its
-        # spin free, and the map's small errors there held the spin at rest. Measured on the 2 s heavy-occlusion YCB
-        # sessions (docs/benchmarks/heavy_occlusion.md): visuo-tactile mean motion error 5.74 -> 4.48 mm (vision-only
-        # 4.79); touch-only 14.9 -> 9.8 mm; none / medium unchanged but the hidden baseball (their frames see more).
-        rest.setdefault("touch_weak_vision", 150)
-        rest.setdefault("sigma_touch_weak", 0.0015)
-        rest.setdefault("touch_blind_ratio", 0.1)
         # Gel points of sensors not in contact keep out of the map's surface, but softly: the map's surface is
         # blurred by its own pose errors, and at 1 mm (a mesh's sigma) the gels beside a spinning mug's body pushed
         # it off and pulled its spin (2 s session, occlusion none, motion error 4.67 -> 1.31 mm at 3 mm; vision
