@@ -224,8 +224,14 @@ def _update_index(out_dir: Path) -> None:
     index = out_dir / "README.md"
     old = index.read_text().splitlines() if index.is_file() else []
     for s in stages:
-        line = f"- [{s}]({s}.md) — [csv]({s}.csv), [plot]({s}.png)"
+        # link only what is there: a hand-written page (a diagnosis) has no CSV or plot
+        links = [
+            f"[{kind}]({s}.{ext})"
+            for kind, ext in (("csv", "csv"), ("plot", "png"))
+            if (out_dir / f"{s}.{ext}").is_file()
+        ]
+        line = f"- [{s}]({s}.md)" + (" — " + ", ".join(links) if links else "")
         # a note written after a stage's links (e.g. which session a page is from) survives a re-run
-        note = next((o[len(line) :] for o in old if o.startswith(line)), "")
+        note = next((o[len(line) :] for o in old if o.startswith(line) and not o[len(line) :].startswith(" — [")), "")
         lines.append(line + note)
     index.write_text("\n".join(lines) + "\n")
