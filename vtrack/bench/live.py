@@ -38,14 +38,14 @@ import numpy as np
 from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
-    "default (touch + frames process, reader process)": {},
+    "default (touch process, frames inline, reader process)": {},
+    "frames in their own process": {"frames_worker": "process", "reader": "process"},
     "frames in the touch process": {"frames_worker": "shared", "reader": "process"},
-    "frames inline, reader process": {"frames_worker": "inline", "reader": "process"},
     "frames inline, reader thread": {"frames_worker": "inline", "reader": "thread"},
     "touch thread": {"touch_worker": "thread", "frames_worker": "inline", "reader": "thread"},
     "touch in camera step": {"touch_worker": "off", "frames_worker": "inline", "reader": "thread"},
 }
-DEFAULT_VARIANT = "default (touch + frames process, reader process)"
+DEFAULT_VARIANT = "default (touch process, frames inline, reader process)"
 CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))
 
 

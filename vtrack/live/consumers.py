@@ -41,7 +41,9 @@ class LiveTrackConfig:
 
     depth_stride: int = 4
     touch_worker: str = "process"
-    frames_worker: str = "process"
+    # inline by default: segmentation in its own process measured worse on the quiet 2-core machine (the four
+    # processes contend for the two cores: tactile drops 22-38 % vs 4-13 %, `bench live` 2026-11-26 morning)
+    frames_worker: str = "inline"
     touch_downsample: int = TRACK_TOUCH_DOWNSAMPLE
     touch_stride: int = TRACK_TOUCH_STRIDE
 

@@ -38,7 +38,8 @@ def register(app: typer.Typer) -> None:
         frames_worker: str = typer.Option(
             None,
             "--frames-worker",
-            help="track: segmentation in the child 'process' (default, a stage ahead of the tracker) or 'inline'",
+            help="track: segmentation 'inline' in the tracker (default), in its own child 'process' (a stage ahead of "
+            "the tracker) or 'shared' with the touch process",
         ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
