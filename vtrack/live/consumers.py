@@ -410,11 +410,10 @@ class TrackConsumer(Consumer):
 
     def _start(self, frame: Any) -> None:
         from vtrack.tracking.run import (
-            KNOWN_SIGMA_TOUCH_WITH_VISION,
-            KNOWN_TOUCH_WEAK_VISION,
             Relocalisation,
             build_tracker,
             centroid_frame,
+            known_shape_touch_defaults,
             register_known_shape,
         )
 
@@ -426,14 +425,8 @@ class TrackConsumer(Consumer):
                     T0, _ = register_known_shape(self.mesh, [frame], symmetric)
                 except InputError:  # nothing to register on yet: try the next frame
                     return
-            opts = dict(self.tracker_opts)
-            if {"vision", "touch"} <= set(self.sf.modalities):  # the offline rule, same modalities
-                # the same contact weight as offline `track_session` with vision + touch (image contacts lie
-                # ~0.5 mm off the surface; a tight sigma pulls the depth fit off)
-                opts.setdefault("sigma_touch", KNOWN_SIGMA_TOUCH_WITH_VISION)
-                # and the same weak-vision regime: contacts carry the pose where few object pixels are seen
-                opts.setdefault("touch_weak_vision", KNOWN_TOUCH_WEAK_VISION[0])
-                opts.setdefault("sigma_touch_weak", KNOWN_TOUCH_WEAK_VISION[1])
+            # the offline contact settings for the same modalities (`track_session`)
+            opts = known_shape_touch_defaults(dict(self.tracker_opts), self.sf.modalities)
             self.tracker = build_tracker("known_shape", self.mesh, T0, **opts)
             self.reloc = Relocalisation(self.tracker, self.mesh, symmetric)  # as offline: recover after a loss
         else:

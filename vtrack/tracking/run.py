@@ -25,6 +25,7 @@ Initialisation, without ground truth:
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -197,6 +198,17 @@ KNOWN_SIGMA_TOUCH_WITH_VISION = 0.003
 KNOWN_TOUCH_WEAK_VISION = (150, 0.0015)
 
 
+def known_shape_touch_defaults(opts: dict[str, Any], modalities: Sequence[str]) -> dict[str, Any]:
+    """Fill the known-shape tracker's contact settings for vision + touch into ``opts`` (explicit values win):
+    contacts at :data:`KNOWN_SIGMA_TOUCH_WITH_VISION` and the weak-vision regime :data:`KNOWN_TOUCH_WEAK_VISION`.
+    One rule for offline :func:`track_session` and the live track consumer. Returns ``opts``."""
+    if {"vision", "touch"} <= set(modalities):
+        opts.setdefault("sigma_touch", KNOWN_SIGMA_TOUCH_WITH_VISION)
+        opts.setdefault("touch_weak_vision", KNOWN_TOUCH_WEAK_VISION[0])
+        opts.setdefault("sigma_touch_weak", KNOWN_TOUCH_WEAK_VISION[1])
+    return opts
+
+
 def track_session(
     session_dir: str | Path,
     out_dir: str | Path,
@@ -304,10 +316,8 @@ def track_session(
         oracle.append("tactile")
     if segmentation == "gt":
         oracle.append("segmentation")
-    if shape == "known_shape" and method == "ours" and {"vision", "touch"} <= set(modalities):
-        opts.setdefault("sigma_touch", KNOWN_SIGMA_TOUCH_WITH_VISION)
-        opts.setdefault("touch_weak_vision", KNOWN_TOUCH_WEAK_VISION[0])
-        opts.setdefault("sigma_touch_weak", KNOWN_TOUCH_WEAK_VISION[1])
+    if shape == "known_shape" and method == "ours":
+        known_shape_touch_defaults(opts, modalities)
     tracker = build_tracker(shape, mesh_path, T_init, method=method, **opts)
     n = len(frames)
     est = np.zeros((n, 4, 4))
