@@ -131,8 +131,14 @@ def test_handpose_cli_predict_and_refusal(tmp_path) -> None:
     assert r.exit_code == 0, r.output
     q = json.loads(out.read_text())
     assert q["modality"] == "dual" and len(q["angles_deg"]) == 12
-    err = np.abs(np.array(list(q["angles_deg"].values())) - s["angles_deg"])
-    assert np.median(err) < 3.0
+    got = np.array(list(q["angles_deg"].values()))
+    from vtrack.dome.handpose import load_models, predict_deg
+
+    dual = load_models()[0]["dual"]
+    data = {"rgb": s["rgb"][None], "ir": s["ir"][None], "ir_reference": HandDomeSimulator().ir_reference()}
+    np.testing.assert_allclose(got, predict_deg(dual, data)[0], atol=2e-3)  # the PNGs are lossless; rounding 1e-3
+    err, prior = np.abs(got - s["angles_deg"]), np.abs(dual.mean.numpy() - s["angles_deg"])
+    assert err.mean() < 0.5 * prior.mean()  # the images carry the pose (mean-pose guess: ~8 deg on this set)
     cv2.imwrite(str(tmp_path / "noise.png"), np.random.default_rng(1).integers(0, 256, (128, 128), dtype=np.uint8))
     r = CliRunner().invoke(app, ["dome", "handpose", "predict", "--ir", str(tmp_path / "noise.png")])
     # an InputError (the console entry point prints it as one line and exits 2), no angles printed

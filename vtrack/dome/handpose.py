@@ -54,10 +54,10 @@ ANGLE_MARGIN_DEG = 10.0
 class HandPoseTrainConfig:
     """Training recipe. Budgets are optimizer steps (not wall time), the same for every run of a setting."""
 
-    n_train: int = 9000
+    n_train: int = 6000
     seed: int = 0
     #: optimizer steps of each single-modality net (one-cycle schedule)
-    steps: int = 4000
+    steps: int = 6000
     #: optimizer steps of the dual net's fusion head (the encoders and branch heads are frozen)
     fusion_steps: int = 3000
     batch: int = 64
@@ -86,6 +86,9 @@ class HandPoseTrainConfig:
     #: grasp set (:data:`vtrack.dome.handsim.GRASP_SETS`) of the ``n_train`` training grasps and of the held-out
     #: grasps reported after training
     grasp_set: str = DEFAULT_GRASP_SET
+    #: wall-time guard per net (s, 0 = none): training stops at the first validation past it and keeps the best
+    #: checkpoint so far (the step budget stays the recipe; the guard only protects a shared machine's schedule)
+    time_budget_s: float = 0.0
 
 
 def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
@@ -309,6 +312,10 @@ def _fit(model: nn.Module, params, loss_on, val_loss, n_steps: int, n_train: int
             if vl < best:
                 best, best_state, best_step = vl, copy.deepcopy(model.state_dict()), step
             log(f"[handpose {tag}] step {step}/{n_steps} val loss {vl:.3f} deg ({time.time() - t0:.0f} s)")
+            if tc.time_budget_s and time.time() - t0 > tc.time_budget_s and step < n_steps:
+                log(f"[handpose {tag}] time budget {tc.time_budget_s:.0f} s reached at step {step}: stopping")
+                n_steps = step
+                break
     model.load_state_dict(best_state)
     model.eval()
     return {"val_loss_deg": float(best), "best_step": best_step, "steps": n_steps, "train_s": time.time() - t0}

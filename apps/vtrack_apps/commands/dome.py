@@ -313,9 +313,9 @@ def register(app: typer.Typer) -> None:
             "varied", "--grasp-set", help="training / held-out grasps: varied (default), mixed or contact"
         ),
         n_train: int = typer.Option(
-            9000, "--n-train", min=32, help="simulated training grasps (cached chunks of 3000)"
+            6000, "--n-train", min=32, help="simulated training grasps (cached chunks of 3000)"
         ),
-        steps: int = typer.Option(4000, "--steps", min=1, help="optimizer steps per single net"),
+        steps: int = typer.Option(6000, "--steps", min=1, help="optimizer steps per single net"),
         fusion_steps: int = typer.Option(3000, "--fusion-steps", min=1, help="optimizer steps of the dual fusion head"),
         ir_encoder: str = typer.Option("markers", "--ir-encoder", help="markers (marker-centred patches) or cnn"),
         modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
@@ -325,6 +325,9 @@ def register(app: typer.Typer) -> None:
         ),
         init: Path = typer.Option(None, "--init", help="fine-tune the single nets from this weights file"),
         lr: float = typer.Option(2e-3, "--lr", min=1e-6, help="peak learning rate (one-cycle)"),
+        time_budget_min: float = typer.Option(
+            0.0, "--time-budget-min", min=0.0, help="stop a net at the first validation past this (min; 0 = none)"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
@@ -356,6 +359,7 @@ def register(app: typer.Typer) -> None:
             init=str(init) if init else "",
             lr=lr,
             grasp_set=grasp_set,
+            time_budget_s=60.0 * time_budget_min,
         )
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
