@@ -610,6 +610,49 @@ def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -
     return out
 
 
+def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float = 0.25) -> dict:
+    """Evaluation-only: how visible the thumb's redundant degree of freedom is on held-out ``varied`` grasps.
+
+    For each grasp the thumb tip is held fixed and the IP / MCP ratio is changed by ``-scale`` (or ``+scale`` when
+    that is out of reach); the thumb is re-solved by :meth:`HandModel.digit_ik`. Returns the medians of the
+    largest thumb-joint change (deg) and of the noise-free image change as matched-filter SNR (RGB and IR, as in
+    :func:`joint_observability`), per grasp that could be re-solved."""
+    from vtrack.dome.handsim import DIGITS, HandDomeSimulator, HandPlace, make_handpose_dataset
+
+    te = make_handpose_dataset(TEST_N, seed, grasp_set="varied")
+    sim = HandDomeSimulator(grasp_set="varied")
+    hand, thumb = sim.hand, DIGITS[0]
+
+    def images(q, place):
+        caps = hand.capsules(q, place=place)
+        return (
+            sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
+            sim.render_ir(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
+        )
+
+    dq, snr_rgb, snr_ir = [], [], []
+    for q, pa in zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True):
+        place = HandPlace.from_array(pa)
+        tip = hand._chain(thumb, q, 0.0, place)[-1]
+        ratio = q[thumb.joints[2]] / max(q[thumb.joints[1]], 1e-6)
+        for r in (ratio * (1 - scale), ratio * (1 + scale)):
+            qq = hand.digit_ik(thumb, tip, q, place, r)
+            if qq is None:
+                continue
+            (a0, b0), (a1, b1) = images(q, place), images(qq, place)
+            dq.append(float(np.abs(qq - q)[list(thumb.joints)].max()))
+            snr_rgb.append(float(np.sqrt(((a1 - a0) ** 2).sum()) / (0.015 * 255)))
+            snr_ir.append(float(np.sqrt(((b1 - b0) ** 2).sum()) / (0.02 * 255)))
+            break
+    return {
+        "grasps": len(dq),
+        "median_joint_change_deg": float(np.median(dq)),
+        "median_snr_rgb": float(np.median(snr_rgb)),
+        "median_snr_rgb_per_deg": float(np.median(np.asarray(snr_rgb) / np.asarray(dq))),
+        "median_snr_ir": float(np.median(snr_ir)),
+    }
+
+
 def information_bound(angles_deg: np.ndarray, grasps: np.ndarray, unobservable: np.ndarray | None = None) -> dict:
     """Evaluation-only bound (reads the truth): the metrics of an estimator that is exact on every joint
     except the unobservable ones, where it predicts the centre of their prior. ``mixed`` set
