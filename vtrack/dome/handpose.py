@@ -13,7 +13,9 @@ Loss (S25-S27): ``lambda_mae * MAE + lambda_rmse * (RMSE + eps)`` over the 12 an
 checkpoint with the lowest validation loss (10 % of the training grasps) is kept. Metrics: MAE, RMSE (deg)
 and Acc@1 / Acc@5 = % of all predicted joint angles within 1 / 5 deg of the truth.
 
-Shipped weights: ``vtrack/dome/weights/handpose.pt`` (all three settings, float16). Imports torch.
+Shipped weights (all three settings, float16), one file per grasp set of :mod:`vtrack.dome.handsim`:
+``vtrack/dome/weights/handpose_varied.pt`` (the default task, :data:`DEFAULT_GRASP_SET`) and
+``vtrack/dome/weights/handpose.pt`` (trained on the ``mixed`` set, kept for its reported row). Imports torch.
 """
 
 from __future__ import annotations
@@ -31,6 +33,12 @@ from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE
 
 MODALITIES = ("rgb", "ir", "dual")
 HANDPOSE_VERSION = 2
+#: the task of ``vtrack dome handpose`` (train / eval / predict): hand placed at random, every fingertip on or
+#: just over the visible shell, joints by inverse kinematics (see docs/dome.md for why it is the paper's task)
+DEFAULT_GRASP_SET = "varied"
+#: a joint counts as observable when a 5 deg change of it moves the noise-free RGB or IR image by at least this
+#: matched-filter SNR (||image change|| / per-pixel noise sigma of that camera)
+OBS_SNR_MIN = 2.0
 #: held-out test set (grasps, seed) used by ``vtrack dome handpose eval`` and ``vtrack dome eval``
 TEST_N, TEST_SEED = 500, 4242
 #: training grasps are simulated in cached chunks of this many, chunk k with seed ``seed + k`` (a larger
@@ -46,10 +54,10 @@ ANGLE_MARGIN_DEG = 10.0
 class HandPoseTrainConfig:
     """Training recipe. Budgets are optimizer steps (not wall time), the same for every run of a setting."""
 
-    n_train: int = 9000
+    n_train: int = 6000
     seed: int = 0
     #: optimizer steps of each single-modality net (one-cycle schedule)
-    steps: int = 4000
+    steps: int = 6000
     #: optimizer steps of the dual net's fusion head (the encoders and branch heads are frozen)
     fusion_steps: int = 3000
     batch: int = 64
@@ -75,10 +83,18 @@ class HandPoseTrainConfig:
     #: start the single-modality nets from this weights file (fine-tuning; "" = from scratch). The dual net is
     #: always fused anew from the single nets of the run
     init: str = ""
+    #: grasp set (:data:`vtrack.dome.handsim.GRASP_SETS`) of the ``n_train`` training grasps and of the held-out
+    #: grasps reported after training
+    grasp_set: str = DEFAULT_GRASP_SET
+    #: wall-time guard per net (s, 0 = none): training stops at the first validation past it and keeps the best
+    #: checkpoint so far (the step budget stays the recipe; the guard only protects a shared machine's schedule)
+    time_budget_s: float = 0.0
 
 
-def weights_path() -> Path:
-    return Path(__file__).parent / "weights" / "handpose.pt"
+def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
+    """Shipped weights of the nets trained on ``grasp_set`` (``mixed`` and ``contact`` share the mixed-set nets)."""
+    name = "handpose_varied.pt" if grasp_set == "varied" else "handpose.pt"
+    return Path(__file__).parent / "weights" / name
 
 
 class ImageEncoder(nn.Module):
@@ -296,6 +312,10 @@ def _fit(model: nn.Module, params, loss_on, val_loss, n_steps: int, n_train: int
             if vl < best:
                 best, best_state, best_step = vl, copy.deepcopy(model.state_dict()), step
             log(f"[handpose {tag}] step {step}/{n_steps} val loss {vl:.3f} deg ({time.time() - t0:.0f} s)")
+            if tc.time_budget_s and time.time() - t0 > tc.time_budget_s and step < n_steps:
+                log(f"[handpose {tag}] time budget {tc.time_budget_s:.0f} s reached at step {step}: stopping")
+                n_steps = step
+                break
     model.load_state_dict(best_state)
     model.eval()
     return {"val_loss_deg": float(best), "best_step": best_step, "steps": n_steps, "train_s": time.time() - t0}
@@ -385,9 +405,27 @@ def fuse_dual(
     return model, summ
 
 
+def _dual_shared_keys(models: dict[str, HandPoseNet]) -> set[str]:
+    """State keys of the dual net that are copies of a single-modality net's (its frozen branches)."""
+    if not {"rgb", "ir", "dual"} <= set(models):
+        return set()
+    dual = models["dual"].state_dict()
+    out = set()
+    for m in ("rgb", "ir"):
+        single = models[m].state_dict()
+        for k, v in dual.items():
+            if k.startswith((f"enc.{m}.", f"heads.{m}.")) and k in single and torch.equal(single[k], v):
+                out.add(k)
+    return out
+
+
 def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainConfig, info: dict) -> None:
+    """One weights file for all settings (float16 except normalisation and marker centres). The dual net's
+    frozen branches are stored once, in the single-modality nets (``dual_shared``), which halves the file."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    shared = _dual_shared_keys(models)
     blob = {
+        "dual_shared": sorted(shared),
         "version": HANDPOSE_VERSION,
         "joints": list(JOINTS),
         "dome": HAND_DOME.to_dict(),
@@ -398,6 +436,7 @@ def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainCon
             m: {
                 k: v.half() if v.is_floating_point() and k not in ("mean", "std") and not k.endswith("centers") else v
                 for k, v in net.state_dict().items()
+                if not (m == "dual" and k in shared)
             }
             for m, net in models.items()
         },
@@ -423,7 +462,10 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
     if not isinstance(blob, dict) or blob.get("version") != HANDPOSE_VERSION or "models" not in blob:
         raise InputError("not a hand-pose weights file", path=path, expected=f"version {HANDPOSE_VERSION}")
     models = {}
-    for m, sd in blob["models"].items():
+    for m in sorted(blob["models"], key=lambda k: k == "dual"):  # singles first: the dual net may share their weights
+        sd = dict(blob["models"][m])
+        for k in blob.get("dual_shared", []) if m == "dual" else []:
+            sd[k] = blob["models"]["rgb" if k.split(".")[1] == "rgb" else "ir"][k]
         centers = sd.get("enc.ir.centers")
         widths = {k: int(sd[f"enc.{k}.net.0.weight"].shape[0]) for k in ("rgb", "ir") if f"enc.{k}.net.0.weight" in sd}
         net = HandPoseNet(
@@ -507,15 +549,125 @@ def rgb_joint_sensitivity(n_grasps: int = 40, step_deg: float = 5.0, seed: int =
     }
 
 
-def information_bound(angles_deg: np.ndarray, grasps: np.ndarray) -> dict:
+def digit_joint_mask(touch: np.ndarray) -> np.ndarray:
+    """(n, 5) per-digit flags (:data:`vtrack.dome.handsim.DIGITS` order) -> (n, 12) per-joint flags (the thumb's
+    flag also covers its abduction)."""
+    from vtrack.dome.handsim import DIGITS
+
+    touch = np.asarray(touch, bool)
+    out = np.zeros((len(touch), len(JOINTS)), bool)
+    for i, d in enumerate(DIGITS):
+        out[:, list(d.joints)] = touch[:, i : i + 1]
+        if d.name == "thumb":
+            out[:, 0] = touch[:, i]
+    return out
+
+
+def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -> dict[str, np.ndarray]:
+    """Evaluation-only (reads the simulated hand state ``angles_deg`` + ``place`` of a ``varied`` set): for every
+    grasp and joint, how much a ``step_deg`` change of that joint alone changes the noise-free images.
+
+    Returns ``rgb_snr`` and ``ir_snr`` (n, 12): matched-filter SNR ``||image change|| / sigma`` with sigma the
+    simulator's per-pixel noise (RGB 0.015 x 255, IR 0.02 x 255 grey levels), and ``observable`` = either SNR
+    >= :data:`OBS_SNR_MIN` (a change of a few deg is then visible in one frame). Cached next to the data set
+    (``vtrack.paths.cache_dir()``), ~0.3 s per grasp."""
+    import hashlib
+
+    from vtrack.dome.handsim import HandDomeSimulator, HandPlace
+    from vtrack.paths import cache_dir
+
+    q_all = np.asarray(data["angles_deg"], np.float64)
+    place_all = np.asarray(data["place"], np.float64)
+    key = hashlib.sha1(q_all.tobytes() + place_all.tobytes() + str(step_deg).encode()).hexdigest()[:12]
+    path = cache_dir() / "dome" / f"handpose_obs_{key}.npz"
+    if cache and path.exists():
+        with np.load(path) as z:
+            return {k: z[k] for k in z.files}
+    sim = HandDomeSimulator(grasp_set="varied")
+
+    def images(q: np.ndarray, place) -> tuple[np.ndarray, np.ndarray]:
+        caps = sim.hand.capsules(q, place=place)
+        rgb = sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64)
+        ir = sim.render_ir(caps, np.random.default_rng(0), noise=0.0).astype(np.float64)
+        return rgb, ir
+
+    rgb_snr = np.zeros(q_all.shape)
+    ir_snr = np.zeros(q_all.shape)
+    for i, (q, pa) in enumerate(zip(q_all, place_all, strict=True)):
+        place = HandPlace.from_array(pa)
+        rgb0, ir0 = images(q, place)
+        for j in range(len(JOINTS)):
+            qq = q.copy()
+            qq[j] += step_deg
+            rgb1, ir1 = images(qq, place)
+            rgb_snr[i, j] = np.sqrt(((rgb1 - rgb0) ** 2).sum()) / (0.015 * 255)
+            ir_snr[i, j] = np.sqrt(((ir1 - ir0) ** 2).sum()) / (0.02 * 255)
+    out = {"rgb_snr": rgb_snr, "ir_snr": ir_snr, "observable": (rgb_snr >= OBS_SNR_MIN) | (ir_snr >= OBS_SNR_MIN)}
+    if cache:
+        from vtrack.io.jsonio import atomic_savez
+
+        atomic_savez(path, **out)
+    return out
+
+
+def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float = 0.25) -> dict:
+    """Evaluation-only: how visible the thumb's redundant degree of freedom is on held-out ``varied`` grasps.
+
+    For each grasp the thumb tip is held fixed and the IP / MCP ratio is changed by ``-scale`` (or ``+scale`` when
+    that is out of reach); the thumb is re-solved by :meth:`HandModel.digit_ik`. Returns the medians of the
+    largest thumb-joint change (deg) and of the noise-free image change as matched-filter SNR (RGB and IR, as in
+    :func:`joint_observability`), per grasp that could be re-solved."""
+    from vtrack.dome.handsim import DIGITS, HandDomeSimulator, HandPlace, make_handpose_dataset
+
+    te = make_handpose_dataset(TEST_N, seed, grasp_set="varied")
+    sim = HandDomeSimulator(grasp_set="varied")
+    hand, thumb = sim.hand, DIGITS[0]
+
+    def images(q, place):
+        caps = hand.capsules(q, place=place)
+        return (
+            sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
+            sim.render_ir(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
+        )
+
+    dq, snr_rgb, snr_ir = [], [], []
+    for q, pa in zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True):
+        place = HandPlace.from_array(pa)
+        tip = hand._chain(thumb, q, 0.0, place)[-1]
+        ratio = q[thumb.joints[2]] / max(q[thumb.joints[1]], 1e-6)
+        for r in (ratio * (1 - scale), ratio * (1 + scale)):
+            qq = hand.digit_ik(thumb, tip, q, place, r)
+            if qq is None:
+                continue
+            (a0, b0), (a1, b1) = images(q, place), images(qq, place)
+            dq.append(float(np.abs(qq - q)[list(thumb.joints)].max()))
+            snr_rgb.append(float(np.sqrt(((a1 - a0) ** 2).sum()) / (0.015 * 255)))
+            snr_ir.append(float(np.sqrt(((b1 - b0) ** 2).sum()) / (0.02 * 255)))
+            break
+    return {
+        "grasps": len(dq),
+        "median_joint_change_deg": float(np.median(dq)),
+        "median_snr_rgb": float(np.median(snr_rgb)),
+        "median_snr_rgb_per_deg": float(np.median(np.asarray(snr_rgb) / np.asarray(dq))),
+        "median_snr_ir": float(np.median(snr_ir)),
+    }
+
+
+def information_bound(angles_deg: np.ndarray, grasps: np.ndarray, unobservable: np.ndarray | None = None) -> dict:
     """Evaluation-only bound (reads the truth): the metrics of an estimator that is exact on every joint
-    except the :func:`unobservable_joints`, where it predicts the centre of their prior (the nominal wrap
-    minus the 25 deg lift: the MAE- and Acc@5-optimal guess when the image carries no information)."""
+    except the unobservable ones, where it predicts the centre of their prior. ``mixed`` set
+    (``unobservable=None``): :func:`unobservable_joints`, prior centre = the nominal wrap minus the 25 deg lift
+    (the MAE- and Acc@5-optimal guess when the image carries no information). Otherwise ``unobservable``
+    (n, 12) (e.g. ``~joint_observability(...)["observable"]``) and the per-joint median of the set."""
     from vtrack.dome.handsim import HandModel
 
     q = np.asarray(angles_deg, np.float64)
-    un = unobservable_joints(grasps)
-    centre = np.broadcast_to(HandModel().nominal() - 25.0, q.shape)
+    if unobservable is None:
+        un = unobservable_joints(grasps)
+        centre = np.broadcast_to(HandModel().nominal() - 25.0, q.shape)
+    else:
+        un = np.asarray(unobservable, bool)
+        centre = np.broadcast_to(np.median(q, 0), q.shape)
     pred = np.where(un, centre, q)
     return {
         **{k: v for k, v in pose_metrics(pred, q).items() if k != "per_joint_mae_deg"},
@@ -527,15 +679,21 @@ def evaluate_handpose(
     path: Path | None = None, n_test: int = TEST_N, seed: int = TEST_SEED, grasp_set: str = "mixed"
 ) -> dict:
     """Metrics of every stored setting on held-out simulated grasps of ``grasp_set`` (never seen in training:
-    other seed)."""
+    other seed). ``path``: weights file (default: the shipped nets of that grasp set, :func:`weights_path`)."""
     from vtrack.dome.handsim import make_handpose_dataset
 
     torch.set_num_threads(1)
-    models, blob = load_models(path)
+    models, blob = load_models(path or weights_path(grasp_set))
     te = make_handpose_dataset(n_test, seed, grasp_set=grasp_set)
     res: dict = {}
-    touching = touching_joints(te["grasp"])
-    unobs = unobservable_joints(te["grasp"])
+    obs = None
+    if "touch" in te:  # varied set: contact flags per digit, observability measured on the images
+        touching = digit_joint_mask(te["touch"])
+        obs = joint_observability(te)
+        unobs = ~obs["observable"]
+    else:
+        touching = touching_joints(te["grasp"])
+        unobs = unobservable_joints(te["grasp"])
     for m in MODALITIES:
         if m not in models:
             continue
@@ -549,7 +707,10 @@ def evaluate_handpose(
             if sel.any():  # the contact set has no lifted digits: those keys are left out, never NaN
                 res[m][f"{part}_mae_deg"] = float(e[sel].mean())
                 res[m][f"{part}_acc5"] = float((e[sel] <= 5.0).mean() * 100)
-    res["information_bound"] = information_bound(te["angles_deg"], te["grasp"])
+    res["information_bound"] = information_bound(te["angles_deg"], te["grasp"], None if obs is None else unobs)
+    if obs is not None:
+        res["information_bound"]["obs_snr_min"] = OBS_SNR_MIN
+        res["information_bound"]["median_snr_rgb"] = float(np.median(obs["rgb_snr"]))
     res["test_set"] = {
         "grasps": int(n_test),
         "seed": int(seed),
@@ -558,6 +719,7 @@ def evaluate_handpose(
         "angle_std_deg": float(te["angles_deg"].std(0).mean()),
         "touching_joint_frac": float(touching.mean()),
     }
+    res["weights"] = str(Path(path or weights_path(grasp_set)).name)
     # predicting the training mean: what the image contributes beyond the prior
     mean = np.asarray(next(iter(models.values())).mean.numpy(), np.float64)
     res["mean_pose_baseline"] = {
@@ -576,14 +738,19 @@ def evaluate_handpose(
     return res
 
 
-def evaluate_handpose_sets(path: Path | None = None, n_test: int = TEST_N, seed: int = TEST_SEED) -> dict:
-    """Both held-out sets: at the top level (``rgb``, ``ir``, ``dual``, ``information_bound``, ...) the ``mixed``
-    set (grasp types with lifted digits, whose distal joints neither camera sees), under ``contact`` the set with
-    every fingertip on the shell (as FusionTouch's grasps; its joints spread only +- 5 deg around the nominal
-    wrap, so ``contact.nominal_pose_baseline`` - no image - already has Acc@5 = 100 %)."""
+def evaluate_handpose_sets(
+    path: Path | None = None, n_test: int = TEST_N, seed: int = TEST_SEED, mixed_path: Path | None = None
+) -> dict:
+    """All held-out sets. Top level (``rgb``, ``ir``, ``dual``, ``information_bound``, ``mean_pose_baseline``, ...):
+    the default ``varied`` set (every fingertip on or just over the visible shell, hand placed at random, joints by
+    IK) with the nets of ``path`` (default: shipped ``handpose_varied.pt``). ``mixed``: grasp types with lifted
+    digits, whose distal joints neither camera sees (harder, partly unobservable), and ``contact``: every
+    fingertip pressed, joints +- 5 deg around the nominal wrap (a no-image guess has Acc@5 = 100 % there), both
+    with the nets of ``mixed_path`` (default: shipped ``handpose.pt``, trained on the mixed set)."""
     return {
-        **evaluate_handpose(path, n_test, seed, "mixed"),
-        "contact": evaluate_handpose(path, n_test, seed, "contact"),
+        **evaluate_handpose(path, n_test, seed, "varied"),
+        "mixed": evaluate_handpose(mixed_path, n_test, seed, "mixed"),
+        "contact": evaluate_handpose(mixed_path, n_test, seed, "contact"),
     }
 
 
@@ -676,7 +843,8 @@ def load_train_set(
         for m, g in sets
         for k, s in enumerate(range(0, m, CHUNK))
     ]
-    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k != "ir_reference"}
+    keys = set.intersection(*(set(p) for p in parts)) - {"ir_reference"}  # ``place`` / ``touch``: varied set only
+    out = {k: np.concatenate([p[k] for p in parts]) for k in sorted(keys)}
     out["ir_reference"] = parts[0]["ir_reference"]
     return out
 
@@ -694,10 +862,10 @@ def train_all(
     from vtrack.dome.handsim import make_handpose_dataset
 
     torch.set_num_threads(1)
-    tr = load_train_set(tc.n_train, tc.seed, progress, n_contact=tc.n_contact)
-    te = make_handpose_dataset(TEST_N, TEST_SEED, progress=progress)
+    tr = load_train_set(tc.n_train, tc.seed, progress, grasp_set=tc.grasp_set, n_contact=tc.n_contact)
+    te = make_handpose_dataset(TEST_N, TEST_SEED, progress=progress, grasp_set=tc.grasp_set)
     models, info = {}, {"train": {}, "test": {}}
-    path = Path(out) if out else weights_path()
+    path = Path(out) if out else weights_path(tc.grasp_set)
     if set(modalities) != set(MODALITIES) and path.is_file():  # keep the settings not retrained in this run
         old, blob = load_models(path)
         models = {k: v for k, v in old.items() if k not in modalities}

@@ -82,7 +82,10 @@ GRASPS = {
 #: every digit on the shell, every fingertip pressing (>= :data:`TIP_MIN_PRESS_MM`), as in FusionTouch's data:
 #: the participants grasp and deform the dome (Fig. S21), and its IR-only net reaches 99.8 % @5 deg (Table S7),
 #: which a marker image cannot give for a digit that does not touch.
-GRASP_SETS = ("mixed", "contact")
+#: ``varied`` (:meth:`HandModel.sample_varied`): the hand placed at random over the dome, each fingertip drawn on the
+#: visible shell (pressing or hovering a few mm over it), joints solved by inverse kinematics: every digit in
+#: view of the inner camera with a realistic joint spread (the paper's task; the default of ``vtrack dome handpose``).
+GRASP_SETS = ("mixed", "contact", "varied")
 #: ``contact`` set: the distal phalanx of every digit presses at least this far into the shell (mm)
 TIP_MIN_PRESS_MM = 0.5
 #: per-joint uniform variation (deg) of a touching digit around the nominal wrap
@@ -112,6 +115,37 @@ DIGITS = (
     Digit("little", 28.0, -24.0, (33.0, 19.0, 16.0), 7.5, (10, 11)),
 )
 PALM_RADIUS = 13.0
+FINGERS = ("index", "middle", "ring", "little")
+
+# ``varied`` grasp set (:meth:`HandModel.sample_varied`): the hand placed anywhere over the apex region, every
+# fingertip on or a few mm above the visible shell, joints solved by inverse kinematics onto the tip targets
+#: hand turn about the dome axis (deg, +-)
+VARIED_YAW_DEG = 20.0
+#: hand tilt about the x / y axes through the sphere centre (deg, +-): the palm slides off the apex
+VARIED_TILT_DEG = (8.0, 12.0)
+#: knuckle (and palm) height over the shell (mm): a flat hand rests on the dome, a claw holds it from above
+VARIED_LIFT_MM = (1.0, 8.0)
+#: finger spread per gap between neighbouring fingers (deg) and each finger's own abduction (+- deg)
+VARIED_SPREAD_DEG = (-2.0, 5.0)
+VARIED_FINGER_ABD_DEG = 3.0
+#: thumb CMC abduction (+- deg, a regressed joint)
+VARIED_THUMB_ABD_DEG = 20.0
+#: thumb IP flexion = ratio x thumb MCP flexion (the thumb's redundant degree of freedom, drawn per grasp)
+VARIED_THUMB_IP_RATIO = (0.5, 1.5)
+#: fingertip target: great-circle arc (deg) from the digit's base along its (abducted) plane
+VARIED_ARC_DEG = (20.0, 60.0)
+#: share of fingertips pressing the shell; the others hover over it
+VARIED_P_CONTACT = 0.75
+#: fingertip press depth into the shell / hover gap over it (mm, of the tip's capsule end)
+VARIED_PRESS_MM = (0.5, 2.5)
+VARIED_HOVER_MM = (1.0, 5.0)
+#: fingertips stay where the inner camera sees them (polar angle, deg; the shell cap is 75 deg)
+VARIED_TIP_MAX_POLAR_DEG = 74.0
+#: no phalanx may sink deeper than this into the shell (mm; the shell is 4 mm thick)
+VARIED_MAX_PEN_MM = 4.0
+#: joint limits (deg): proximal (finger MCP, thumb CMC) and distal (finger PIP, thumb MCP and IP)
+PROX_LIMITS_DEG = (-30.0, 95.0)
+DIST_LIMITS_DEG = (0.0, 110.0)
 
 
 def _unit(polar_deg: float, az_deg: float) -> np.ndarray:
@@ -124,11 +158,74 @@ def _rot_z(deg: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def _rot_x(deg: float) -> np.ndarray:
+    c, s = np.cos(np.deg2rad(deg)), np.sin(np.deg2rad(deg))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rot_y(deg: float) -> np.ndarray:
+    c, s = np.cos(np.deg2rad(deg)), np.sin(np.deg2rad(deg))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
 def _seg_point_dist(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Distance (m,) from points p (m, 3) to the segment a-b; also works for a single point."""
     ab = b - a
     t = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
     return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1)
+
+
+@dataclass(frozen=True)
+class HandPlace:
+    """Placement of the hand on the dome (``varied`` set): a rotation about the sphere centre (yaw about the
+    dome axis, tilts about x and y, deg), the knuckles' height over the shell (mm), and the abduction of the
+    four fingers (deg, rotation of each finger's flexion plane about the shell normal at its base; nuisances,
+    not regressed)."""
+
+    yaw_deg: float = 0.0
+    tilt_x_deg: float = 0.0
+    tilt_y_deg: float = 0.0
+    lift_mm: float = 2.0
+    finger_abd_deg: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+    def matrix(self) -> np.ndarray:
+        return _rot_z(self.yaw_deg) @ _rot_y(self.tilt_y_deg) @ _rot_x(self.tilt_x_deg)
+
+    def to_array(self) -> np.ndarray:
+        return np.array([self.yaw_deg, self.tilt_x_deg, self.tilt_y_deg, self.lift_mm, *self.finger_abd_deg])
+
+    @classmethod
+    def from_array(cls, a: np.ndarray) -> HandPlace:
+        a = [float(x) for x in np.asarray(a).ravel()]
+        return cls(a[0], a[1], a[2], a[3], tuple(a[4:8]))
+
+
+def _planar_ik(lengths: tuple[float, ...], couple: float, x: float, y: float) -> tuple[float, float] | None:
+    """Two-angle inverse kinematics of a planar three-segment chain whose third joint is ``couple`` x the
+    second (finger DIP = 2/3 PIP; thumb IP = ratio x MCP). Angles (deg) flex from +x towards +y; returns the
+    (first, second) joint angles putting the chain end at (x, y), the second within :data:`DIST_LIMITS_DEG`,
+    or None when out of reach. The reach |end| falls monotonically with the second angle over that range, so
+    a grid bracket + bisection finds the unique solution."""
+    l1, l2, l3 = lengths
+
+    def end(t2: float) -> np.ndarray:
+        return np.array(
+            [l1 + l2 * np.cos(t2) + l3 * np.cos((1 + couple) * t2), l2 * np.sin(t2) + l3 * np.sin((1 + couple) * t2)]
+        )
+
+    d = float(np.hypot(x, y))
+    lo, hi = np.deg2rad(DIST_LIMITS_DEG[0]), np.deg2rad(DIST_LIMITS_DEG[1])
+    reach = lambda t: float(np.linalg.norm(end(t))) - d  # noqa: E731
+    if reach(lo) < 0 or reach(hi) > 0:
+        return None
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if reach(mid) > 0 else (lo, mid)
+    t2 = 0.5 * (lo + hi)
+    v = end(t2)
+    t1 = np.arctan2(y, x) - np.arctan2(v[1], v[0])
+    t1 = (t1 + np.pi) % (2 * np.pi) - np.pi
+    return float(np.rad2deg(t1)), float(np.rad2deg(t2))
 
 
 class HandModel:
@@ -138,14 +235,21 @@ class HandModel:
         self.R = float(radius_mm)
         self._nominal: np.ndarray | None = None
 
-    def _chain(self, d: Digit, q: np.ndarray, yaw_deg: float) -> list[np.ndarray]:
-        """Joint positions (n_seg + 1) of digit ``d`` for the joint vector ``q`` (deg)."""
+    def _chain(self, d: Digit, q: np.ndarray, yaw_deg: float, place: HandPlace | None = None) -> list[np.ndarray]:
+        """Joint positions (n_seg + 1) of digit ``d`` for the joint vector ``q`` (deg). ``place``: hand placement
+        on the dome (:class:`HandPlace`; None = the fixed placement of the ``mixed`` / ``contact`` sets, turned by
+        ``yaw_deg`` about the dome axis)."""
         n = _unit(d.polar_deg, d.azimuth_deg)
-        base = n * (self.R + d.radius + 2.0)  # the knuckle hovers 2 mm over the shell
+        lift = 2.0 if place is None else place.lift_mm
+        base = n * (self.R + d.radius + lift)  # the knuckle hovers ``lift`` mm over the shell
         u = np.array([n[2] * n[0], n[2] * n[1], -(n[0] ** 2 + n[1] ** 2)])  # outward meridian tangent
         u /= np.linalg.norm(u)
         if d.name == "thumb":  # CMC abduction: rotate the thumb plane about the normal at its base
-            a = np.deg2rad(q[0])
+            abd = q[0]
+        else:  # finger abduction: a nuisance of the varied set (not regressed; the 12 joints are flexions)
+            abd = 0.0 if place is None else place.finger_abd_deg[FINGERS.index(d.name)]
+        if abd:
+            a = np.deg2rad(abd)
             u = np.cos(a) * u + np.sin(a) * np.cross(n, u)
         flex = [q[j] for j in d.joints]
         if d.name != "thumb":
@@ -155,23 +259,27 @@ class HandModel:
             phi += np.deg2rad(f)
             p = p + length * (np.cos(phi) * u - np.sin(phi) * n)
             pts.append(p)
-        rz = _rot_z(yaw_deg)
-        return [rz @ x for x in pts]
+        rot = _rot_z(yaw_deg) if place is None else place.matrix()
+        return [rot @ x for x in pts]
 
-    def capsules(self, q: np.ndarray, yaw_deg: float = 0.0) -> list[tuple[np.ndarray, np.ndarray, float, str]]:
+    def capsules(
+        self, q: np.ndarray, yaw_deg: float = 0.0, place: HandPlace | None = None
+    ) -> list[tuple[np.ndarray, np.ndarray, float, str]]:
         """Hand parts as capsules (a, b, radius mm, digit): 14 phalanges + the palm (segments between the
-        digit bases and a centre over the apex)."""
+        digit bases and a centre over the apex). ``place`` as in :meth:`_chain` (``yaw_deg`` is then ignored)."""
         out = []
         bases = []
         for d in DIGITS:
-            pts = self._chain(d, q, yaw_deg)
+            pts = self._chain(d, q, yaw_deg, place)
             bases.append(pts[0])
             out += [(pts[i], pts[i + 1], d.radius, d.name) for i in range(len(pts) - 1)]
-        centre = _rot_z(yaw_deg) @ (_unit(6.0, 180.0) * (self.R + PALM_RADIUS + 5.0))
+        lift = 0.0 if place is None else place.lift_mm - 2.0  # the palm rises with the knuckles
+        rot = _rot_z(yaw_deg) if place is None else place.matrix()
+        centre = rot @ (_unit(6.0, 180.0) * (self.R + PALM_RADIUS + 5.0 + lift))
         for b in bases:
             # pull the palm end of the base up so the palm hovers (only digits press the shell)
-            lift = b / np.linalg.norm(b) * (self.R + PALM_RADIUS + 5.0)
-            out.append((centre, lift, PALM_RADIUS, "palm"))
+            top = b / np.linalg.norm(b) * (self.R + PALM_RADIUS + 5.0 + lift)
+            out.append((centre, top, PALM_RADIUS, "palm"))
         return out
 
     def nominal(self) -> np.ndarray:
@@ -207,6 +315,107 @@ class HandModel:
         ab = b - a
         t = float(np.clip(-(a @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
         return self.R + d.radius - float(np.linalg.norm(a + t * ab))
+
+    def tip_target(self, d: Digit, arc_deg: float, offset_mm: float, q: np.ndarray, place: HandPlace) -> np.ndarray:
+        """Dome-frame point (mm) ``arc_deg`` along the great circle from digit ``d``'s base in its flexion plane
+        (the plane holds the sphere centre, so the arc stays in it), at ``offset_mm`` over the radius where the
+        tip's capsule touches the shell (``R + radius``; negative = pressed in)."""
+        pts0 = self._chain(d, np.where(np.arange(len(q)) == 0, q, 0.0), 0.0, place)  # straight digit
+        rot = place.matrix()
+        n = rot @ _unit(d.polar_deg, d.azimuth_deg)
+        u = pts0[1] - pts0[0]
+        u = u - (u @ n) * n
+        u /= np.linalg.norm(u)
+        a = np.deg2rad(arc_deg)
+        return (self.R + d.radius + offset_mm) * (np.cos(a) * n + np.sin(a) * u)
+
+    def digit_ik(
+        self, d: Digit, target: np.ndarray, q: np.ndarray, place: HandPlace, couple: float = 2.0 / 3.0
+    ) -> np.ndarray | None:
+        """Joint vector ``q`` with digit ``d``'s flexions solved so that its tip (end of the distal phalanx) sits
+        at ``target`` (dome frame, mm; must lie in the digit's flexion plane, as :meth:`tip_target` gives):
+        fingers solve MCP and PIP (DIP = 2/3 PIP), the thumb CMC and MCP with IP = ``couple`` x MCP (its
+        abduction ``q[0]`` is given). None when out of reach or beyond :data:`PROX_LIMITS_DEG`."""
+        pts0 = self._chain(d, np.where(np.arange(len(q)) == 0, q, 0.0), 0.0, place)
+        base = pts0[0]
+        u = pts0[1] - base
+        u /= np.linalg.norm(u)
+        n = base / np.linalg.norm(base)
+        rel = np.asarray(target, np.float64) - base
+        sol = _planar_ik(d.lengths, couple if d.name == "thumb" else 2.0 / 3.0, float(rel @ u), float(-(rel @ n)))
+        if sol is None or not PROX_LIMITS_DEG[0] <= sol[0] <= PROX_LIMITS_DEG[1]:
+            return None
+        out = np.array(q, np.float64, copy=True)
+        out[d.joints[0]], out[d.joints[1]] = sol
+        if d.name == "thumb":
+            out[d.joints[2]] = couple * sol[1]
+        return out
+
+    def digit_penetration_mm(self, d: Digit, q: np.ndarray, place: HandPlace | None = None) -> float:
+        """Deepest reach (mm) of any phalanx of digit ``d`` into the shell (negative: the gap to it)."""
+        pts = self._chain(d, q, 0.0, place)
+        pen = -np.inf
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
+            ab = b - a
+            t = float(np.clip(-(a @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0))
+            pen = max(pen, self.R + d.radius - float(np.linalg.norm(a + t * ab)))
+        return float(pen)
+
+    def sample_varied(self, rng: np.random.Generator) -> tuple[np.ndarray, HandPlace, np.ndarray]:
+        """A grasp of the ``varied`` set: joint vector (deg), placement, and which digits touch the shell (5,).
+
+        The hand is placed at random (:data:`VARIED_YAW_DEG`, :data:`VARIED_TILT_DEG`, :data:`VARIED_LIFT_MM`,
+        finger spread / abduction); then, digit by digit, a fingertip target is drawn on the sphere
+        (:data:`VARIED_ARC_DEG` from the base along the digit's plane; pressed in by :data:`VARIED_PRESS_MM`
+        with probability :data:`VARIED_P_CONTACT`, else hovering :data:`VARIED_HOVER_MM` over the shell) and the
+        digit's flexions are solved by :meth:`digit_ik`. A target is redrawn when the solution breaks a joint
+        limit, the tip leaves the visible cap (:data:`VARIED_TIP_MAX_POLAR_DEG`), a phalanx sinks more than
+        :data:`VARIED_MAX_PEN_MM` into the shell, a hovering digit touches it, or the tip comes within a
+        capsule radius of its neighbour's."""
+        for _ in range(100):
+            spread = rng.uniform(*VARIED_SPREAD_DEG)
+            abd = tuple(
+                float(spread * k + rng.uniform(-VARIED_FINGER_ABD_DEG, VARIED_FINGER_ABD_DEG))
+                for k in (1.5, 0.5, -0.5, -1.5)
+            )
+            place = HandPlace(
+                float(rng.uniform(-VARIED_YAW_DEG, VARIED_YAW_DEG)),
+                float(rng.uniform(-VARIED_TILT_DEG[0], VARIED_TILT_DEG[0])),
+                float(rng.uniform(-VARIED_TILT_DEG[1], VARIED_TILT_DEG[1])),
+                float(rng.uniform(*VARIED_LIFT_MM)),
+                abd,
+            )
+            q = np.zeros(len(JOINTS))
+            q[0] = rng.uniform(-VARIED_THUMB_ABD_DEG, VARIED_THUMB_ABD_DEG)
+            touch = np.zeros(len(DIGITS), bool)
+            tips: list[np.ndarray] = []
+            for i, d in enumerate(DIGITS):
+                for _ in range(60):
+                    contact = rng.random() < VARIED_P_CONTACT
+                    off = -rng.uniform(*VARIED_PRESS_MM) if contact else rng.uniform(*VARIED_HOVER_MM)
+                    target = self.tip_target(d, rng.uniform(*VARIED_ARC_DEG), off, q, place)
+                    ratio = rng.uniform(*VARIED_THUMB_IP_RATIO)
+                    qq = self.digit_ik(d, target, q, place, ratio)
+                    if qq is None or any(not DIST_LIMITS_DEG[0] <= qq[j] <= DIST_LIMITS_DEG[1] for j in d.joints[1:]):
+                        continue
+                    if np.degrees(np.arccos(np.clip(target[2] / np.linalg.norm(target), -1, 1))) > (
+                        VARIED_TIP_MAX_POLAR_DEG
+                    ):
+                        continue
+                    pen = self.digit_penetration_mm(d, qq, place)
+                    if pen > VARIED_MAX_PEN_MM or (not contact and pen > 0):
+                        continue
+                    tip = self._chain(d, qq, 0.0, place)[-1]
+                    if i > 1 and np.linalg.norm(tip - tips[-1]) < d.radius + DIGITS[i - 1].radius:
+                        continue
+                    q, touch[i] = qq, pen > 0
+                    tips.append(tip)
+                    break
+                else:
+                    break  # this placement leaves a digit without a valid target: place the hand anew
+            else:
+                return q, place, touch
+        raise RuntimeError("no valid varied grasp in 100 placements")  # not reached with the shipped ranges
 
     def sample(self, rng: np.random.Generator, grasp_set: str = "mixed") -> tuple[np.ndarray, float, str]:
         """A random grasp of ``grasp_set`` (:data:`GRASP_SETS`): joint vector (deg), hand yaw (deg), grasp type.
@@ -314,6 +523,19 @@ class HandDomeSimulator:
         return self.sim.render(self.sim.geo.marker_rest + disp, rng, noise=noise)
 
     def sample(self, rng: np.random.Generator, noise: float = 1.0) -> dict:
+        if self.grasp_set == "varied":  # the placement and the digits in contact are kept for the evaluation
+            q, place, touch = self.hand.sample_varied(rng)
+            caps = self.hand.capsules(q, place=place)
+            return {
+                "rgb": self.render_rgb(caps, rng, noise),
+                "ir": self.render_ir(caps, rng, noise),
+                "angles_deg": q.astype(np.float32),
+                "yaw_deg": np.float32(place.yaw_deg),
+                "grasp": "varied",
+                "n_contacts": np.int32(len(self.presses(caps, np.random.default_rng(0)))),
+                "place": place.to_array().astype(np.float32),
+                "touch": touch,
+            }
         q, yaw, grasp = self.hand.sample(rng, self.grasp_set)
         caps = self.hand.capsules(q, yaw)
         return {

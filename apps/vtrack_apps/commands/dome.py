@@ -199,7 +199,7 @@ def register(app: typer.Typer) -> None:
 
             res["handpose"] = evaluate_handpose_sets()
             print_table(
-                "dome hand pose (simulated, deg)",
+                "dome hand pose, varied grasps (simulated, deg)",
                 [
                     {
                         "modality": m,
@@ -306,11 +306,16 @@ def register(app: typer.Typer) -> None:
 
     @handpose_app.command("train")
     def handpose_train(
-        out: Path = typer.Option(None, "--out", help="weights file (default: the shipped weights/handpose.pt)"),
-        n_train: int = typer.Option(
-            9000, "--n-train", min=32, help="simulated training grasps (cached chunks of 3000)"
+        out: Path = typer.Option(
+            None, "--out", help="weights file (default: the shipped one of the grasp set, weights/handpose_varied.pt)"
         ),
-        steps: int = typer.Option(4000, "--steps", min=1, help="optimizer steps per single net"),
+        grasp_set: str = typer.Option(
+            "varied", "--grasp-set", help="training / held-out grasps: varied (default), mixed or contact"
+        ),
+        n_train: int = typer.Option(
+            6000, "--n-train", min=32, help="simulated training grasps (cached chunks of 3000)"
+        ),
+        steps: int = typer.Option(6000, "--steps", min=1, help="optimizer steps per single net"),
         fusion_steps: int = typer.Option(3000, "--fusion-steps", min=1, help="optimizer steps of the dual fusion head"),
         ir_encoder: str = typer.Option("markers", "--ir-encoder", help="markers (marker-centred patches) or cnn"),
         modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
@@ -320,6 +325,9 @@ def register(app: typer.Typer) -> None:
         ),
         init: Path = typer.Option(None, "--init", help="fine-tune the single nets from this weights file"),
         lr: float = typer.Option(2e-3, "--lr", min=1e-6, help="peak learning rate (one-cycle)"),
+        time_budget_min: float = typer.Option(
+            0.0, "--time-budget-min", min=0.0, help="stop a net at the first validation past this (min; 0 = none)"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
@@ -328,8 +336,11 @@ def register(app: typer.Typer) -> None:
         import json
 
         from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, train_all
+        from vtrack.dome.handsim import GRASP_SETS
         from vtrack.errors import InputError
 
+        if grasp_set not in GRASP_SETS:
+            raise InputError("unknown grasp set", field="--grasp-set", expected=", ".join(GRASP_SETS), got=grasp_set)
         mods = tuple(m.strip() for m in modalities.split(",") if m.strip())
         bad = [m for m in mods if m not in MODALITIES]
         if bad or not mods:
@@ -347,6 +358,8 @@ def register(app: typer.Typer) -> None:
             n_contact=n_contact,
             init=str(init) if init else "",
             lr=lr,
+            grasp_set=grasp_set,
+            time_budget_s=60.0 * time_budget_min,
         )
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
@@ -355,22 +368,27 @@ def register(app: typer.Typer) -> None:
     @handpose_app.command("eval")
     def handpose_eval(
         json_out: Path = typer.Option(None, "--json", help="write {rgb, ir, dual: {mae_deg, rmse_deg, acc1, acc5}}"),
-        weights: Path = typer.Option(None, "--weights", help="weights file (default: shipped)"),
+        weights: Path = typer.Option(None, "--weights", help="weights file, varied set (default: shipped)"),
+        mixed_weights: Path = typer.Option(
+            None, "--mixed-weights", help="weights file for the mixed and contact sets (default: shipped handpose.pt)"
+        ),
         n_test: int = typer.Option(500, "--n-test", min=4, help="held-out simulated grasps"),
         seed: int = typer.Option(4242, "--seed", help="test-set seed (4242 = the held-out set)"),
     ) -> None:
         """Overall MAE / RMSE (deg) and Acc@1 / Acc@5 (% of joint angles within 1 / 5 deg) per modality on
-        held-out simulated grasps (Table S7): top level = the mixed set (lifted digits; ``information_bound`` is its
-        ceiling), ``contact`` = every fingertip on the shell, as FusionTouch's grasps (``nominal_pose_baseline``:
-        its +- 5 deg joint spread makes Acc@5 uninformative there)."""
+        held-out simulated grasps (Table S7): top level = the varied set (hand placed at random, every fingertip on
+        or just over the visible shell, joints by IK; ``mean_pose_baseline`` = no image), ``mixed`` = grasp types
+        with lifted digits (``information_bound`` is its ceiling), ``contact`` = every fingertip pressed with a
+        +- 5 deg joint spread (``nominal_pose_baseline``: Acc@5 is uninformative there)."""
         from vtrack.dome.handpose import evaluate_handpose_sets
         from vtrack_apps.output import print_table
 
-        res = evaluate_handpose_sets(weights, n_test, seed)
+        res = evaluate_handpose_sets(weights, n_test, seed, mixed_weights)
         cols = ("mae_deg", "rmse_deg", "acc1", "acc5", "max_deg")
         for title, r in (
-            ("mixed set: lifted digits", res),
-            ("contact set: every fingertip on the shell", res["contact"]),
+            ("varied set: hand placed at random, fingertips on / over the shell", res),
+            ("mixed set: lifted digits", res["mixed"]),
+            ("contact set: every fingertip on the shell, +- 5 deg", res["contact"]),
         ):
             rows = [{"modality": m, **{k: round(r[m][k], 3) for k in cols}} for m in ("rgb", "ir", "dual") if m in r]
             for name, key in (
