@@ -114,7 +114,10 @@ def sphere_centres(
     """Estimate ``C``: (N, 2) centres (x, y px) of the ball fitted to each press's reconstructed surface, the
     press reconstructed by an ``mlp`` calibration trained on auto labels (placement 0.5) of the OTHER folds'
     presses (press i is in fold i % folds). Points: inside ``0.6 * disc_radii`` around ``disc_centres``
-    (a sphere fit is unbiased whichever part of the cap it sees). NaN where a press cannot be fitted."""
+    (a sphere fit is unbiased whichever part of the cap it sees). NaN where a press cannot be fitted.
+
+    Returns (N, 3): centre x, y and the contact radius of the fitted ball (px): where the fitted sphere meets
+    the flat gel (height 0), ``sqrt(r^2 - z_c^2)`` - the radius that ball geometry gives the press."""
     from vtrack.tactile.autolabel import AutoLabelOptions
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import fit_sphere
@@ -123,7 +126,7 @@ def sphere_centres(
 
     auto = load_press_set(root, labels="auto", autolabel_opts=AutoLabelOptions(edge_weight=0.5))
     fold = {f: i % folds for i, f in enumerate(files)}
-    out = np.full((len(files), 2), np.nan)
+    out = np.full((len(files), 3), np.nan)
     s = auto.mm_per_px
     Hh, Ww = auto.shape
     yy, xx = np.mgrid[0:Hh, 0:Ww]
@@ -139,7 +142,8 @@ def sphere_centres(
                 continue
             c, r = fit_sphere(np.column_stack([xx[m] * s, yy[m] * s, -np.asarray(h, np.float64)[m]]))
             if np.isfinite(r):
-                out[i] = c[:2] / s
+                out[i, :2] = c[:2] / s
+                out[i, 2] = np.sqrt(max(r * r - c[2] * c[2], 0.0)) / s
     return out
 
 
@@ -175,7 +179,7 @@ def analyse(
         A = np.array([[d.center_x_px, d.center_y_px, d.contact_radius_px] for d in dets])
         ok = np.array([d.ok for d in dets]) & np.isfinite(B).all(1)
         if C is not None:
-            ok &= np.isfinite(C).all(1)
+            ok &= np.isfinite(C[:, :2]).all(1)
         a, b, h = A[ok], np.column_stack([B[ok], A[ok, 2]]), H[ok]
         dAH, dBH, dAB = a[:, :2] - h[:, :2], b[:, :2] - h[:, :2], a[:, :2] - b[:, :2]
         cen = np.hypot(*dAH.T)
@@ -233,9 +237,14 @@ def analyse(
             row["hat4_predicted_within_2px_exact_detector"] = (
                 float(1.0 - np.exp(-4.0 / (2.0 * sH4 * sH4))) if sH4 > 0 else 1.0
             )
-            dCH = C[ok] - h[:, :2]
+            dCH = C[ok, :2] - h[:, :2]
             row["centre_C_vs_H_median_px"] = float(np.median(np.hypot(*(dCH - dCH.mean(0)).T)))
-            row["centre_C_vs_A_median_px"] = float(np.median(np.hypot(*(C[ok] - a[:, :2]).T)))
+            row["centre_C_vs_A_median_px"] = float(np.median(np.hypot(*(C[ok, :2] - a[:, :2]).T)))
+            # radius: hand, rim detector and the fitted ball's geometric contact radius (log ratios, so a
+            # common scale such as the gel's bulge around the contact cancels): each one's relative scatter
+            lr = {"A": np.log(a[:, 2]), "C": np.log(np.maximum(C[ok, 2], 1e-6)), "H": np.log(h[:, 2])}
+            row["radius_C_over_H_median_pct"] = float(100 * (np.exp(np.median(lr["C"] - lr["H"])) - 1))
+            row["radius_hat_sd_pct"] = {k: 100 * v for k, v in ncornered_hat(lr).items()}
             row["centre_C_within_2px_of_H"] = float(np.mean(np.hypot(*dCH.T) <= 2.0))
         # hand labels on this set: integers? (quantisation alone is sd 0.29 px per axis)
         row["hand_centres_integer"] = bool(np.all(h[:, :2] == np.rint(h[:, :2])))
@@ -292,6 +301,11 @@ def _report(res: dict) -> str:
                     r["centre_C_vs_A_median_px"],
                     100 * r["centre_C_within_2px_of_H"],
                 )
+            )
+            rs = r["radius_hat_sd_pct"]
+            lines.append(
+                f"    radius: ball-fit C / H median {r['radius_C_over_H_median_pct']:+.1f} %; relative scatter "
+                f"(three-cornered hat) A {rs['A']:.1f} %, C {rs['C']:.1f} %, H {rs['H']:.1f} %"
             )
     return "\n".join(lines)
 
