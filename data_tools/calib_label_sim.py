@@ -60,6 +60,9 @@ def sweep(n: int = 24, seed: int = 0, blurs=BLURS_MM, noises=NOISES, weights=WEI
                     ]
                     A = np.array([[x.center_x_px, x.center_y_px, x.contact_radius_px] for x in dets])
                     ok = np.array([x.ok for x in dets])
+                    if not ok.any():  # every press refused (e.g. too noisy to fit a rim): nothing to score
+                        rows.append({"blur_mm": blur, "noise": noise, "edge_weight": w, "n_used": 0, "n": len(ok)})
+                        continue
                     dc = A[ok, :2] - T[ok, :2]
                     cen = np.hypot(*dc.T)
                     rr = A[ok, 2] / T[ok, 2] - 1.0
@@ -98,6 +101,9 @@ def main() -> None:
     rows = sweep(a.n)
     print("blur mm (px) | noise | placement | used | centre <= 2 px | centre sd x / y px | radius | <= 5 % | both")
     for r in rows:
+        if not r["n_used"]:
+            print(f"{r['blur_mm']:.2f} | {r['noise']:.0f} | {r['edge_weight']:.2f} | 0/{r['n']} | every press refused")
+            continue
         print(
             f"{r['blur_mm']:.2f} ({r['blur_px']:.1f}) | {r['noise']:.0f} | {r['edge_weight']:.2f} | "
             f"{r['n_used']}/{r['n']} | "
