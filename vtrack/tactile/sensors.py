@@ -43,8 +43,8 @@ class SensorPreset:
     #: ball presses `vtrack record presses` records by default and `vtrack calibrate` asks for. A per-pixel
     #: colour-to-normal model only knows the parts of the gel it was shown; the DIGIT's LEDs sit just outside
     #: its small gel, so its shading changes fastest near the border and it needs more presses
-    #: (docs/benchmarks/calib_digit_seeds.md: simulated DIGIT, true circles, 45 training presses 4.35-5.26 deg
-    #: over 5 sets, 90: 4.31-4.53 deg)
+    #: (docs/benchmarks/calib_digit_seeds.md: simulated DIGIT, true circles, 45 training presses 4.66 +- 0.31 deg
+    #: over 9 sets, 68-90 presses 4.22-4.62 deg over 4)
     calib_presses: int = 60
 
     @property
