@@ -17,6 +17,14 @@ errors, ``var(A - H) = sA^2 + sH^2`` etc., so ``sH^2 = (var(A-H) + var(B-H) - va
 variances, 1.4826 MAD; 90 % bootstrap interval over presses). From ``sH`` it predicts the share of presses
 within 2 px that even an exact detector would reach: ``1 - exp(-2^2 / (2 sH^2))`` for isotropic scatter.
 
+With ``--geometry`` a fourth estimate joins:
+- ``C``: the centre of the ball itself, fitted to the reconstructed surface: each press is reconstructed by a
+  calibration trained (on AUTO labels, placement 0.5) on the other presses only (4 folds, cross-fitted), and a
+  sphere is fitted to the reconstructed height inside 0.6 x ``A``'s radius around ``B``'s centre. It uses the
+  ball geometry (the whole cap's shape), not the rim, and never the hand labels.
+With four estimates the per-axis scatters are over-determined: ``var(i - j) = s_i^2 + s_j^2`` for the six
+pairs, solved by least squares (:func:`ncornered_hat`), which also says whether the three-estimate numbers hold.
+
 An evaluation tool: it reads the labels only to compare. Prints a text report (and JSON with ``--json``).
 """
 
@@ -82,7 +90,66 @@ def _hat(dAH: np.ndarray, dBH: np.ndarray, dAB: np.ndarray) -> tuple[float, floa
     return out[0], out[1], out[2]
 
 
-def analyse(root: str | Path, weights=(0.25, 0.5, 0.75, 1.0), n_boot: int = 500, seed: int = 0) -> dict:
+def ncornered_hat(est: dict[str, np.ndarray]) -> dict[str, float]:
+    """Per-estimate scatter (px, one axis) from all pairwise differences of >= 3 estimates of the same
+    quantities: ``var(i - j) = s_i^2 + s_j^2`` (robust variances), least squares over the pairs, negative
+    variances clipped to 0. ``est``: name -> (N,) values of one axis."""
+    names = list(est)
+    if len(names) < 3:
+        raise ValueError("the hat needs at least 3 estimates")
+    rows, rhs = [], []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            r = np.zeros(len(names))
+            r[[i, j]] = 1.0
+            rows.append(r)
+            rhs.append(_rvar(est[names[i]] - est[names[j]]))
+    v, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+    return {n: float(np.sqrt(max(x, 0.0))) for n, x in zip(names, v, strict=True)}
+
+
+def sphere_centres(
+    root: str | Path, files: list[str], disc_centres: np.ndarray, disc_radii: np.ndarray, folds: int = 4
+) -> np.ndarray:
+    """Estimate ``C``: (N, 2) centres (x, y px) of the ball fitted to each press's reconstructed surface, the
+    press reconstructed by an ``mlp`` calibration trained on auto labels (placement 0.5) of the OTHER folds'
+    presses (press i is in fold i % folds). Points: inside ``0.6 * disc_radii`` around ``disc_centres``
+    (a sphere fit is unbiased whichever part of the cap it sees). NaN where a press cannot be fitted.
+
+    Returns (N, 3): centre x, y and the contact radius of the fitted ball (px): where the fitted sphere meets
+    the flat gel (height 0), ``sqrt(r^2 - z_c^2)`` - the radius that ball geometry gives the press."""
+    from vtrack.tactile.autolabel import AutoLabelOptions
+    from vtrack.tactile.calibration import calibrate
+    from vtrack.tactile.evaluation import fit_sphere
+    from vtrack.tactile.pipeline import TactilePipeline
+    from vtrack.tactile.pressset import load_press_set
+
+    auto = load_press_set(root, labels="auto", autolabel_opts=AutoLabelOptions(edge_weight=0.5))
+    fold = {f: i % folds for i, f in enumerate(files)}
+    out = np.full((len(files), 3), np.nan)
+    s = auto.mm_per_px
+    Hh, Ww = auto.shape
+    yy, xx = np.mgrid[0:Hh, 0:Ww]
+    for f in range(folds):
+        train = [p for p in auto.presses if fold.get(p.file, -1) != f]
+        pipe = TactilePipeline(calibrate(auto, "mlp", train))
+        for i, name in enumerate(files):
+            if fold[name] != f or not np.isfinite(disc_centres[i]).all() or not np.isfinite(disc_radii[i]):
+                continue
+            h = pipe.height(auto.read(name))
+            m = np.hypot(xx - disc_centres[i, 0], yy - disc_centres[i, 1]) < 0.6 * disc_radii[i]
+            if m.sum() < 20:
+                continue
+            c, r = fit_sphere(np.column_stack([xx[m] * s, yy[m] * s, -np.asarray(h, np.float64)[m]]))
+            if np.isfinite(r):
+                out[i, :2] = c[:2] / s
+                out[i, 2] = np.sqrt(max(r * r - c[2] * c[2], 0.0)) / s
+    return out
+
+
+def analyse(
+    root: str | Path, weights=(0.25, 0.5, 0.75, 1.0), n_boot: int = 500, seed: int = 0, geometry: bool = False
+) -> dict:
     """The comparison for one press set (see the module docstring)."""
     from vtrack.tactile.autolabel import AutoLabelOptions, detect_contact
     from vtrack.tactile.pressset import load_press_set
@@ -101,12 +168,18 @@ def analyse(root: str | Path, weights=(0.25, 0.5, 0.75, 1.0), n_boot: int = 500,
     )
     seeds = np.where(np.isfinite(seeds), seeds, H[:, :2])  # a crop position only (see registered_centres)
     B = registered_centres(ps, seeds)
+    C = None
+    if geometry:
+        a05 = [detect_contact(ps.image(p), bg, Rpx, p.file, AutoLabelOptions(edge_weight=0.5)) for p in ps.presses]
+        C = sphere_centres(root, [p.file for p in ps.presses], B, np.array([d.contact_radius_px for d in a05]))
     out: dict = {"set": str(root), "n_presses": len(ps.presses), "placements": []}
     rng = np.random.default_rng(seed)
     for w in weights:
         dets = [detect_contact(ps.image(p), bg, Rpx, p.file, AutoLabelOptions(edge_weight=w)) for p in ps.presses]
         A = np.array([[d.center_x_px, d.center_y_px, d.contact_radius_px] for d in dets])
         ok = np.array([d.ok for d in dets]) & np.isfinite(B).all(1)
+        if C is not None:
+            ok &= np.isfinite(C[:, :2]).all(1)
         a, b, h = A[ok], np.column_stack([B[ok], A[ok, 2]]), H[ok]
         dAH, dBH, dAB = a[:, :2] - h[:, :2], b[:, :2] - h[:, :2], a[:, :2] - b[:, :2]
         cen = np.hypot(*dAH.T)
@@ -149,6 +222,30 @@ def analyse(root: str | Path, weights=(0.25, 0.5, 0.75, 1.0), n_boot: int = 500,
         row["both_after_offset_and_scale"] = float(
             np.mean((np.hypot(*(dAH - dAH.mean(0)).T) <= 2.0) & (np.abs(rr2) <= 0.05))
         )
+        if C is not None:
+            # four estimates: the over-determined hat (A, B, C = ball fit, H), bootstrap interval for H
+            four = [ncornered_hat({"A": a[:, i], "B": b[:, i], "C": C[ok, i], "H": h[:, i]}) for i in (0, 1)]
+            row["hat4_sd_px"] = {k: [four[0][k], four[1][k]] for k in four[0]}
+            boot4 = []
+            for _ in range(n_boot):
+                k = rng.integers(0, len(a), len(a))
+                s4 = [ncornered_hat({"A": a[k, i], "B": b[k, i], "C": C[ok][k, i], "H": h[k, i]})["H"] for i in (0, 1)]
+                boot4.append(np.sqrt(np.mean(np.square(s4))))
+            sH4 = float(np.sqrt(np.mean(np.square(row["hat4_sd_px"]["H"]))))
+            row["hat4_sd_H_px_rms_axes"] = sH4
+            row["hat4_sd_H_px_90ci"] = [float(np.percentile(boot4, 5)), float(np.percentile(boot4, 95))]
+            row["hat4_predicted_within_2px_exact_detector"] = (
+                float(1.0 - np.exp(-4.0 / (2.0 * sH4 * sH4))) if sH4 > 0 else 1.0
+            )
+            dCH = C[ok, :2] - h[:, :2]
+            row["centre_C_vs_H_median_px"] = float(np.median(np.hypot(*(dCH - dCH.mean(0)).T)))
+            row["centre_C_vs_A_median_px"] = float(np.median(np.hypot(*(C[ok, :2] - a[:, :2]).T)))
+            # radius: hand, rim detector and the fitted ball's geometric contact radius (log ratios, so a
+            # common scale such as the gel's bulge around the contact cancels): each one's relative scatter
+            lr = {"A": np.log(a[:, 2]), "C": np.log(np.maximum(C[ok, 2], 1e-6)), "H": np.log(h[:, 2])}
+            row["radius_C_over_H_median_pct"] = float(100 * (np.exp(np.median(lr["C"] - lr["H"])) - 1))
+            row["radius_hat_sd_pct"] = {k: 100 * v for k, v in ncornered_hat(lr).items()}
+            row["centre_C_within_2px_of_H"] = float(np.mean(np.hypot(*dCH.T) <= 2.0))
         # hand labels on this set: integers? (quantisation alone is sd 0.29 px per axis)
         row["hand_centres_integer"] = bool(np.all(h[:, :2] == np.rint(h[:, :2])))
         out["placements"].append(row)
@@ -188,6 +285,28 @@ def _report(res: dict) -> str:
             f" -> <=5 % {100 * r['radius_within_5pct_after_scale']:.0f} %; both after offset+scale "
             f"{100 * r['both_after_offset_and_scale']:.0f} %"
         )
+        if "hat4_sd_px" in r:
+            sd = r["hat4_sd_px"]
+            lines.append(
+                "    four-cornered hat (x, y): A {:.2f}, {:.2f}  B {:.2f}, {:.2f}  C(ball fit) {:.2f}, {:.2f}  "
+                "H {:.2f}, {:.2f} px; sH {:.2f} px (90 % CI {:.2f}-{:.2f}) -> exact detector within 2 px of H "
+                "{:.0f} %; C-A median {:.2f} px, C within 2 px of H {:.0f} %".format(
+                    *sd["A"],
+                    *sd["B"],
+                    *sd["C"],
+                    *sd["H"],
+                    r["hat4_sd_H_px_rms_axes"],
+                    *r["hat4_sd_H_px_90ci"],
+                    100 * r["hat4_predicted_within_2px_exact_detector"],
+                    r["centre_C_vs_A_median_px"],
+                    100 * r["centre_C_within_2px_of_H"],
+                )
+            )
+            rs = r["radius_hat_sd_pct"]
+            lines.append(
+                f"    radius: ball-fit C / H median {r['radius_C_over_H_median_pct']:+.1f} %; relative scatter "
+                f"(three-cornered hat) A {rs['A']:.1f} %, C {rs['C']:.1f} %, H {rs['H']:.1f} %"
+            )
     return "\n".join(lines)
 
 
@@ -195,11 +314,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("set", type=Path)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--geometry", action="store_true", help="add C, the ball fitted to cross-fitted reconstructions")
+    ap.add_argument("--weights", default="0.25,0.5,0.75,1.0", help="edge placements of A (comma-separated)")
     a = ap.parse_args()
     from vtrack.threads import limit_threads
 
     limit_threads(1)
-    res = analyse(a.set)
+    res = analyse(a.set, tuple(float(w) for w in a.weights.split(",")), geometry=a.geometry)
     print(_report(res))
     if a.json:
         from vtrack.io.jsonio import write_json

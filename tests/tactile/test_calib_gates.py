@@ -138,3 +138,35 @@ def test_three_cornered_hat_recovers_each_estimates_scatter():
     sa, sb, sh = hat(a - h, b - h, a - b)
     assert abs(sa - 0.3) < 0.15 and abs(sb - 0.5) < 0.15 and abs(sh - 1.5) < 0.15, (sa, sb, sh)
     assert hat(a - truth, b - truth, a - b)[2] < 0.15
+
+
+def test_four_cornered_hat_least_squares_matches_each_scatter():
+    """The over-determined hat (4 estimates, 6 pairs) of calib_label_agreement.py recovers independent scatters
+    of sd 0.3 / 0.5 / 0.8 / 1.4 px within 0.15 px, and gives an exact estimate (almost) no scatter."""
+    tool = _label_tool()
+    rng = np.random.default_rng(1)
+    truth = rng.uniform(0, 600, 5000)
+    est = {k: truth + s * rng.standard_normal(5000) for k, s in (("A", 0.3), ("B", 0.5), ("C", 0.8), ("H", 1.4))}
+    sd = tool.ncornered_hat(est)
+    for k, s in (("A", 0.3), ("B", 0.5), ("C", 0.8), ("H", 1.4)):
+        assert abs(sd[k] - s) < 0.15, sd
+    est["H"] = truth
+    assert tool.ncornered_hat(est)["H"] < 0.15
+    with pytest.raises(ValueError):
+        tool.ncornered_hat({"A": truth, "B": truth})
+
+
+def test_label_sim_detector_meets_the_target_on_exact_circles():
+    """data_tools/calib_label_sim.py: on simulated GelSight presses with a real-like gel blur (0.12 mm) and the
+    default noise, the contact detector at placement 0.75 puts >= 5 of 6 presses within 2 px and 5 % of the exact
+    circle; the exact-detector share of a reference with per-axis sd 1.37 px is 1 - exp(-2 / 1.37^2) = 66 %."""
+    import importlib.util
+
+    from vtrack.paths import REPO_ROOT
+
+    spec = importlib.util.spec_from_file_location("cls", REPO_ROOT / "data_tools" / "calib_label_sim.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    (row,) = mod.sweep(n=6, blurs=(0.12,), noises=(1.0,), weights=(0.75,))
+    assert row["n_used"] >= 5 and row["both"] >= 5 / 6 - 1e-9, row
+    assert abs(mod.exact_detector_share(1.37) - 0.655) < 0.01 and mod.exact_detector_share(0.0) == 1.0

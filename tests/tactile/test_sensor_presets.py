@@ -124,3 +124,17 @@ def test_calibrate_warns_when_press_images_are_not_in_the_stored_orientation(tmp
     assert res.exit_code == 0, res.output
     assert "warning: digit images are 320x240 but vtrack stores digit frames 240x320 (portrait)" in res.output
     assert out.is_file()
+
+
+def test_press_count_warning_asks_a_digit_for_more_presses():
+    """The DIGIT preset asks for 100 presses (its shading changes fastest near the gel's border), the others
+    for 60; fewer usable presses give a warning naming the count, enough give none, an unknown type none."""
+    from vtrack.tactile.sensors import press_count_warning
+
+    assert SENSOR_PRESETS["digit"].calib_presses == 100
+    assert SENSOR_PRESETS["gelsight_mini"].calib_presses == SENSOR_PRESETS["gelsight"].calib_presses == 60
+    w = press_count_warning("digit", 57)
+    assert w is not None and "only 57 usable presses" in w and "record 100" in w
+    assert press_count_warning("digit", 100) is None
+    assert press_count_warning("gelsight_mini", 57) is not None and press_count_warning("gelsight_mini", 60) is None
+    assert press_count_warning("unknown_sensor", 3) is None

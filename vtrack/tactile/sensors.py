@@ -40,6 +40,12 @@ class SensorPreset:
     lights: tuple[tuple[str, float], ...]
     #: substrings of the UVC device name / serial that identify this sensor
     name_hints: tuple[str, ...]
+    #: ball presses `vtrack record presses` records by default and `vtrack calibrate` asks for. A per-pixel
+    #: colour-to-normal model only knows the parts of the gel it was shown; the DIGIT's LEDs sit just outside
+    #: its small gel, so its shading changes fastest near the border and it needs more presses
+    #: (docs/benchmarks/calib_digit_seeds.md: simulated DIGIT, true circles, 45 training presses 4.66 +- 0.31 deg
+    #: over 9 sets, 68-90 presses 4.22-4.62 deg over 4)
+    calib_presses: int = 60
 
     @property
     def stored_size(self) -> tuple[int, int]:
@@ -57,7 +63,16 @@ class SensorPreset:
 SENSOR_PRESETS: dict[str, SensorPreset] = {
     # DIGIT streams QVGA 320x240 at 60 fps (VGA at 30); stored portrait (240 wide, 320 high).
     "digit": SensorPreset(
-        "digit", 320, 240, 60.0, 0.09, 3.0, 90, (("red", 90.0), ("green", 210.0), ("blue", 330.0)), ("DIGIT", "Digit")
+        "digit",
+        320,
+        240,
+        60.0,
+        0.09,
+        3.0,
+        90,
+        (("red", 90.0), ("green", 210.0), ("blue", 330.0)),
+        ("DIGIT", "Digit"),
+        calib_presses=100,
     ),
     # GelSight Mini: 3280x2464 sensor, usually streamed downscaled; 320x240 is the common working size.
     "gelsight_mini": SensorPreset(
@@ -139,6 +154,18 @@ def orientation_warning(sensor_type: str, width_px: int, height_px: int) -> str 
         f"{sensor_type} images are {width_px}x{height_px} but vtrack stores {sensor_type} frames {sw}x{sh} "
         f"({'portrait' if sh > sw else 'landscape'}): a calibration from them will not fit frames recorded by "
         "vtrack (rotate the press images, or record them with `vtrack record presses`)"
+    )
+
+
+def press_count_warning(sensor_type: str, n_presses: int) -> str | None:
+    """A warning when a calibration set of ``sensor_type`` has fewer usable presses than the preset asks for
+    (:attr:`SensorPreset.calib_presses`); None when it has enough or the type is unknown."""
+    p = SENSOR_PRESETS.get(sensor_type)
+    if p is None or n_presses >= p.calib_presses:
+        return None
+    return (
+        f"only {n_presses} usable presses for a {sensor_type}: its normals get better and more repeatable with "
+        f"more (record {p.calib_presses} over the whole gel, edges included; docs/tactile.md)"
     )
 
 

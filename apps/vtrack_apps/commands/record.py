@@ -124,7 +124,9 @@ def register(app: typer.Typer) -> None:
         sensor: str = typer.Option("digit", "--sensor", help="digit | gelsight_mini | gelsight"),
         ball_radius_mm: float = typer.Option(..., "--ball-radius-mm", help="radius of the ball you press, mm"),
         mm_per_px: float = typer.Option(None, "--mm-per-px", help="gel pixel pitch, mm (default: sensor preset)"),
-        n: int = typer.Option(60, "--n", help="presses to record (over the whole gel, edges included)"),
+        n: int = typer.Option(
+            None, "--n", help="presses to record over the whole gel, edges included (default: preset; DIGIT 100, 60)"
+        ),
         background_frames: int = typer.Option(15, "--background-frames", help="untouched frames at the start"),
         frames: int = typer.Option(None, "--frames", help="stop after this many frames"),
         force: bool = typer.Option(False, "--force", help="write into a non-empty folder"),

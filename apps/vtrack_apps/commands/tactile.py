@@ -88,11 +88,14 @@ def register(app: typer.Typer) -> None:
             downsample=downsample,
         )
         ps, train, test = run.press_set, run.train, run.test
-        from vtrack.tactile.sensors import orientation_warning
+        from vtrack.tactile.sensors import orientation_warning, press_count_warning
 
         turned = orientation_warning(ps.sensor, ps.shape[1], ps.shape[0])
         if turned:
             typer.echo(f"warning: {turned}")
+        few = press_count_warning(ps.sensor, len(ps.presses))
+        if few:
+            typer.echo(f"warning: {few}")
         if ps.mm_per_px_source == "preset":
             typer.echo(
                 f"warning: mm_per_px not given: using the {ps.sensor} preset's nominal {ps.mm_per_px:.4f} mm/px "

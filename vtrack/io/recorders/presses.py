@@ -63,7 +63,7 @@ def record_presses(
     sensor: str,
     ball_radius_mm: float,
     mm_per_px: float | None = None,
-    n_presses: int = 60,
+    n_presses: int | None = None,
     background_frames: int = 15,
     start_level: float = 15.0,
     max_frames: int | None = None,
@@ -78,9 +78,10 @@ def record_presses(
         sensor: digit | gelsight_mini | gelsight (camera format for devices; ``meta.json`` ``sensor``).
         ball_radius_mm, mm_per_px: the ball pressed and the gel's pixel pitch (mm); ``mm_per_px`` None: the
             preset's nominal pitch at the stored frame size (flagged in ``meta.json``).
-        n_presses: stop after this many saved presses. 60 by default, as the simulator's own calibrations:
-            a per-pixel model only knows the parts of the gel it was shown (simulated DIGIT, 60 fresh presses:
-            5.25 deg from 30 training presses, 4.38 deg from 68 of the same unit; docs/tactile.md).
+        n_presses: stop after this many saved presses. None: the preset's
+            :attr:`~vtrack.tactile.sensors.SensorPreset.calib_presses` (60; DIGIT 100): a per-pixel model only
+            knows the parts of the gel it was shown (simulated DIGIT, true circles: 4.66 +- 0.31 deg from 45
+            training presses over 9 sets, 4.22-4.62 deg from 68-90; docs/benchmarks/calib_digit_seeds.md).
         background_frames: untouched frames at the start, averaged (median) into the background.
         start_level: press signal (grey levels above the background's own frame-to-frame level) that starts
             an episode; it ends when the signal falls below half of it.
@@ -93,6 +94,8 @@ def record_presses(
     from vtrack.tactile.sensors import sensor_preset
 
     preset = sensor_preset(sensor, "--sensor")
+    if n_presses is None:
+        n_presses = preset.calib_presses
     pitch_given = mm_per_px is not None
     if not (
         np.isfinite(ball_radius_mm)
