@@ -116,3 +116,20 @@ def test_map_box_grows_with_points_outside_it():
     assert np.allclose(((hi2 - hi) / tr.grid_voxel) % 1.0, 0.0, atol=1e-6) or np.allclose(
         ((hi2 - hi) / tr.grid_voxel) % 1.0, 1.0, atol=1e-6
     )
+
+
+def test_slam_keyframe_thresholds_reach_the_graph_and_the_window_separately():
+    """kf_trans / kf_rot exist in the pose graph and in the window tracker; the flat names go to the graph and the
+    window's are reached by window_kf_*; an unknown window_ key is still refused."""
+    import pytest
+
+    from vtrack.errors import InputError
+    from vtrack.tracking.slam import SLAMOptions
+
+    _, bo, to = SLAMOptions.split({"kf_rot": 0.2, "window_kf_rot": 0.05, "window_kf_trans": 0.003})
+    assert bo.kf_rot == 0.2
+    assert to.kf_rot == 0.05 and to.kf_trans == 0.003
+    _, bo, to = SLAMOptions.split({})
+    assert (to.kf_rot, to.kf_trans) == (0.01, 0.001) and bo.kf_rot == 0.07
+    with pytest.raises(InputError):
+        SLAMOptions.split({"window_kf_spin": 1.0})

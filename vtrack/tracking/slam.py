@@ -157,6 +157,12 @@ class SLAMOptions:
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=so.mapper)
         bo = BackendOptions.from_dict({k: v for k, v in opts.items() if k in bnames})
         rest = {k: v for k, v in opts.items() if k not in names and k not in bnames}
+        # The pose graph and the window tracker both have keyframe thresholds named kf_trans / kf_rot; the flat
+        # names go to the pose graph, so the window tracker's are reachable as window_kf_trans / window_kf_rot
+        # (before, they were silently shadowed and always at their defaults).
+        for k in ("kf_trans", "kf_rot"):
+            if f"window_{k}" in rest:
+                rest[k] = rest.pop(f"window_{k}")
         # SLAM's own tracker defaults (a map is noisier than a mesh):
         rest.setdefault("gate", 0.8 * so.trunc)
         rest.setdefault("sigma_vision", 0.0025)
