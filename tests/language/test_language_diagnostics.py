@@ -45,7 +45,7 @@ def test_steering_vector_is_the_encoded_lexicon_difference_in_the_steered_space(
     from vtrack.language.api import load
     from vtrack.language.text import LEXICON_A, LEXICON_N, token_arrays
 
-    model, _ = load(None, "A-N")
+    model, _ = load(None, "none")  # stores the A-N vector (injected only at inference)
     net = model.net
     if getattr(net, "arch", {}).get("text_mlp"):
         # a non-linear projection: s_proj is its response to s_hat from the origin, normalize(mlp(s) - mlp(0))

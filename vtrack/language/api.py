@@ -24,7 +24,7 @@ DESIGNS = ("none", "A", "A-N")
 DEFAULT_DESIGN = "none"
 #: training recipe of ``train`` / the shipped weights (keyword arguments of vtrack.language.model.train;
 #: chosen on the validation contacts, docs/language.md)
-RECIPE: dict = {"cls_weight": 1.0, "same_weight": 0.5, "shift_px": 0}
+RECIPE: dict = {"cls_weight": 1.0, "same_weight": 0.5, "shift_px": 0, "texture": True, "text_mlp": True}
 
 
 def shipped_dir() -> Path:
@@ -216,11 +216,14 @@ def train_all(
     designs=DESIGNS,
     pooling: str = "attention",
     recipe: dict | None = None,
+    extra_train: int | None = None,
     log=print,
 ) -> Path:
     """Train the three steering designs alike on the generated data; write ``<design>.pt`` + galleries.
 
-    ``recipe``: keyword arguments of :func:`vtrack.language.model.train` (default :data:`RECIPE`)."""
+    ``recipe``: keyword arguments of :func:`vtrack.language.model.train` (default :data:`RECIPE`);
+    ``extra_train``: extra training contacts per material (default
+    :data:`vtrack.language.materials.EXTRA_TRAIN_CONTACTS`)."""
     from vtrack.language.materials import generate
     from vtrack.language.model import Steering, train
     from vtrack.language.text import require_extra
@@ -228,7 +231,7 @@ def train_all(
     require_extra()
     out = Path(out) if out is not None else default_train_dir()
     out.mkdir(parents=True, exist_ok=True)
-    data = generate(seed)
+    data = generate(seed) if extra_train is None else generate(seed, extra_train=extra_train)
     for d in designs:
         log(f"training design {d}")
         kw = RECIPE | (recipe or {})
@@ -288,11 +291,16 @@ def evaluate_all(
     if "A-N" in res["designs"]:
         st = res["designs"]["A-N"]
         res["steered_source"] = "A-N design (trained with its injection, paper P1 0.02 + P4 0.5)"
+    elif quick:
+        # the smoke run has no validation split: the A-N vector at the paper's strengths (P1 0.02 + P4 0.5)
+        from dataclasses import replace
+
+        from vtrack.language.model import Steering
+
+        m, _ = load(models, "none")
+        st = E.evaluate(replace(m, steering=Steering("A-N", 0.02, 0.0, 0.0, 0.5)), data, split=split)
+        res["steered_source"] = "A-N injected at inference into none at the paper's P1 0.02 + P4 0.5 (--quick)"
     else:
-        # no trained A-N model: the A-N vector injected at inference into "none", at the retrieval / generation
-        # position and strength chosen on the validation contacts (Fig. 3 protocol), scored on ``split``
-        if quick:
-            raise InputError("--quick needs an A-N.pt in the model folder", path=models or shipped_dir())
         m, _ = load(models, "none")
         full = generate(seed)
         res["sweep_val"] = E.sweep(m, full, split="val")
