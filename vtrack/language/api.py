@@ -18,9 +18,8 @@ import numpy as np
 from vtrack.errors import InputError
 
 DESIGNS = ("none", "A", "A-N")
-#: the design query / describe use, chosen on the validation contacts: with model version 2 (seed 0) "none" and
-#: "A-N" (the paper's P1 0.02 + P4 0.5, trained) tie at object R@1 0.500; over seeds 0 / 1 / 2 0.500 / 0.500 /
-#: 0.384 vs 0.500 / 0.478 / 0.414. On a tie the simpler model, without steering (docs/language.md)
+#: the design query / describe use: "none" (model version 3 ships only it; version 2's trained A-N tied with it
+#: on validation and gave no test gain, docs/language.md)
 DEFAULT_DESIGN = "none"
 #: training recipe of ``train`` / the shipped weights (keyword arguments of vtrack.language.model.train;
 #: chosen on the validation contacts, docs/language.md)
