@@ -500,3 +500,144 @@ def per_position_on_test(model, data: TactileSet, rows: list[dict], *, split: st
     finally:
         model.net.s_hat.copy_(saved)
     return out
+
+
+# ------------------------------------------------------------------------------ free-form queries with distractors
+#: non-tactile words that no training text contains (training distractors are COLOURS and SHAPES only)
+UNSEEN_APPEARANCE = ("shiny", "transparent", "bright", "dark", "striped", "colorful", "glossy", "matte", "patterned")
+UNSEEN_NOUNS = ("thing", "object", "item", "one")
+
+
+def freeform_queries(*, seed: int = EVAL_SEED, variants: int = 8, distractor: bool = True) -> list[tuple[str, int]]:
+    """Preference-style free-form queries (:data:`QUERIES`), each written ``variants`` times with two appearance
+    words that never occur in training ("a glossy, striped thing: something soft to wipe a lens with" or "...;
+    it should look dark and matte"): the case the paper's steering is meant for, a frozen-vocabulary text whose
+    non-tactile words the trained projection never learned to drop. Returns (text, query index) pairs
+    (``distractor`` False: each query once, as written)."""
+    if not distractor:
+        return [(q, i) for i, (q, _, _) in enumerate(QUERIES)]
+    rng = np.random.default_rng(seed)
+    out = []
+    for i, (q, _, _) in enumerate(QUERIES):
+        for k in range(variants):
+            a, b = (str(w) for w in rng.choice(UNSEEN_APPEARANCE, 2, replace=False))
+            n = str(rng.choice(UNSEEN_NOUNS))
+            out.append((f"a {a}, {b} {n}: {q}" if k % 2 == 0 else f"{q}; it should look {a} and {b}", i))
+    return out
+
+
+def _auc_ap(scores: np.ndarray, pos: np.ndarray, neg: np.ndarray) -> tuple[float, float]:
+    """AUC (= the expected 2-way selection accuracy of one random positive against one random negative
+    contact, ties half) and average precision of ``scores`` over the ``pos`` / ``neg`` contacts."""
+    sp, sn = scores[pos], scores[neg]
+    auc = float(((sp[:, None] > sn[None]).sum() + 0.5 * (sp[:, None] == sn[None]).sum()) / (len(sp) * len(sn)))
+    s = np.concatenate([sp, sn])
+    lab = np.concatenate([np.ones(len(sp)), np.zeros(len(sn))])[np.argsort(-s, kind="stable")]
+    hits = np.cumsum(lab)
+    ap = float(np.sum(hits / np.arange(1, len(lab) + 1) * lab) / max(1, len(sp)))
+    return auc, ap
+
+
+def freeform_scores(
+    model, data: TactileSet, queries: list[tuple[str, int]], *, p1: float = 0.0, pre: float = 0.0, p2: float = 0.0
+) -> dict:
+    """Mean AUC (expected 2-way selection) and mAP of free-form ``queries`` ranking the contacts of ``data``
+    (positives / negatives from each query's material predicates), with P1 (after the projection), P1 before the
+    projection (``pre``) or P2 steering."""
+    V = model.encode_images(data.images, p2)
+    Q = model.encode_text([q for q, _ in queries], p1, pre=pre)
+    S = Q @ V.T
+    mats = [data.materials[int(m)] for m in data.material]
+    aucs, aps = [], []
+    for row, (_, qi) in zip(S, queries, strict=True):
+        _, pos_f, neg_f = QUERIES[qi]
+        pos = np.array([pos_f(m) for m in mats])
+        neg = np.array([neg_f(m) for m in mats]) & ~pos
+        if pos.any() and neg.any():
+            a, p = _auc_ap(row, pos, neg)
+            aucs.append(a)
+            aps.append(p)
+    return {"auc": float(np.mean(aucs)), "map": float(np.mean(aps)), "n_queries": len(aucs)}
+
+
+FREEFORM_ALPHAS = {
+    "p1": (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5),
+    "pre": (0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0),
+    "p2": (0.0, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0),
+}
+
+
+def steering_freeform(
+    model, data: TactileSet, *, split: str = "test", val: str = "val", n_random: int = 20, seed: int = 0
+) -> dict:
+    """Steering against free-form queries with unseen non-tactile words (:func:`freeform_queries`), injected at
+    inference into ``model``: for the A-N and the A-only vector and each position (P1 on the projected text
+    embedding as the paper, P1 before the projection on the frozen pooled GloVe vector, P2 on the tactile
+    embedding) the strength with the best validation AUC (ties: the weaker), then the test AUC / mAP beside no
+    steering and beside the same queries without their distractor words. Control: ``n_random`` random unit
+    directions of the GloVe space in place of ``s_hat``, chosen and scored the same way ("random" rows: their
+    mean and sd), so a gain can be told from that of any fixed offset."""
+    from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector
+
+    torch = __import__("torch")
+    sv, st = data.subset(data.split == val), data.subset(data.split == split)
+    q = freeform_queries()
+    out: dict = {
+        "n_query_texts": len(q),
+        "none": freeform_scores(model, st, q),
+        "no_distractor_words": freeform_scores(model, st, freeform_queries(distractor=False)),
+        "sweep_val": {},
+        "chosen_on_val": {},
+        "test": {},
+    }
+    keep = model.net.s_hat.clone()
+    try:
+        rng = np.random.default_rng(seed + 999)
+        vectors = [("A-N", steering_vector(LEXICON_A, LEXICON_N)), ("A", steering_vector(LEXICON_A, None))]
+        for k in range(n_random):
+            r = rng.standard_normal(keep.shape[0])
+            vectors.append((f"random{k}", (r / np.linalg.norm(r)).astype(np.float32)))
+        for name, vec in vectors:
+            model.net.s_hat.copy_(torch.as_tensor(vec))
+            for pos, alphas in FREEFORM_ALPHAS.items():
+                rows = [(a, freeform_scores(model, sv, q, **{pos: a})["auc"]) for a in alphas]
+                best = max(rows, key=lambda r: (r[1], -r[0]))[0]
+                key = f"{name} {pos.upper()}"
+                out["sweep_val"][key] = rows
+                out["chosen_on_val"][key] = best
+                out["test"][key] = freeform_scores(model, st, q, **{pos: best})
+    finally:
+        model.net.s_hat.copy_(keep)
+    for pos in FREEFORM_ALPHAS:
+        r = np.array([out["test"].pop(f"random{k} {pos.upper()}")["auc"] for k in range(n_random)])
+        if len(r):
+            P = pos.upper()
+            out["test"][f"random {P}"] = {"auc": float(r.mean()), "auc_sd": float(r.std()), "n": len(r)}
+            # share of random directions doing at least as well as A-N (a permutation-style p-value)
+            out["test"][f"A-N {P}"]["share_random_at_least_as_good"] = float(
+                np.mean(r >= out["test"][f"A-N {P}"]["auc"])
+            )
+    return out
+
+
+def description_oracle(data: TactileSet) -> dict:
+    """Is object-level retrieval well posed by the texts alone? Among the materials of ``data``: how many share
+    their tactile-only material-level description (no distractor clause) with another, and the touch -> text
+    R@1 of an oracle that knows each contact's true attributes and breaks ties uniformly (mean of 1 / the size
+    of its description group); the same with the evaluation's distractor clause (for YCB the object's true
+    colour / shape, so it can tell objects apart that touch cannot)."""
+    mats = np.unique(data.material)
+    out = {"n_materials": len(mats)}
+    for key, distractor in (("tactile_only", False), ("with_distractors", True)):
+        texts = class_texts(data, mats, 2, distractor)
+        groups: dict[str, list[str]] = {}
+        for t, m in zip(texts, mats, strict=True):
+            groups.setdefault(t, []).append(data.materials[int(m)].key)
+        size = np.array([len(groups[t]) for t in texts])
+        out[key] = {
+            "distinct_descriptions": len(groups),
+            "materials_sharing_a_description": int((size > 1).sum()),
+            "oracle_r1": float(np.mean(1.0 / size)),
+            "shared": [g for g in groups.values() if len(g) > 1],
+        }
+    return out

@@ -44,6 +44,9 @@ IMAGE_W, IMAGE_H, MM_PER_PX = 80, 60, 0.25
 CONTACTS_PER_MATERIAL = 24
 TRAIN_CONTACTS, VAL_CONTACTS = range(0, 16), range(16, 18)
 TEST_CONTACTS = range(18, 24)
+#: extra training contacts per (non-OOD) material, drawn and rendered from a separate random stream after the
+#: 24 above, so the validation / test / OOD frames are the same as without them (data version 2 + extras)
+EXTRA_TRAIN_CONTACTS = 16
 SENSOR_UNITS = 4
 DATA_VERSION = 2
 
@@ -414,19 +417,29 @@ def ycb_available() -> bool:
     return all((d / f"{s}.ply").exists() for s in YCB_OBJECTS)
 
 
-def generate(seed: int = 0, *, use_cache: bool = True, quick: bool = False, ycb: bool | None = None) -> TactileSet:
+def generate(
+    seed: int = 0,
+    *,
+    use_cache: bool = True,
+    quick: bool = False,
+    ycb: bool | None = None,
+    extra_train: int = EXTRA_TRAIN_CONTACTS,
+) -> TactileSet:
     """Render every material's contacts (1632 frames with the YCB patches, about 40 s on one core); cached in
     ``cache_dir()``.
 
     ``quick`` renders only the first 2 test contacts of each training material and the first 2 contacts of
     each OOD material (136 frames, a few seconds, not cached): the same draws, for smoke tests. ``ycb`` None
     includes the YCB patches when the shared meshes are present (False: the 62 procedural materials only;
-    True: an InputError naming the missing mesh if they are absent)."""
+    True: an InputError naming the missing mesh if they are absent). ``extra_train`` more training contacts
+    per training material (contact indices 24, 25, ...) come from their own random stream (seed, 1), so every
+    other frame is the same for any ``extra_train``."""
     from vtrack.sim.tactile_optics import OpticalModel
 
     ycb = ycb_available() if ycb is None else ycb
     mats = materials(ycb=ycb)
-    path = _cache_path(ycb).with_name(_cache_path(ycb).stem + f"_s{seed}.npz")
+    extra_train = 0 if quick else int(extra_train)
+    path = _cache_path(ycb).with_name(_cache_path(ycb).stem + f"_s{seed}_x{extra_train}.npz")
     rng = np.random.default_rng(seed)
     contacts: list[Contact] = []
     material, index, split = [], [], []
@@ -447,13 +460,23 @@ def generate(seed: int = 0, *, use_cache: bool = True, quick: bool = False, ycb:
         index = [index[i] for i in keep]
         split = [split[i] for i in keep]
         use_cache = False
+    n_base = len(contacts)
+    rng_x = np.random.default_rng([seed, 1])
+    for m in mats:
+        for i in range(CONTACTS_PER_MATERIAL, CONTACTS_PER_MATERIAL + (0 if m.ood else extra_train)):
+            contacts.append(draw_contact(m, rng_x))
+            material.append(m.index)
+            index.append(i)
+            split.append("train")
     if use_cache and path.exists():
         with np.load(path) as z:
             images = z["images"]
     else:
         bg = background()
         models = {u: OpticalModel.for_sensor("digit", seed=1000 + u) for u in range(SENSOR_UNITS)}
-        frames = [render_contact(mats[mi], c, rng, models, bg) for mi, c in zip(material, contacts, strict=True)]
+        pairs = list(zip(material, contacts, strict=True))
+        frames = [render_contact(mats[mi], c, rng, models, bg) for mi, c in pairs[:n_base]]
+        frames += [render_contact(mats[mi], c, rng_x, models, bg) for mi, c in pairs[n_base:]]
         images = np.stack([to_input(f, bg) for f in frames]).astype(np.float32)
         if use_cache:
             from vtrack.io.jsonio import atomic_savez

@@ -36,10 +36,16 @@ from vtrack.errors import InputError
 
 #: on-disk version of a saved model (``.pt`` key ``"version"``); another version is refused (2: the describer
 #: conditions on f(I), P1 / P2 are added before the normalisation, as the paper)
-MODEL_VERSION = 2
+MODEL_VERSION = 3
+#: versions this code reads (3 adds the optional texture branch and MLP text projection, recorded in "arch";
+#: a version-2 file has neither)
+READABLE_VERSIONS = (2, 3)
 D_FEAT = 96
 D_SHARED = 64
 D_HIDDEN = 128
+#: texture-statistics branch: radial and orientation bands of the power spectrum (+ 4 intensity terms)
+N_RADIAL, N_ANGLE = 16, 12
+N_TEXTURE = N_RADIAL + N_ANGLE + 4
 MAX_LEN = 24
 _WORDS = re.compile(r"[a-z]+|[.;,]")
 
@@ -53,11 +59,54 @@ def _torch():
 POOLINGS = ("attention", "mean")
 
 
-def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: str = "attention"):
+def texture_stats(x, n_radial: int = N_RADIAL, n_angle: int = N_ANGLE):
+    """Texture statistics of network inputs ``x`` (B, 3, H, W) (torch): the windowed power spectrum of the
+    channel mean binned by radial frequency (log share of the energy per band: the texture's wavelength) and by
+    orientation above 0.06 cycles/px (share per band, rolled so the strongest band comes first: rotation-normalised
+    anisotropy, which tells ridges from a 2-axis weave / mesh / bumps from isotropic grain), plus the contact's
+    mean / max |change|, contact area share and log total energy (press depth, softness). (B, N_TEXTURE).
+
+    Why: the CNN's errors are mostly texture family and wavelength (docs/language.md); these are the spectrum's
+    two axes, invariant to the texture's phase and to the 180-degree rotation used in training."""
+    torch = _torch()
+    g = x.mean(1)
+    B, H, W = g.shape
+    win = torch.hann_window(H, periodic=False)[:, None] * torch.hann_window(W, periodic=False)[None]
+    g = (g - g.mean((1, 2), keepdim=True)) * win
+    P = torch.fft.fftshift(torch.fft.fft2(g).abs() ** 2, dim=(1, 2)).reshape(B, -1)
+    fy = torch.fft.fftshift(torch.fft.fftfreq(H))[:, None].expand(H, W)
+    fx = torch.fft.fftshift(torch.fft.fftfreq(W))[None].expand(H, W)
+    r = (fx**2 + fy**2).sqrt().reshape(-1)
+    th = (torch.atan2(fy, fx) % np.pi).reshape(-1)
+    rb = torch.clamp((r / 0.5 * n_radial).long(), max=n_radial - 1)
+    ab = torch.clamp((th / np.pi * n_angle).long(), max=n_angle - 1)
+    tot = P.sum(1, keepdim=True) + 1e-9
+    radial = torch.zeros(B, n_radial, dtype=P.dtype).index_add_(1, rb, P)
+    hi = r > 0.06
+    ang = torch.zeros(B, n_angle, dtype=P.dtype).index_add_(1, ab[hi], P[:, hi])
+    ang = ang / (ang.sum(1, keepdim=True) + 1e-9)
+    k = ang.argmax(1)
+    ang = torch.gather(ang, 1, (torch.arange(n_angle)[None] + k[:, None]) % n_angle)
+    a = x.abs()
+    inten = torch.stack([a.mean((1, 2, 3)), a.amax((1, 2, 3)), (a.mean(1) > 0.1).float().mean((1, 2))], 1)
+    return torch.cat([torch.log(radial / tot + 1e-6), ang, inten, torch.log(tot)], 1)
+
+
+def build(
+    vocab: list[str],
+    word_vecs: np.ndarray,
+    s_hat: np.ndarray,
+    pooling: str = "attention",
+    texture: bool = False,
+    text_mlp: bool = False,
+):
     """The torch module (created lazily so importing this file does not import torch).
 
     ``pooling`` "attention" learns a weight per word vector (it can learn to ignore distractor words);
-    "mean" is the plain signed mean of the frozen word vectors (it cannot: only ``W_text`` is trained)."""
+    "mean" is the plain signed mean of the frozen word vectors (it cannot: only ``W_text`` is trained).
+    ``texture`` adds the texture-statistics branch (:func:`texture_stats`, batch-normalised, 32-d) to the CNN's
+    pooled features before its head; ``text_mlp`` makes the text projection a 2-layer MLP (50 -> 128 -> 64)
+    instead of the linear ``W_text`` (model version 3; both off = version 2's architecture)."""
     if pooling not in POOLINGS:
         raise InputError("unknown text pooling", field="pooling", expected=" | ".join(POOLINGS), got=pooling)
     torch = _torch()
@@ -74,11 +123,17 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
                 k = 5 if i == 0 else 3
                 layers += [nn.Conv2d(ch[i], ch[i + 1], k, 2, k // 2), nn.BatchNorm2d(ch[i + 1]), nn.ReLU()]
             self.conv = nn.Sequential(*layers)
-            self.head = nn.Linear(2 * ch[-1], D_FEAT)
+            self.tex = (
+                nn.Sequential(nn.BatchNorm1d(N_TEXTURE), nn.Linear(N_TEXTURE, 32), nn.ReLU()) if texture else None
+            )
+            self.head = nn.Linear(2 * ch[-1] + (32 if texture else 0), D_FEAT)
 
         def forward(self, x):
             y = self.conv(x)
-            return self.head(torch.cat([y.mean((2, 3)), y.amax((2, 3))], 1))
+            z = [y.mean((2, 3)), y.amax((2, 3))]
+            if self.tex is not None:
+                z.append(self.tex(texture_stats(x)))
+            return self.head(torch.cat(z, 1))
 
     class TouchSteerNet(nn.Module):
         def __init__(self) -> None:
@@ -88,7 +143,12 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
             # trainable text side: attention pooling over the frozen word vectors (a learned per-word weight, so
             # words that say nothing about touch can be down-weighted) + the projection W_text
             self.att = nn.Linear(word_vecs.shape[1], 1)
-            self.w_text = nn.Linear(word_vecs.shape[1], D_SHARED, bias=False)
+            d_w = word_vecs.shape[1]
+            self.w_text = (
+                nn.Sequential(nn.Linear(d_w, 128), nn.GELU(), nn.Linear(128, D_SHARED, bias=False))
+                if text_mlp
+                else nn.Linear(d_w, D_SHARED, bias=False)
+            )
             self.logit_scale = nn.Parameter(torch.tensor(float(np.log(1 / 0.07))))
             self.register_buffer("s_hat", torch.as_tensor(s_hat, dtype=torch.float32))
             # describer: frozen GloVe input embeddings (so P3 lives in the steering vector's own space)
@@ -99,7 +159,11 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
 
         # ---- retrieval
         def s_proj(self):
+            """``normalize(W_text s_hat)``; with the MLP projection its response to ``s_hat`` from the origin,
+            ``normalize(mlp(s_hat) - mlp(0))`` (the same vector for a linear map)."""
             p = self.w_text(self.s_hat[None])[0]
+            if text_mlp:
+                p = p - self.w_text(torch.zeros_like(self.s_hat)[None])[0]
             return p / p.norm().clamp_min(1e-9)
 
         def s_feat(self):
@@ -128,8 +192,13 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
             """g(T): weighted mean of the (signed) word vectors (B, L, 50) -> (B, 50)."""
             return (self.word_weights(tok, mask, beta_w, sign)[..., None] * tok).sum(1)
 
-        def text_embed(self, tok, mask, alpha_p1: float = 0.0, beta_w: float = 0.0, sign=None, proj: float = 0.0):
-            t = self.w_text(self.pool(tok, mask, beta_w, sign))
+        def text_embed(
+            self, tok, mask, alpha_p1: float = 0.0, beta_w: float = 0.0, sign=None, proj: float = 0.0, pre: float = 0.0
+        ):
+            g = self.pool(tok, mask, beta_w, sign)
+            if pre:  # P1 before the projection: s_hat added to the frozen encoder's pooled output g(T)
+                g = g + pre * self.s_hat[None]
+            t = self.w_text(g)
             if proj:  # P1p (ours): remove a share ``proj`` of each text's component along s_proj
                 sp = self.s_proj()
                 t = t - proj * (t @ sp)[:, None] * sp[None]
@@ -168,6 +237,7 @@ def build(vocab: list[str], word_vecs: np.ndarray, s_hat: np.ndarray, pooling: s
 
     net = TouchSteerNet()
     net.pooling = pooling
+    net.arch = {"texture": bool(texture), "text_mlp": bool(text_mlp)}
     return net
 
 
@@ -196,17 +266,20 @@ class TouchSteer:
 
     # ------------------------------------------------------------------ helpers
     def encode_text(
-        self, texts: list[str], alpha: float | None = None, beta_w: float = 0.0, proj: float = 0.0
+        self, texts: list[str], alpha: float | None = None, beta_w: float = 0.0, proj: float = 0.0, pre: float = 0.0
     ) -> np.ndarray:
         """(N, D_SHARED) unit text embeddings (P1 steering at ``alpha``, default the model's own; P1w at
-        ``beta_w`` and P1p at ``proj`` (0-1), inference only)."""
+        ``beta_w``, P1p at ``proj`` (0-1) and P1 before the projection (``s_hat`` added to the frozen pooled
+        GloVe vector g(T)) at ``pre``, inference only)."""
         from vtrack.language.text import token_arrays
 
         torch = _torch()
         a = self.steering.p1 if alpha is None else alpha
         tok, mask, sign = token_arrays(texts, signs=True)
         with torch.no_grad():
-            t = self.net.text_embed(torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign), proj)
+            t = self.net.text_embed(
+                torch.as_tensor(tok), torch.as_tensor(mask), a, beta_w, torch.as_tensor(sign), proj, pre
+            )
             return t.numpy()
 
     def _features(self, images: np.ndarray, batch: int = 256):
@@ -265,6 +338,7 @@ class TouchSteer:
         state.pop("word_emb")  # rebuilt from the GloVe wheel on load (the wheel is a dependency, not shipped)
         tmp = path.with_suffix(".tmp")
         blob = {"version": MODEL_VERSION, "state": state, "vocab": self.vocab, "pooling": self.net.pooling}
+        blob["arch"] = dict(getattr(self.net, "arch", {}))
         torch.save(blob | {"steering": self.steering.__dict__, "meta": self.meta}, tmp)
         tmp.replace(path)
         return path
@@ -284,16 +358,17 @@ class TouchSteer:
         keys = ("state", "vocab", "steering")
         if not isinstance(blob, dict) or any(k not in blob for k in keys) or "s_hat" not in blob["state"]:
             raise InputError("not a vtrack language model", path=path, expected="keys state, vocab, steering")
-        if int(blob.get("version", 1)) != MODEL_VERSION:
+        if int(blob.get("version", 1)) not in READABLE_VERSIONS:
             raise InputError(
                 "language model from another vtrack version (retrain with 'vtrack language train')",
                 path=path,
-                expected=f"version {MODEL_VERSION}",
+                expected=" or ".join(map(str, READABLE_VERSIONS)),
                 got=blob.get("version", 1),
             )
         vocab = list(blob["vocab"])
         s_hat = blob["state"]["s_hat"].float().numpy()
-        net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, str(blob.get("pooling", "attention")))
+        arch = {k: bool(v) for k, v in dict(blob.get("arch", {})).items() if k in ("texture", "text_mlp")}
+        net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, str(blob.get("pooling", "attention")), **arch)
         state = {k: v.float() if v.is_floating_point() else v for k, v in blob["state"].items()}
         state["word_emb"] = net.word_emb
         net.load_state_dict(state)
@@ -368,6 +443,8 @@ def train(
     same_weight: float = 0.5,
     shift_px: int = 0,
     class_text_weight: float = 0.0,
+    texture: bool = False,
+    text_mlp: bool = False,
     log=None,
 ) -> TouchSteer:
     """Train on the ``train`` split of a :class:`~vtrack.language.materials.TactileSet`.
@@ -412,7 +489,7 @@ def train(
         steering = steering.off()
     else:
         s_hat = steering_vector(LEXICON_A, LEXICON_N if steering.design == "A-N" else None)
-    net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, pooling)
+    net = build(vocab, vocab_vectors(vocab, word_vectors), s_hat, pooling, texture, text_mlp)
     n_mat = int(tr.material.max()) + 1
     cls_head = torch.nn.Linear(D_FEAT, n_mat) if cls_weight > 0 else None
     params = [p for p in net.parameters() if p.requires_grad]
@@ -487,6 +564,6 @@ def train(
     net.eval()
     meta = {"epochs": epochs, "mode": mode, "seed": seed, "pooling": pooling, "n_train": n}
     meta |= {"cls_weight": cls_weight, "same_weight": same_weight, "shift_px": shift_px}
-    meta["class_text_weight"] = class_text_weight
+    meta |= {"class_text_weight": class_text_weight, "texture": texture, "text_mlp": text_mlp}
     meta["train_s"] = round(time.perf_counter() - t0, 1)
     return TouchSteer(net, vocab, steering, meta)

@@ -32,6 +32,9 @@ def register(app: typer.Typer) -> None:
         cls_weight: float = typer.Option(
             None, "--cls-weight", help="weight of the auxiliary material classification on f(I) (default: recipe)"
         ),
+        extra_train: int = typer.Option(
+            None, "--extra-train", help="extra training contacts per material (default: the data's, 16)"
+        ),
     ) -> None:
         """Generate the procedural materials (cached) and train no-steering, A-only and A-N models alike."""
         import torch
@@ -42,7 +45,14 @@ def register(app: typer.Typer) -> None:
         designs = tuple(design) if design else DESIGNS
         recipe = {} if cls_weight is None else {"cls_weight": cls_weight}
         folder = train_all(
-            out, epochs=epochs, seed=seed, designs=designs, pooling=pooling, recipe=recipe, log=typer.echo
+            out,
+            epochs=epochs,
+            seed=seed,
+            designs=designs,
+            pooling=pooling,
+            recipe=recipe,
+            extra_train=extra_train,
+            log=typer.echo,
         )
         typer.echo(f"models written to {folder}")
 
