@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE
+from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, sensor_config
 
 MODALITIES = ("rgb", "ir", "dual")
 HANDPOSE_VERSION = 2
@@ -428,7 +428,7 @@ def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainCon
         "dual_shared": sorted(shared),
         "version": HANDPOSE_VERSION,
         "joints": list(JOINTS),
-        "dome": HAND_DOME.to_dict(),
+        "dome": sensor_config(tc.grasp_set).to_dict(),  # the sensor whose IR reference the net was trained on
         "rgb_size": RGB_SIZE,
         "train": asdict(tc),
         "info": info,
@@ -578,7 +578,10 @@ def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -
 
     q_all = np.asarray(data["angles_deg"], np.float64)
     place_all = np.asarray(data["place"], np.float64)
-    key = hashlib.sha1(q_all.tobytes() + place_all.tobytes() + str(step_deg).encode()).hexdigest()[:12]
+    sensor = sensor_config("varied").to_dict()  # the IR image (and so its SNR) depends on the marker layout
+    key = hashlib.sha1(
+        q_all.tobytes() + place_all.tobytes() + str(step_deg).encode() + str(sorted(sensor.items())).encode()
+    ).hexdigest()[:12]
     path = cache_dir() / "dome" / f"handpose_obs_{key}.npz"
     if cache and path.exists():
         with np.load(path) as z:
@@ -780,10 +783,12 @@ class HandPosePredictor:
         lo, hi = self.info.get("angle_range_deg", (None, None))
         self.lo = np.asarray(lo, np.float64) if lo is not None else None
         self.hi = np.asarray(hi, np.float64) if hi is not None else None
-        if reference is None:
-            from vtrack.dome.handsim import HandDomeSimulator
+        if reference is None:  # the simulated no-contact frame of the sensor the nets were trained on
+            from vtrack.dome.model import DomeConfig
+            from vtrack.dome.simulate import DomeSimulator
 
-            reference = HandDomeSimulator().ir_reference()
+            cfg = DomeConfig.from_dict(blob["dome"]) if "dome" in blob else HAND_DOME
+            reference = DomeSimulator(cfg).reference_image(0.0)
         self.reference = np.asarray(reference, np.uint8)
 
     def predict(self, rgb: np.ndarray | None = None, ir: np.ndarray | None = None) -> HandPoseResult:
