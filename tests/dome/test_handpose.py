@@ -135,7 +135,8 @@ def test_handpose_cli_predict_and_refusal(tmp_path) -> None:
     from vtrack.dome.handpose import load_models, predict_deg
 
     dual = load_models()[0]["dual"]
-    data = {"rgb": s["rgb"][None], "ir": s["ir"][None], "ir_reference": HandDomeSimulator().ir_reference()}
+    ref = HandDomeSimulator(grasp_set="varied").ir_reference()
+    data = {"rgb": s["rgb"][None], "ir": s["ir"][None], "ir_reference": ref}
     np.testing.assert_allclose(got, predict_deg(dual, data)[0], atol=2e-3)  # the PNGs are lossless; rounding 1e-3
     err, prior = np.abs(got - s["angles_deg"]), np.abs(dual.mean.numpy() - s["angles_deg"])
     assert err.mean() < 0.5 * prior.mean()  # the images carry the pose (mean-pose guess: ~8 deg on this set)
@@ -330,3 +331,23 @@ def test_varied_eval_smoke_and_shipped_weights(tmp_path) -> None:
     assert set(models) == {"rgb", "ir", "dual"} and blob["dual_shared"]
     assert not any(k in blob["models"]["dual"] for k in blob["dual_shared"])
     assert weights_path("varied").stat().st_size < 2_000_000
+
+
+def test_varied_sensor_has_markers_over_the_whole_visible_cap() -> None:
+    """The varied set's sensor covers the cap the fingertips reach (<= 74 deg polar) with markers at the same
+    spacing; the mixed / contact sensor and the force / reconstruction dome keep their 68 deg layouts."""
+    from vtrack.dome.handpose import ir_reference_centers
+    from vtrack.dome.handsim import HAND_DOME_FULL, VARIED_TIP_MAX_POLAR_DEG, sensor_config
+    from vtrack.dome.model import DomeConfig, DomeGeometry
+
+    assert sensor_config("varied") is HAND_DOME_FULL and sensor_config("mixed") is HAND_DOME
+    assert sensor_config("contact") is HAND_DOME and DomeConfig().marker_cap_deg == HAND_DOME.marker_cap_deg == 68.0
+    polar = np.degrees(np.arccos(DomeGeometry(HAND_DOME_FULL).marker_dirs[:, 2]))
+    assert polar.max() >= VARIED_TIP_MAX_POLAR_DEG - 0.5 and HAND_DOME_FULL.n_markers == 397
+    # ring spacing within 2 % of the 68 deg layout's (the field is extended, not thinned)
+    full, old = HAND_DOME_FULL.marker_cap_deg / 11, HAND_DOME.marker_cap_deg / 10
+    assert abs(full / old - 1) < 0.02
+    # the pipeline's extractor finds every pin of the no-contact frame, the rim ones included
+    assert len(ir_reference_centers(HandDomeSimulator(grasp_set="varied").ir_reference())) == 397
+    with pytest.raises(ValueError):
+        sensor_config("nope")

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE
+from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, sensor_config
 
 MODALITIES = ("rgb", "ir", "dual")
 HANDPOSE_VERSION = 2
@@ -428,7 +428,7 @@ def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainCon
         "dual_shared": sorted(shared),
         "version": HANDPOSE_VERSION,
         "joints": list(JOINTS),
-        "dome": HAND_DOME.to_dict(),
+        "dome": sensor_config(tc.grasp_set).to_dict(),  # the sensor whose IR reference the net was trained on
         "rgb_size": RGB_SIZE,
         "train": asdict(tc),
         "info": info,
@@ -578,7 +578,10 @@ def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -
 
     q_all = np.asarray(data["angles_deg"], np.float64)
     place_all = np.asarray(data["place"], np.float64)
-    key = hashlib.sha1(q_all.tobytes() + place_all.tobytes() + str(step_deg).encode()).hexdigest()[:12]
+    sensor = sensor_config("varied").to_dict()  # the IR image (and so its SNR) depends on the marker layout
+    key = hashlib.sha1(
+        q_all.tobytes() + place_all.tobytes() + str(step_deg).encode() + str(sorted(sensor.items())).encode()
+    ).hexdigest()[:12]
     path = cache_dir() / "dome" / f"handpose_obs_{key}.npz"
     if cache and path.exists():
         with np.load(path) as z:
@@ -651,6 +654,62 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
         "median_snr_rgb_per_deg": float(np.median(np.asarray(snr_rgb) / np.asarray(dq))),
         "median_snr_ir": float(np.median(snr_ir)),
     }
+
+
+def ir_content_ablation(steps: int = 3000, n_train: int = 6000, seed: int = 0) -> dict:
+    """Evaluation-only (reads the simulated hand of the ``varied`` set): what the fingertip contacts can tell about
+    the pose at best. An MLP (2 x 256, AdamW, one-cycle 2e-3, L1, batch 128) maps the *exact* fingertip positions of
+    the pressing digits (x, y, z / R and a press flag per digit, zeros for a hovering digit: no more than a perfect
+    IR front end could read off the tips) to the 12 joints; trained on the ``n_train`` training grasps, scored on
+    the held-out grasps. ``tips_and_placement`` adds the hand placement (yaw, tilts, knuckle lift), which neither
+    the IR image nor the tips show. Returns both metric dicts (deg, %)."""
+    from vtrack.dome.handsim import DIGITS, HandModel, HandPlace, make_handpose_dataset
+
+    hand = HandModel()
+
+    def feats(d: dict) -> tuple[np.ndarray, np.ndarray]:
+        f_all, p_all = [], []
+        for q, pa in zip(np.asarray(d["angles_deg"], np.float64), d["place"], strict=True):
+            place, f = HandPlace.from_array(pa), []
+            for dg in DIGITS:
+                press = hand.digit_penetration_mm(dg, q, place) > 0
+                f += [*(hand._chain(dg, q, 0.0, place)[-1] / hand.R * press), float(press)]
+            f_all.append(f)
+            p_all.append(np.asarray(pa[:4], np.float64) / np.array([20.0, 8.0, 12.0, 8.0]))
+        return np.array(f_all), np.array(p_all)
+
+    torch.set_num_threads(1)
+    tr = load_train_set(n_train, seed, grasp_set="varied")
+    te = make_handpose_dataset(TEST_N, TEST_SEED, grasp_set="varied")
+    (f_tr, p_tr), (f_te, p_te) = feats(tr), feats(te)
+    y = np.asarray(tr["angles_deg"], np.float64)
+    ym, ys = y.mean(0), y.std(0) + 1e-6
+
+    def fit_predict(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        torch.manual_seed(seed)
+        mu, sd = a.mean(0), a.std(0) + 1e-6
+        x = torch.tensor((a - mu) / sd, dtype=torch.float32)
+        t = torch.tensor((y - ym) / ys, dtype=torch.float32)
+        net = nn.Sequential(nn.Linear(a.shape[1], 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, 12))
+        opt = torch.optim.AdamW(net.parameters(), 2e-3)
+        sch = torch.optim.lr_scheduler.OneCycleLR(opt, 2e-3, total_steps=steps)
+        for _ in range(steps):
+            i = torch.randint(0, len(x), (128,))
+            loss = (net(x[i]) - t[i]).abs().mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sch.step()
+        with torch.no_grad():
+            return net(torch.tensor((b - mu) / sd, dtype=torch.float32)).numpy() * ys + ym
+
+    gt = np.asarray(te["angles_deg"], np.float64)
+    keep = ("mae_deg", "rmse_deg", "acc1", "acc5")
+    out = {}
+    for name, a, b in (("tips", f_tr, f_te), ("tips_and_placement", np.hstack([f_tr, p_tr]), np.hstack([f_te, p_te]))):
+        m = pose_metrics(fit_predict(a, b), gt)
+        out[name] = {k: m[k] for k in keep}
+    return out
 
 
 def information_bound(angles_deg: np.ndarray, grasps: np.ndarray, unobservable: np.ndarray | None = None) -> dict:
@@ -780,10 +839,12 @@ class HandPosePredictor:
         lo, hi = self.info.get("angle_range_deg", (None, None))
         self.lo = np.asarray(lo, np.float64) if lo is not None else None
         self.hi = np.asarray(hi, np.float64) if hi is not None else None
-        if reference is None:
-            from vtrack.dome.handsim import HandDomeSimulator
+        if reference is None:  # the simulated no-contact frame of the sensor the nets were trained on
+            from vtrack.dome.model import DomeConfig
+            from vtrack.dome.simulate import DomeSimulator
 
-            reference = HandDomeSimulator().ir_reference()
+            cfg = DomeConfig.from_dict(blob["dome"]) if "dome" in blob else HAND_DOME
+            reference = DomeSimulator(cfg).reference_image(0.0)
         self.reference = np.asarray(reference, np.uint8)
 
     def predict(self, rgb: np.ndarray | None = None, ir: np.ndarray | None = None) -> HandPoseResult:

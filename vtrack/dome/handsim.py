@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,12 @@ HAND_DOME = DomeConfig(
     pressure_max_kpa=10.0,
     inflation_mm_per_kpa=0.03,
 )
+#: the hand-pose sensor of the ``varied`` set (the default task): the same dome with markers over the whole visible
+#: cap the fingertips reach (74 deg polar, 11 rings = 397 pins at the same ~6.7 deg spacing), as a real FusionTouch
+#: dome has markers over its whole surface. :data:`HAND_DOME` (markers to 68 deg) stays the sensor of the ``mixed``
+#: and ``contact`` sets and of their nets (``weights/handpose.pt``). Only the hand-pose simulation uses either;
+#: the force / reconstruction dome (:class:`DomeConfig` defaults, 20 mm) and its nets are untouched.
+HAND_DOME_FULL = replace(HAND_DOME, marker_rings=11, marker_cap_deg=74.0)
 #: visible-light image side (px); the same fisheye as the IR camera, scaled
 RGB_SIZE = 64
 #: opacity fall-off (mm) of a hand part seen through the diffusing shell
@@ -146,6 +152,14 @@ VARIED_MAX_PEN_MM = 4.0
 #: joint limits (deg): proximal (finger MCP, thumb CMC) and distal (finger PIP, thumb MCP and IP)
 PROX_LIMITS_DEG = (-30.0, 95.0)
 DIST_LIMITS_DEG = (0.0, 110.0)
+
+
+def sensor_config(grasp_set: str) -> DomeConfig:
+    """The hand-pose sensor a grasp set is simulated with: :data:`HAND_DOME_FULL` for ``varied``, else
+    :data:`HAND_DOME` (the sets' cached simulations and shipped nets keep their marker layout)."""
+    if grasp_set not in GRASP_SETS:
+        raise ValueError(f"unknown grasp set {grasp_set!r} ({', '.join(GRASP_SETS)})")
+    return HAND_DOME_FULL if grasp_set == "varied" else HAND_DOME
 
 
 def _unit(polar_deg: float, az_deg: float) -> np.ndarray:
@@ -449,11 +463,11 @@ class HandModel:
 class HandDomeSimulator:
     """Render (RGB, IR) image pairs of the hand holding the dome."""
 
-    def __init__(self, cfg: DomeConfig = HAND_DOME, rgb_size: int = RGB_SIZE, grasp_set: str = "mixed") -> None:
+    def __init__(self, cfg: DomeConfig | None = None, rgb_size: int = RGB_SIZE, grasp_set: str = "mixed") -> None:
+        """``cfg``: the sensor (default :func:`sensor_config` of ``grasp_set``)."""
         from vtrack.dome.simulate import DomeSimulator
 
-        if grasp_set not in GRASP_SETS:
-            raise ValueError(f"unknown grasp set {grasp_set!r} ({', '.join(GRASP_SETS)})")
+        cfg = sensor_config(grasp_set) if cfg is None else cfg
         self.grasp_set = grasp_set
         self.cfg = cfg
         self.sim = DomeSimulator(cfg)
@@ -555,7 +569,7 @@ class HandDomeSimulator:
 def handpose_dataset_path(n: int, seed: int, grasp_set: str = "mixed") -> Path:
     from vtrack.paths import cache_dir
 
-    key = {"n": n, "seed": seed, "cfg": HAND_DOME.to_dict(), "rgb": RGB_SIZE, "v": DATA_VERSION}
+    key = {"n": n, "seed": seed, "cfg": sensor_config(grasp_set).to_dict(), "rgb": RGB_SIZE, "v": DATA_VERSION}
     if grasp_set != "mixed":  # the mixed set keeps its original cache key
         key["grasp_set"] = grasp_set
     h = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:10]
