@@ -344,6 +344,9 @@ class TactilePipeline:
             # noise-aware gate: colour changes below gate_k x the frame's median change are sensor noise
             gate_level = max(gate_level, self.gate_k * level)
         gate = gate_mask_images(work, bg, gate_level)
+        if not gate.any():
+            # no colour change anywhere: zero slopes integrate to a flat gel (what the solvers return, exactly)
+            return img, np.zeros(work.shape[:2], np.float32), gate, quality, drift
         gx, gy = model.slopes_from_images(work, bg, gate)
         s = np.float32(self.mm_per_px * self.downsample)
         gx *= s

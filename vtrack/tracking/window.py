@@ -374,20 +374,9 @@ class WindowTracker:
         d, _ = self.sdf.query(se3.transform_points(_inv(T), P), with_grad=False)
         return float(np.mean(np.abs(d) < self.opts.inlier_dist))
 
-    def _frame_terms(
-        self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1
-    ) -> tuple[np.ndarray, np.ndarray, float]:
-        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
-        frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime)."""
-        o = self.opts
-        nv = fr.n_vision if n_vision < 0 else n_vision
-        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
-        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
-        Tinv = _inv(T)
-        R = T[:3, :3]
-        H = np.zeros((6, 6))
-        b = np.zeros(6)
-        cost = 0.0
+    @staticmethod
+    def _groups(fr: TrackingFrame) -> list[tuple[str, np.ndarray]]:
+        """The frame's point groups in residual order: vision ``v``, touch ``t``, free gel ``f`` (non-empty ones)."""
         groups = []
         if fr.vision_points is not None and len(fr.vision_points):
             groups.append(("v", fr.vision_points))
@@ -395,14 +384,46 @@ class WindowTracker:
             groups.append(("t", fr.touch_points))
         if fr.free_points is not None and len(fr.free_points):
             groups.append(("f", fr.free_points))
+        return groups
+
+    @classmethod
+    def _object_points(cls, T: np.ndarray, fr: TrackingFrame) -> np.ndarray:
+        """The frame's points (:meth:`_groups` order) in the object frame of pose ``T`` (N, 3)."""
+        groups = cls._groups(fr)
+        if not groups:
+            return np.zeros((0, 3))
+        Tinv = _inv(T)
+        return np.concatenate([g[1] for g in groups]) @ Tinv[:3, :3].T + Tinv[:3, 3]
+
+    def _frame_terms(
+        self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1, qdg: tuple | None = None
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
+        frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime).
+        ``qdg``: the frame's object-frame points (:meth:`_object_points`) with their SDF values and gradients,
+        when the caller queried them already (one batched query for the whole window)."""
+        o = self.opts
+        nv = fr.n_vision if n_vision < 0 else n_vision
+        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
+        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
+        R = T[:3, :3]
+        H = np.zeros((6, 6))
+        b = np.zeros(6)
+        cost = 0.0
+        groups = self._groups(fr)
         if not groups:
             return H, b, 0.0
-        allp = np.concatenate([g[1] for g in groups])
-        q = allp @ Tinv[:3, :3].T + Tinv[:3, 3]
-        d, g = self.sdf.query(q)
+        if qdg is None:
+            q = self._object_points(T, fr)
+            d, g = self.sdf.query(q)
+        else:
+            q, d, g = qdg
         J = np.empty((len(q), 6))
         J[:, :3] = -g
-        J[:, 3:] = np.cross(g, q)
+        # g x q written out (np.cross computes the same products; its wrapper costs more than they do)
+        J[:, 3] = g[:, 1] * q[:, 2] - g[:, 2] * q[:, 1]
+        J[:, 4] = g[:, 2] * q[:, 0] - g[:, 0] * q[:, 2]
+        J[:, 5] = g[:, 0] * q[:, 1] - g[:, 1] * q[:, 0]
         s = 0
         for kind, P in groups:
             n = len(P)
@@ -548,19 +569,53 @@ class WindowTracker:
         Uw = U[:, weak]
         return S @ (np.eye(6) - Uw @ Uw.T) @ np.diag([1.0, 1.0, 1.0, L, L, L])
 
-    def _slot_terms(self, s: _Slot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """One slot's data terms at pose T; the contacts see only their constrained part of the motion since
-        ``T_lin`` when the slot has a touch projector (consistent cost: they are evaluated at that projected pose)."""
+    def _slot_parts(self, s: _Slot, T: np.ndarray) -> list[tuple[np.ndarray, TrackingFrame, int]]:
+        """The data-term evaluations ``(pose, frame, n_vision)`` of one slot at pose T: the whole frame, or, when the
+        slot has a touch projector, the frame without its contacts and the contacts alone at the projected pose (the
+        contacts see only their constrained part of the motion since ``T_lin``; consistent cost)."""
         if s.proj_touch is None or s.T_lin is None:
-            return self._frame_terms(T, s.frame, s.n_vision)
+            return [(T, s.frame, s.n_vision)]
         fr = s.frame
         rest = TrackingFrame(t=fr.t, vision_points=fr.vision_points, free_points=fr.free_points, info=fr.info)
         touch = TrackingFrame(t=fr.t, touch_points=fr.touch_points, touch_normals=fr.touch_normals)
         nv = s.n_vision if s.n_vision >= 0 else fr.n_vision
-        H, b, c = self._frame_terms(T, rest, nv)
         P = s.proj_touch
-        Ht, bt, ct = self._frame_terms(s.T_lin @ _exp(P @ _log(_inv(s.T_lin) @ T)), touch, nv)
+        return [(T, rest, nv), (s.T_lin @ _exp(P @ _log(_inv(s.T_lin) @ T)), touch, nv)]
+
+    def _slot_combine(self, s: _Slot, terms: list[tuple[np.ndarray, np.ndarray, float]]):
+        """One slot's data terms from the terms of its :meth:`_slot_parts`."""
+        if len(terms) == 1:
+            return terms[0]
+        (H, b, c), (Ht, bt, ct) = terms
+        P = s.proj_touch
         return H + P.T @ Ht @ P, b + P.T @ bt, c + ct
+
+    def _slot_terms(self, s: _Slot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """One slot's data terms at pose T (see :meth:`_slot_parts`)."""
+        return self._slot_combine(s, [self._frame_terms(Tp, fr, nv) for Tp, fr, nv in self._slot_parts(s, T)])
+
+    def _window_terms(self, slots: list[_Slot]) -> list[tuple[np.ndarray, np.ndarray, float]]:
+        """Every slot's data terms (:meth:`_slot_terms`, at the projected pose for a slot with a projector ``proj``),
+        with ONE SDF query for the points of the whole window (the query is per point: same values as one query
+        per slot, at a third of the call overhead)."""
+        evals = []
+        for s in slots:
+            # the data says nothing reliable along a slot's weak directions: it sees (and pulls) only the strong
+            # part of the motion since T_lin; the motion prior alone carries the rest
+            T = s.T if s.proj is None else s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
+            evals.append(self._slot_parts(s, T))
+        qs = [self._object_points(T, fr) for parts in evals for T, fr, _ in parts]
+        cuts = np.cumsum([len(q) for q in qs])[:-1]
+        q_all = np.concatenate(qs)
+        d_all, g_all = self.sdf.query(q_all) if len(q_all) else (np.zeros(0), np.zeros((0, 3)))
+        dgs = iter(zip(qs, np.split(d_all, cuts), np.split(g_all, cuts), strict=True))
+        out = []
+        for s, parts in zip(slots, evals, strict=True):
+            Hi, bi, ci = self._slot_combine(s, [self._frame_terms(T, fr, nv, next(dgs)) for T, fr, nv in parts])
+            if s.proj is not None:
+                Hi, bi = s.proj.T @ Hi @ s.proj, s.proj.T @ bi
+            out.append((Hi, bi, ci))
+        return out
 
     def _total(self, slots, v_before, dt_first):
         n = len(slots)
@@ -568,15 +623,7 @@ class WindowTracker:
         b = np.zeros(6 * n)
         cost = 0.0
         datas = []
-        for i, s in enumerate(slots):
-            if s.proj is None:
-                Hi, bi, ci = self._slot_terms(s, s.T)
-            else:
-                # the data says nothing reliable along the slot's weak directions: it sees (and pulls) only the
-                # strong part of the motion since T_lin; the motion prior alone carries the rest
-                T_eval = s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
-                Hi, bi, ci = self._slot_terms(s, T_eval)
-                Hi, bi = s.proj.T @ Hi @ s.proj, s.proj.T @ bi
+        for i, (Hi, bi, ci) in enumerate(self._window_terms(slots)):
             datas.append(Hi)
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
             b[6 * i : 6 * i + 6] += bi
