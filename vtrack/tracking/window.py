@@ -463,13 +463,21 @@ class WindowTracker:
                     n_obj = Nw[ok] @ R  # R^T n for each row
                     ghat = gn[ok] / gnorm[ok, None]
                     rn = n_obj - ghat  # (m, 3)
-                    # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected.
-                    Jn = se3.hat(n_obj)  # (m, 3, 3)
+                    # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected. In closed form
+                    # (the same sums as with the (m, 3, 3) hat matrices, in another order): hat(n)^T hat(n) =
+                    # |n|^2 I - n n^T and hat(n)^T r = r x n
                     wn, rhon = _robust_weights(np.linalg.norm(rn, axis=1) / sig_normal, o.robust, 2.0)
                     wn = wn / sig_normal**2
                     cost += float(rhon.sum())
-                    H[3:, 3:] += np.einsum("m,mki,mkj->ij", wn, Jn, Jn)
-                    b[3:] += np.einsum("m,mki,mk->i", wn, Jn, rn)
+                    wnn = n_obj * wn[:, None]
+                    H[3:, 3:] += np.eye(3) * float(np.sum(wnn * n_obj)) - wnn.T @ n_obj
+                    b[3:] += np.stack(
+                        [
+                            wn @ (rn[:, 1] * n_obj[:, 2] - rn[:, 2] * n_obj[:, 1]),
+                            wn @ (rn[:, 2] * n_obj[:, 0] - rn[:, 0] * n_obj[:, 2]),
+                            wn @ (rn[:, 0] * n_obj[:, 1] - rn[:, 1] * n_obj[:, 0]),
+                        ]
+                    )
         return H, b, cost
 
     def _motion_terms(
