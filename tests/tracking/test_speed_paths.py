@@ -166,3 +166,32 @@ def test_surfel_map_insertion_equals_np_insert():
         for k, v in ref.items():
             np.testing.assert_array_equal(getattr(m, k), v)
     assert len(m) > 3000 and np.all(np.diff(m.keys) > 0)
+
+
+def test_scalar_se3_exp_and_log_match_the_matrix_forms():
+    """The window tracker's written-out exp / log equal the hat-matrix formulas (and invert each other)."""
+    from vtrack.geometry import se3
+    from vtrack.tracking.window import _exp, _log
+
+    def hat(v):
+        return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+    rng = np.random.default_rng(1)
+    for scale in (1e-7, 1e-4, 1e-2, 0.3, 2.0):
+        for _ in range(50):
+            xi = rng.normal(size=6) * scale
+            phi, th2 = xi[3:], float(xi[3:] @ xi[3:])
+            if th2 < 1e-10:
+                A, B, C = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+            else:
+                th = np.sqrt(th2)
+                A, B, C = np.sin(th) / th, (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
+            K = hat(phi)
+            T_ref = np.eye(4)
+            T_ref[:3, :3] = np.eye(3) + A * K + B * K @ K
+            T_ref[:3, 3] = (np.eye(3) + B * K + C * K @ K) @ xi[:3]
+            T = _exp(xi)
+            np.testing.assert_allclose(T, T_ref, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(T, se3.make_transform(se3.so3_exp(phi), T[:3, 3]), rtol=0, atol=1e-12)
+            if np.linalg.norm(phi) < 3.0:
+                np.testing.assert_allclose(_log(T), xi, rtol=1e-9, atol=1e-12)

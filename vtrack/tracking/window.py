@@ -31,6 +31,7 @@ the frame is flagged ``lost`` if it fails, never producing NaN.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -194,40 +195,63 @@ def _inv(T: np.ndarray) -> np.ndarray:
 
 
 def _exp(xi: np.ndarray) -> np.ndarray:
-    """se3 exp of one twist [rho, phi]."""
-    rho, phi = xi[:3], xi[3:]
-    th2 = float(phi @ phi)
-    K = _hat3(phi)
+    """se3 exp of one twist [rho, phi] (written out on Python floats: one small array instead of a dozen 3x3
+    products; equal to ``I + A K + B K^2`` / ``(I + B K + C K^2) rho`` with ``K = hat(phi)`` to rounding)."""
+    r0, r1, r2, p0, p1, p2 = (float(v) for v in xi)
+    th2 = p0 * p0 + p1 * p1 + p2 * p2
     if th2 < 1e-10:
         A, B, C = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
     else:
-        th = np.sqrt(th2)
-        A, B, C = np.sin(th) / th, (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
-    K2 = K @ K
-    T = np.eye(4)
-    T[:3, :3] = np.eye(3) + A * K + B * K2
-    T[:3, 3] = (np.eye(3) + B * K + C * K2) @ rho
-    return T
+        th = math.sqrt(th2)
+        s, c = math.sin(th), math.cos(th)
+        A, B, C = s / th, (1.0 - c) / th2, (th - s) / (th2 * th)
+    # K^2 = phi phi^T - |phi|^2 I
+    q00, q11, q22 = p0 * p0 - th2, p1 * p1 - th2, p2 * p2 - th2
+    q01, q02, q12 = p0 * p1, p0 * p2, p1 * p2
+    v00, v01, v02 = 1.0 + C * q00, -B * p2 + C * q01, B * p1 + C * q02
+    v10, v11, v12 = B * p2 + C * q01, 1.0 + C * q11, -B * p0 + C * q12
+    v20, v21, v22 = -B * p1 + C * q02, B * p0 + C * q12, 1.0 + C * q22
+    return np.array(
+        [
+            [1.0 + B * q00, -A * p2 + B * q01, A * p1 + B * q02, v00 * r0 + v01 * r1 + v02 * r2],
+            [A * p2 + B * q01, 1.0 + B * q11, -A * p0 + B * q12, v10 * r0 + v11 * r1 + v12 * r2],
+            [-A * p1 + B * q02, A * p0 + B * q12, 1.0 + B * q22, v20 * r0 + v21 * r1 + v22 * r2],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def _log(T: np.ndarray) -> np.ndarray:
-    """se3 log of one rigid transform (falls back to the batched routine near pi)."""
-    R = T[:3, :3]
-    c = (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0
+    """se3 log of one rigid transform (falls back to the batched routine near pi); written out on Python floats
+    like :func:`_exp`."""
+    (R00, R01, R02, t0), (R10, R11, R12, t1), (R20, R21, R22, t2) = T[:3].tolist()
+    c = (R00 + R11 + R22 - 1.0) / 2.0
     if c < -0.99:
         return se3.se3_log(T)
     c = min(1.0, c)
-    th = np.arccos(c)
-    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    th = math.acos(c)
+    w0, w1, w2 = 0.5 * (R21 - R12), 0.5 * (R02 - R20), 0.5 * (R10 - R01)
     if th < 1e-5:
-        phi = w * (1.0 + th * th / 6.0)
+        f = 1.0 + th * th / 6.0
         D = 1.0 / 12.0
     else:
-        phi = w * (th / np.sin(th))
-        D = 1.0 / (th * th) - np.cos(th / 2.0) / (2.0 * th * np.sin(th / 2.0))
-    K = _hat3(phi)
-    rho = (np.eye(3) - 0.5 * K + D * (K @ K)) @ T[:3, 3]
-    return np.concatenate([rho, phi])
+        f = th / math.sin(th)
+        D = 1.0 / (th * th) - math.cos(th / 2.0) / (2.0 * th * math.sin(th / 2.0))
+    p0, p1, p2 = w0 * f, w1 * f, w2 * f
+    n2 = p0 * p0 + p1 * p1 + p2 * p2
+    # (I - K / 2 + D K^2) t with K = hat(phi), K^2 = phi phi^T - |phi|^2 I
+    q00, q11, q22 = p0 * p0 - n2, p1 * p1 - n2, p2 * p2 - n2
+    q01, q02, q12 = p0 * p1, p0 * p2, p1 * p2
+    return np.array(
+        [
+            (1.0 + D * q00) * t0 + (0.5 * p2 + D * q01) * t1 + (-0.5 * p1 + D * q02) * t2,
+            (-0.5 * p2 + D * q01) * t0 + (1.0 + D * q11) * t1 + (0.5 * p0 + D * q12) * t2,
+            (0.5 * p1 + D * q02) * t0 + (-0.5 * p0 + D * q12) * t1 + (1.0 + D * q22) * t2,
+            p0,
+            p1,
+            p2,
+        ]
+    )
 
 
 def _adjoint(T: np.ndarray) -> np.ndarray:
