@@ -137,37 +137,6 @@ def test_window_terms_with_one_query_equal_the_per_slot_terms(tiny_session):
     assert len(checked) > 20 and max(checked) == trk.opts.window  # full windows were compared
 
 
-def test_surfel_map_insertion_equals_np_insert():
-    """The map's one-pass insertion of new voxels keeps the arrays np.insert would build (sorted keys)."""
-    from vtrack.tracking.slam import SurfelMap
-
-    rng = np.random.default_rng(0)
-    m = SurfelMap(0.002)
-    ref = {"keys": np.zeros(0, np.int64), "psum": np.zeros((0, 3)), "nsum": np.zeros((0, 3)), "w": np.zeros(0)}
-    for _ in range(12):
-        P = rng.normal(size=(400, 3)) * 0.03
-        N = rng.normal(size=(400, 3))
-        uk, inv = np.unique(m._key(P), return_inverse=True)
-        pos = np.searchsorted(ref["keys"], uk)
-        hit = pos < len(ref["keys"])
-        hit[hit] = ref["keys"][pos[hit]] == uk[hit]
-        sums = {
-            "psum": np.stack([np.bincount(inv, weights=P[:, c], minlength=len(uk)) for c in range(3)], 1),
-            "nsum": np.stack([np.bincount(inv, weights=N[:, c], minlength=len(uk)) for c in range(3)], 1),
-            "w": np.bincount(inv, minlength=len(uk)) * 1.0,
-        }
-        for k, v in sums.items():
-            ref[k][pos[hit]] += v[hit]
-        at = pos[~hit]
-        ref["keys"] = np.insert(ref["keys"], at, uk[~hit])
-        for k, v in sums.items():
-            ref[k] = np.insert(ref[k], at, v[~hit], axis=0)
-        m.integrate(P, N, 1.0)
-        for k, v in ref.items():
-            np.testing.assert_array_equal(getattr(m, k), v)
-    assert len(m) > 3000 and np.all(np.diff(m.keys) > 0)
-
-
 def test_scalar_se3_exp_and_log_match_the_matrix_forms():
     """The window tracker's written-out exp / log equal the hat-matrix formulas (and invert each other)."""
     from vtrack.geometry import se3

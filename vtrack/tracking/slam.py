@@ -80,15 +80,11 @@ class SurfelMap:
         self.w[ph] += ws[hit]
         new = ~hit
         if new.any():
-            # = np.insert(a, pos[new], values) for the four arrays (at is sorted: new item j lands at at[j] + j),
-            # with the merged layout computed once
             at = pos[new]
-            slot = np.zeros(len(self.keys) + len(at), bool)
-            slot[at + np.arange(len(at))] = True
-            self.keys = _merge(self.keys, uk[new], slot)
-            self.psum = _merge(self.psum, ps[new], slot)
-            self.nsum = _merge(self.nsum, ns[new], slot)
-            self.w = _merge(self.w, ws[new], slot)
+            self.keys = np.insert(self.keys, at, uk[new])
+            self.psum = np.insert(self.psum, at, ps[new], axis=0)
+            self.nsum = np.insert(self.nsum, at, ns[new], axis=0)
+            self.w = np.insert(self.w, at, ws[new])
             self.n_new += int(new.sum())
 
     def surfels(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,14 +93,6 @@ class SurfelMap:
         n = np.linalg.norm(self.nsum, axis=1, keepdims=True)
         N = np.where(n > 1e-6, self.nsum / np.maximum(n, 1e-12), 0.0)
         return P, N, self.w
-
-
-def _merge(old: np.ndarray, new: np.ndarray, slot: np.ndarray) -> np.ndarray:
-    """``old`` rows with ``new`` rows placed where ``slot`` is True (in order)."""
-    out = np.empty((len(slot), *old.shape[1:]), np.result_type(old, new))
-    out[slot] = new
-    out[~slot] = old
-    return out
 
 
 def estimate_normals(
