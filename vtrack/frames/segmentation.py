@@ -290,11 +290,14 @@ class HandAwareSegmenter:
         casters = self._link_casters()
         d_cam = np.stack([self._rx[rows, cols], self._ry[rows, cols], np.ones(len(rows))], axis=1)
         t_best = np.full(len(rows), np.inf)
-        for link, (u0, u1, v0, v1) in boxes.items():
+        # every link's box test of every band pixel at once ((links, pixels) booleans; one pass instead of a loop)
+        bx = np.array(list(boxes.values()), np.int64).reshape(-1, 4)
+        in_box = (cols >= bx[:, 0:1]) & (cols <= bx[:, 1:2]) & (rows >= bx[:, 2:3]) & (rows <= bx[:, 3:4])
+        for link, in_link in zip(boxes, in_box, strict=True):
             caster = casters.get(link)
-            inside = np.flatnonzero((cols >= u0) & (cols <= u1) & (rows >= v0) & (rows <= v1))
-            if caster is None or not len(inside):
+            if caster is None or not in_link.any():
                 continue
+            inside = np.flatnonzero(in_link)
             # rays into the link frame (rigid: the ray parameter stays the camera z, since d_cam.z = 1)
             T = Tcl[link]
             R, o = T[:3, :3], T[:3, 3]

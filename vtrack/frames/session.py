@@ -324,7 +324,7 @@ class SessionFrames:
             poses = {s: P[i] for s, P in self.sensor_poses.items()}
         info: dict = {}
         tp, tn, pen, sid, free = [], [], [], [], []
-        contact_free: list[np.ndarray] = []  # gel points beside the contact patches (used in frames without vision)
+        in_contact: list[tuple[str, np.ndarray, Contact]] = []  # for the gel points beside the patches (see below)
         contacts: dict[str, Contact] = {}
         assert self.touch is not None or not raw["touch"]
         for s, data in raw["touch"]:
@@ -339,8 +339,7 @@ class SessionFrames:
                 tn.append(-se3.rotate_vectors(T_ws, c.normals))
                 pen.append(c.penetration_mm)
                 sid.append(np.full(len(c.points), self.touch.sensors.index(s)))  # type: ignore[union-attr]
-                if self.contact_free_max_vision > 0:
-                    contact_free.append(se3.transform_points(T_ws, self._beside_patch(s, c)))
+                in_contact.append((s, T_ws, c))
             elif c.valid:
                 free.append(se3.transform_points(T_ws, self._gel(s)))
         touch_points = _cat(tp)
@@ -369,8 +368,9 @@ class SessionFrames:
             pts, _ = cam.unproject(z, mask=mask, depth_scale=1.0)
             if len(pts):
                 vis.append(se3.transform_points(c.T_wc, pts))
-        if contact_free and sum(len(v) for v in vis) < self.contact_free_max_vision:
-            free.extend(contact_free)
+        if in_contact and sum(len(v) for v in vis) < self.contact_free_max_vision:
+            # gel points beside the contact patches, only in frames without (enough) vision: built only then
+            free.extend(se3.transform_points(T_ws, self._beside_patch(s, c)) for s, T_ws, c in in_contact)
         return Frame(
             t=t,
             vision_points=_cat(vis),

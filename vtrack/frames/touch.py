@@ -137,10 +137,9 @@ class TouchSource:
                 return _empty()
             P, N = TactilePipeline.contact_points(h, m, mmpp, self.point_stride)
         else:
-            fr = self.pipelines[sensor].process(raw, full_res=False)  # points only: no full-size maps
-            if fr.quality != "ok":
+            P, N, quality = self.pipelines[sensor].contact_only(raw)  # points only: no maps, no statistics
+            if quality != "ok":
                 return _empty(valid=False)
-            P, N = fr.points, fr.normals
             if len(P) < 3:
                 return _empty()
         ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)

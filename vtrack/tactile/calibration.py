@@ -120,14 +120,20 @@ def drift_offset(
     d = a - b
     off = np.zeros(3)
     if max_spread >= 0:
-        for c in range(3):
-            counts = np.bincount(
-                np.clip(d[:, c], -_MODE_RANGE, _MODE_RANGE) + _MODE_RANGE, minlength=2 * _MODE_RANGE + 1
-            ).astype(np.float64)
-            counts = np.convolve(counts, _MODE_KERNEL, mode="same")  # noise spreads the peak over a few levels
-            m = float(np.argmax(counts) - _MODE_RANGE)
-            near = np.abs(d[:, c] - m) <= 2.0
-            off[c] = float(d[near, c].mean()) if near.any() else m
+        # the three channels' histograms in one bincount (channel c at bins c * nb ...); integer counts, so the
+        # smoothing and the means below are exact whatever the summation order (= the per-channel loop's values)
+        nb = 2 * _MODE_RANGE + 1
+        counts = np.bincount(
+            (np.clip(d, -_MODE_RANGE, _MODE_RANGE) + (_MODE_RANGE + nb * np.arange(3, dtype=np.int16))).ravel(),
+            minlength=3 * nb,
+        ).reshape(3, nb)
+        cp = np.pad(counts, ((0, 0), (2, 2)))
+        # = np.convolve(counts, _MODE_KERNEL, "same") per channel: noise spreads the peak over a few levels
+        counts = cp[:, :-4] + 2 * cp[:, 1:-3] + 3 * cp[:, 2:-2] + 2 * cp[:, 3:-1] + cp[:, 4:]
+        m = (np.argmax(counts, axis=1) - _MODE_RANGE).astype(np.float64)
+        near = np.abs(d - m) <= 2.0
+        cnt = near.sum(axis=0)
+        off = np.where(cnt > 0, np.where(near, d, 0).sum(axis=0) / np.maximum(cnt, 1), m)
         flat = (np.abs(d - off) <= max(max_spread, 1.0)).all(axis=1)
         if np.abs(off).max() < 1.0 or flat.mean() < 1.0 / 3.0:
             off = np.zeros(3)

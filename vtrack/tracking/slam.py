@@ -398,7 +398,7 @@ class SLAMTracker(WindowTracker):
             self._box = (c - half, c + half)
             return
         lo, hi = self._box
-        plo, phi = np.percentile(P, 0.5, axis=0), np.percentile(P, 99.5, axis=0)
+        plo, phi = np.percentile(P, [0.5, 99.5], axis=0)  # one partition for both (same values)
         if (plo < lo + self.trunc).any() or (phi > hi - self.trunc).any():
             # snap the growth to whole grid voxels so the old grid's samples stay on the new lattice
             v = self.grid_voxel

@@ -31,6 +31,7 @@ the frame is flagged ``lost`` if it fails, never producing NaN.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -194,40 +195,63 @@ def _inv(T: np.ndarray) -> np.ndarray:
 
 
 def _exp(xi: np.ndarray) -> np.ndarray:
-    """se3 exp of one twist [rho, phi]."""
-    rho, phi = xi[:3], xi[3:]
-    th2 = float(phi @ phi)
-    K = _hat3(phi)
+    """se3 exp of one twist [rho, phi] (written out on Python floats: one small array instead of a dozen 3x3
+    products; equal to ``I + A K + B K^2`` / ``(I + B K + C K^2) rho`` with ``K = hat(phi)`` to rounding)."""
+    r0, r1, r2, p0, p1, p2 = (float(v) for v in xi)
+    th2 = p0 * p0 + p1 * p1 + p2 * p2
     if th2 < 1e-10:
         A, B, C = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
     else:
-        th = np.sqrt(th2)
-        A, B, C = np.sin(th) / th, (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
-    K2 = K @ K
-    T = np.eye(4)
-    T[:3, :3] = np.eye(3) + A * K + B * K2
-    T[:3, 3] = (np.eye(3) + B * K + C * K2) @ rho
-    return T
+        th = math.sqrt(th2)
+        s, c = math.sin(th), math.cos(th)
+        A, B, C = s / th, (1.0 - c) / th2, (th - s) / (th2 * th)
+    # K^2 = phi phi^T - |phi|^2 I
+    q00, q11, q22 = p0 * p0 - th2, p1 * p1 - th2, p2 * p2 - th2
+    q01, q02, q12 = p0 * p1, p0 * p2, p1 * p2
+    v00, v01, v02 = 1.0 + C * q00, -B * p2 + C * q01, B * p1 + C * q02
+    v10, v11, v12 = B * p2 + C * q01, 1.0 + C * q11, -B * p0 + C * q12
+    v20, v21, v22 = -B * p1 + C * q02, B * p0 + C * q12, 1.0 + C * q22
+    return np.array(
+        [
+            [1.0 + B * q00, -A * p2 + B * q01, A * p1 + B * q02, v00 * r0 + v01 * r1 + v02 * r2],
+            [A * p2 + B * q01, 1.0 + B * q11, -A * p0 + B * q12, v10 * r0 + v11 * r1 + v12 * r2],
+            [-A * p1 + B * q02, A * p0 + B * q12, 1.0 + B * q22, v20 * r0 + v21 * r1 + v22 * r2],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def _log(T: np.ndarray) -> np.ndarray:
-    """se3 log of one rigid transform (falls back to the batched routine near pi)."""
-    R = T[:3, :3]
-    c = (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0
+    """se3 log of one rigid transform (falls back to the batched routine near pi); written out on Python floats
+    like :func:`_exp`."""
+    (R00, R01, R02, t0), (R10, R11, R12, t1), (R20, R21, R22, t2) = T[:3].tolist()
+    c = (R00 + R11 + R22 - 1.0) / 2.0
     if c < -0.99:
         return se3.se3_log(T)
     c = min(1.0, c)
-    th = np.arccos(c)
-    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    th = math.acos(c)
+    w0, w1, w2 = 0.5 * (R21 - R12), 0.5 * (R02 - R20), 0.5 * (R10 - R01)
     if th < 1e-5:
-        phi = w * (1.0 + th * th / 6.0)
+        f = 1.0 + th * th / 6.0
         D = 1.0 / 12.0
     else:
-        phi = w * (th / np.sin(th))
-        D = 1.0 / (th * th) - np.cos(th / 2.0) / (2.0 * th * np.sin(th / 2.0))
-    K = _hat3(phi)
-    rho = (np.eye(3) - 0.5 * K + D * (K @ K)) @ T[:3, 3]
-    return np.concatenate([rho, phi])
+        f = th / math.sin(th)
+        D = 1.0 / (th * th) - math.cos(th / 2.0) / (2.0 * th * math.sin(th / 2.0))
+    p0, p1, p2 = w0 * f, w1 * f, w2 * f
+    n2 = p0 * p0 + p1 * p1 + p2 * p2
+    # (I - K / 2 + D K^2) t with K = hat(phi), K^2 = phi phi^T - |phi|^2 I
+    q00, q11, q22 = p0 * p0 - n2, p1 * p1 - n2, p2 * p2 - n2
+    q01, q02, q12 = p0 * p1, p0 * p2, p1 * p2
+    return np.array(
+        [
+            (1.0 + D * q00) * t0 + (0.5 * p2 + D * q01) * t1 + (-0.5 * p1 + D * q02) * t2,
+            (-0.5 * p2 + D * q01) * t0 + (1.0 + D * q11) * t1 + (0.5 * p0 + D * q12) * t2,
+            (0.5 * p1 + D * q02) * t0 + (-0.5 * p0 + D * q12) * t1 + (1.0 + D * q22) * t2,
+            p0,
+            p1,
+            p2,
+        ]
+    )
 
 
 def _adjoint(T: np.ndarray) -> np.ndarray:
@@ -374,20 +398,9 @@ class WindowTracker:
         d, _ = self.sdf.query(se3.transform_points(_inv(T), P), with_grad=False)
         return float(np.mean(np.abs(d) < self.opts.inlier_dist))
 
-    def _frame_terms(
-        self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1
-    ) -> tuple[np.ndarray, np.ndarray, float]:
-        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
-        frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime)."""
-        o = self.opts
-        nv = fr.n_vision if n_vision < 0 else n_vision
-        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
-        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
-        Tinv = _inv(T)
-        R = T[:3, :3]
-        H = np.zeros((6, 6))
-        b = np.zeros(6)
-        cost = 0.0
+    @staticmethod
+    def _groups(fr: TrackingFrame) -> list[tuple[str, np.ndarray]]:
+        """The frame's point groups in residual order: vision ``v``, touch ``t``, free gel ``f`` (non-empty ones)."""
         groups = []
         if fr.vision_points is not None and len(fr.vision_points):
             groups.append(("v", fr.vision_points))
@@ -395,14 +408,46 @@ class WindowTracker:
             groups.append(("t", fr.touch_points))
         if fr.free_points is not None and len(fr.free_points):
             groups.append(("f", fr.free_points))
+        return groups
+
+    @classmethod
+    def _object_points(cls, T: np.ndarray, fr: TrackingFrame) -> np.ndarray:
+        """The frame's points (:meth:`_groups` order) in the object frame of pose ``T`` (N, 3)."""
+        groups = cls._groups(fr)
+        if not groups:
+            return np.zeros((0, 3))
+        Tinv = _inv(T)
+        return np.concatenate([g[1] for g in groups]) @ Tinv[:3, :3].T + Tinv[:3, 3]
+
+    def _frame_terms(
+        self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1, qdg: tuple | None = None
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
+        frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime).
+        ``qdg``: the frame's object-frame points (:meth:`_object_points`) with their SDF values and gradients,
+        when the caller queried them already (one batched query for the whole window)."""
+        o = self.opts
+        nv = fr.n_vision if n_vision < 0 else n_vision
+        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
+        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
+        R = T[:3, :3]
+        H = np.zeros((6, 6))
+        b = np.zeros(6)
+        cost = 0.0
+        groups = self._groups(fr)
         if not groups:
             return H, b, 0.0
-        allp = np.concatenate([g[1] for g in groups])
-        q = allp @ Tinv[:3, :3].T + Tinv[:3, 3]
-        d, g = self.sdf.query(q)
+        if qdg is None:
+            q = self._object_points(T, fr)
+            d, g = self.sdf.query(q)
+        else:
+            q, d, g = qdg
         J = np.empty((len(q), 6))
         J[:, :3] = -g
-        J[:, 3:] = np.cross(g, q)
+        # g x q written out (np.cross computes the same products; its wrapper costs more than they do)
+        J[:, 3] = g[:, 1] * q[:, 2] - g[:, 2] * q[:, 1]
+        J[:, 4] = g[:, 2] * q[:, 0] - g[:, 0] * q[:, 2]
+        J[:, 5] = g[:, 0] * q[:, 1] - g[:, 1] * q[:, 0]
         s = 0
         for kind, P in groups:
             n = len(P)
@@ -442,13 +487,21 @@ class WindowTracker:
                     n_obj = Nw[ok] @ R  # R^T n for each row
                     ghat = gn[ok] / gnorm[ok, None]
                     rn = n_obj - ghat  # (m, 3)
-                    # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected.
-                    Jn = se3.hat(n_obj)  # (m, 3, 3)
+                    # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected. In closed form
+                    # (the same sums as with the (m, 3, 3) hat matrices, in another order): hat(n)^T hat(n) =
+                    # |n|^2 I - n n^T and hat(n)^T r = r x n
                     wn, rhon = _robust_weights(np.linalg.norm(rn, axis=1) / sig_normal, o.robust, 2.0)
                     wn = wn / sig_normal**2
                     cost += float(rhon.sum())
-                    H[3:, 3:] += np.einsum("m,mki,mkj->ij", wn, Jn, Jn)
-                    b[3:] += np.einsum("m,mki,mk->i", wn, Jn, rn)
+                    wnn = n_obj * wn[:, None]
+                    H[3:, 3:] += np.eye(3) * float(np.sum(wnn * n_obj)) - wnn.T @ n_obj
+                    b[3:] += np.stack(
+                        [
+                            wn @ (rn[:, 1] * n_obj[:, 2] - rn[:, 2] * n_obj[:, 1]),
+                            wn @ (rn[:, 2] * n_obj[:, 0] - rn[:, 0] * n_obj[:, 2]),
+                            wn @ (rn[:, 0] * n_obj[:, 1] - rn[:, 1] * n_obj[:, 0]),
+                        ]
+                    )
         return H, b, cost
 
     def _motion_terms(
@@ -548,19 +601,53 @@ class WindowTracker:
         Uw = U[:, weak]
         return S @ (np.eye(6) - Uw @ Uw.T) @ np.diag([1.0, 1.0, 1.0, L, L, L])
 
-    def _slot_terms(self, s: _Slot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """One slot's data terms at pose T; the contacts see only their constrained part of the motion since
-        ``T_lin`` when the slot has a touch projector (consistent cost: they are evaluated at that projected pose)."""
+    def _slot_parts(self, s: _Slot, T: np.ndarray) -> list[tuple[np.ndarray, TrackingFrame, int]]:
+        """The data-term evaluations ``(pose, frame, n_vision)`` of one slot at pose T: the whole frame, or, when the
+        slot has a touch projector, the frame without its contacts and the contacts alone at the projected pose (the
+        contacts see only their constrained part of the motion since ``T_lin``; consistent cost)."""
         if s.proj_touch is None or s.T_lin is None:
-            return self._frame_terms(T, s.frame, s.n_vision)
+            return [(T, s.frame, s.n_vision)]
         fr = s.frame
         rest = TrackingFrame(t=fr.t, vision_points=fr.vision_points, free_points=fr.free_points, info=fr.info)
         touch = TrackingFrame(t=fr.t, touch_points=fr.touch_points, touch_normals=fr.touch_normals)
         nv = s.n_vision if s.n_vision >= 0 else fr.n_vision
-        H, b, c = self._frame_terms(T, rest, nv)
         P = s.proj_touch
-        Ht, bt, ct = self._frame_terms(s.T_lin @ _exp(P @ _log(_inv(s.T_lin) @ T)), touch, nv)
+        return [(T, rest, nv), (s.T_lin @ _exp(P @ _log(_inv(s.T_lin) @ T)), touch, nv)]
+
+    def _slot_combine(self, s: _Slot, terms: list[tuple[np.ndarray, np.ndarray, float]]):
+        """One slot's data terms from the terms of its :meth:`_slot_parts`."""
+        if len(terms) == 1:
+            return terms[0]
+        (H, b, c), (Ht, bt, ct) = terms
+        P = s.proj_touch
         return H + P.T @ Ht @ P, b + P.T @ bt, c + ct
+
+    def _slot_terms(self, s: _Slot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """One slot's data terms at pose T (see :meth:`_slot_parts`)."""
+        return self._slot_combine(s, [self._frame_terms(Tp, fr, nv) for Tp, fr, nv in self._slot_parts(s, T)])
+
+    def _window_terms(self, slots: list[_Slot]) -> list[tuple[np.ndarray, np.ndarray, float]]:
+        """Every slot's data terms (:meth:`_slot_terms`, at the projected pose for a slot with a projector ``proj``),
+        with ONE SDF query for the points of the whole window (the query is per point: same values as one query
+        per slot, at a third of the call overhead)."""
+        evals = []
+        for s in slots:
+            # the data says nothing reliable along a slot's weak directions: it sees (and pulls) only the strong
+            # part of the motion since T_lin; the motion prior alone carries the rest
+            T = s.T if s.proj is None else s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
+            evals.append(self._slot_parts(s, T))
+        qs = [self._object_points(T, fr) for parts in evals for T, fr, _ in parts]
+        cuts = np.cumsum([len(q) for q in qs])[:-1]
+        q_all = np.concatenate(qs)
+        d_all, g_all = self.sdf.query(q_all) if len(q_all) else (np.zeros(0), np.zeros((0, 3)))
+        dgs = iter(zip(qs, np.split(d_all, cuts), np.split(g_all, cuts), strict=True))
+        out = []
+        for s, parts in zip(slots, evals, strict=True):
+            Hi, bi, ci = self._slot_combine(s, [self._frame_terms(T, fr, nv, next(dgs)) for T, fr, nv in parts])
+            if s.proj is not None:
+                Hi, bi = s.proj.T @ Hi @ s.proj, s.proj.T @ bi
+            out.append((Hi, bi, ci))
+        return out
 
     def _total(self, slots, v_before, dt_first):
         n = len(slots)
@@ -568,15 +655,7 @@ class WindowTracker:
         b = np.zeros(6 * n)
         cost = 0.0
         datas = []
-        for i, s in enumerate(slots):
-            if s.proj is None:
-                Hi, bi, ci = self._slot_terms(s, s.T)
-            else:
-                # the data says nothing reliable along the slot's weak directions: it sees (and pulls) only the
-                # strong part of the motion since T_lin; the motion prior alone carries the rest
-                T_eval = s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
-                Hi, bi, ci = self._slot_terms(s, T_eval)
-                Hi, bi = s.proj.T @ Hi @ s.proj, s.proj.T @ bi
+        for i, (Hi, bi, ci) in enumerate(self._window_terms(slots)):
             datas.append(Hi)
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
             b[6 * i : 6 * i + 6] += bi
