@@ -78,7 +78,7 @@ def _pose_net(n_out: int = 4):
     ).to(torch.float32)  # fmt: skip
 
 
-def _soft_argmax_net(n_out: int = 4, attention_angle: bool = False):
+def _soft_argmax_net(n_out: int = 4, angle: str = "pooled", sym: int = 4):
     """Pose CNN whose x, y come from a spatial soft-argmax over a predicted contact map (the expected pixel
     coordinate under a softmax over the 40x30 map), and whose angle (cos, sin) comes from pooled features.
 
@@ -88,9 +88,14 @@ def _soft_argmax_net(n_out: int = 4, attention_angle: bool = False):
     reference; the flat head of :func:`_pose_net` must instead learn each position from its own examples
     through a dense layer over 5x4 cells (64 px wide at 320x240).
 
-    ``attention_angle``: the angle head reads the multi-scale features pooled with the contact map's own
-    softmax weights (attention pooling) instead of the global mean of the coarsest features, so it sees the
-    contact and not the empty gel around it, wherever the contact is (head ``heatmap``)."""
+    ``angle``: where (cos k*theta, sin k*theta) comes from:
+    - ``pooled``: an MLP on the global mean of the coarsest features (head ``softargmax``);
+    - ``attention``: an MLP on the multi-scale features pooled with the contact map's own softmax weights, so
+      it sees the contact and not the empty gel around it, wherever the contact is (head ``heatmap``);
+    - ``moments``: the ``sym``-fold complex moment ``sum w (d_x + i d_y)^sym / sum w |d|^sym`` of a second
+      learned non-negative map ``w`` about the soft-argmax centre (``sym`` = 2: the principal axis of ``w``;
+      4 for the cross), rotated by one learned offset: a learned version of :func:`weighted_moments_pose`,
+      equivariant to translation and (up to the grid) rotation (head ``moments``)."""
     import torch
     from torch import nn
 
@@ -112,12 +117,20 @@ def _soft_argmax_net(n_out: int = 4, attention_angle: bool = False):
                 nn.Conv2d(16, 1, 3, padding=1),
             )
             # n_out == 2: position only (the real ball presses have no angle)
-            n_ang = 16 + 32 + 48 if attention_angle else 48
+            n_ang = 16 + 32 + 48 if angle == "attention" else 48
             self.ang = (
                 nn.Sequential(nn.Linear(n_ang, 64), nn.ReLU(inplace=True), nn.Linear(64, n_out - 2))
-                if n_out > 2
+                if n_out > 2 and angle in ("pooled", "attention")
                 else None
             )
+            if n_out > 2 and angle == "moments":
+                self.wmap = nn.Sequential(
+                    nn.Conv2d(16 + 32 + 48, 16, 1),
+                    nn.BatchNorm2d(16),
+                    nn.ReLU(inplace=True),
+                    nn.Conv2d(16, 1, 3, padding=1),
+                )
+                self.offset = nn.Parameter(torch.zeros(()))  # learned rotation of the moment (rad of k*theta)
             self.n_out = n_out
 
         def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -129,8 +142,29 @@ def _soft_argmax_net(n_out: int = 4, attention_angle: bool = False):
             xy, p = soft_argmax(h[:, 0])
             if self.n_out == 2:
                 return xy
-            pooled = (f * p[:, None]).sum((2, 3)) if attention_angle else f3.mean((2, 3))
+            if angle == "moments":
+                return torch.cat([xy, self._moment_angle(f, p)], 1)
+            pooled = (f * p[:, None]).sum((2, 3)) if angle == "attention" else f3.mean((2, 3))
             return torch.cat([xy, self.ang(pooled)], 1)
+
+        def _moment_angle(self, f: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+            w = nn.functional.softplus(self.wmap(f)[:, 0])  # (B, 30, 40) >= 0
+            Hh, Wh = w.shape[1:]
+            # cell-index coordinates (square 8 px cells at 320x240, so the moment is isotropic), / 8 for range
+            ix = torch.arange(Wh, dtype=f.dtype)
+            iy = torch.arange(Hh, dtype=f.dtype)
+            cx = (p.sum(1) * ix).sum(1)
+            cy = (p.sum(2) * iy).sum(1)
+            dx = (ix[None, None, :] - cx[:, None, None]) / 8.0
+            dy = (iy[None, :, None] - cy[:, None, None]) / 8.0
+            c = torch.complex(dx, dy)
+            z = c
+            for _ in range(sym - 1):
+                z = z * c
+            num = (w * z).sum((1, 2))
+            den = (w * (dx * dx + dy * dy) ** (sym / 2)).sum((1, 2)) + 1e-6
+            v = num / den * torch.exp(1j * self.offset)
+            return torch.stack([v.real, v.imag], 1)
 
     return SoftArgmaxPose().to(torch.float32)
 
@@ -150,11 +184,17 @@ def soft_argmax(logits):
 
 def _heatmap_net(n_out: int = 4):
     """:func:`_soft_argmax_net` with the angle read through the contact map's attention pooling."""
-    return _soft_argmax_net(n_out, attention_angle=True)
+    return _soft_argmax_net(n_out, angle="attention")
+
+
+def _moments_net(n_out: int = 4, sym: int = 4):
+    """:func:`_soft_argmax_net` with the angle from the ``sym``-fold moment of a learned map (4: the cross of
+    :func:`pose_study`)."""
+    return _soft_argmax_net(n_out, angle="moments", sym=sym)
 
 
 #: pose-regressor heads of :func:`pose_study`
-POSE_HEADS = {"flat": _pose_net, "softargmax": _soft_argmax_net, "heatmap": _heatmap_net}
+POSE_HEADS = {"flat": _pose_net, "softargmax": _soft_argmax_net, "heatmap": _heatmap_net, "moments": _moments_net}
 
 
 def weighted_moments_pose(
