@@ -140,3 +140,18 @@ def test_moments_angle_reads_the_orientation_of_a_cross_shaped_map(theta):
         got = np.degrees(np.arctan2(cs[1], cs[0])) / 4
         assert abs((got - theta + 45) % 90 - 45) < 3.0
         assert 0.3 < np.hypot(*cs) <= 1.0 + 1e-6  # a normalised moment
+
+
+def test_pose_errors_split_the_x_error_into_bias_tail_and_range_ends():
+    from vtrack.bench.generate import _pose_errors
+
+    W, H = 320, 240
+    poses = np.array([[100.0, 120.0, 10.0], [160.0, 120.0, 10.0], [250.0, 120.0, 10.0], [60.0, 120.0, 10.0]])
+    x = poses[:, 0] + np.array([2.0, 2.0, -10.0, 6.0])  # px errors; 250 and 60 lie at the ends (|x-160| > 80)
+    a = np.radians(poses[:, 2] * 4)
+    pred = np.stack([x / W * 2 - 1, poses[:, 1] / H * 2 - 1, np.cos(a), np.sin(a)], 1)
+    e = _pose_errors(pred, poses, W, H, 4)
+    assert e["x_err_px"] == pytest.approx(5.0) and e["x_bias_px"] == pytest.approx(0.0)
+    assert e["x_err_edge_px"] == pytest.approx(8.0) and e["x_err_centre_px"] == pytest.approx(2.0)
+    assert e["y_err_px"] == pytest.approx(0.0, abs=1e-9) and e["angle_err_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert e["x_err_p90_px"] == pytest.approx(np.percentile([2, 2, 10, 6], 90))

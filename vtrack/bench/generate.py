@@ -698,7 +698,10 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
         table.add(
             method="throughput 320x240", setting=f"{th} torch thread(s), batch 32", ms=1e3 / ips, images_per_s=ips
         )
-    for r in pose_study(quick, seconds=30.0 if quick else 90.0):
+    # soft-argmax head (position-equivariant; docs/benchmarks/generate_pose_softargmax.json) at the record's
+    # fixed 2,500 steps, so the rows do not depend on the machine's load (quick: 30 s of wall clock per CNN)
+    pose_kw = {"seconds": 30.0} if quick else {"steps": 2500}
+    for r in pose_study(quick, heads=("softargmax",), moments_row=True, **pose_kw):
         table.add(
             method=f"pose study: {r['method']}",
             setting=f"SIMULATED cross presses; train {r['train']}",
@@ -723,8 +726,8 @@ def run(quick: bool = False, press_dir: str | Path | None = None) -> BenchTable:
         "Throughput on simulated 320x240 GelSight references; the machine is shared (load varies), so ms are "
         "upper bounds.",
         "Pose-study rows (paper Table 2 analogue) are on SIMULATED data: an unseen optical-model unit (seed 4242), "
-        "cross indenter (angle mod 90 deg), 150 test presses, 24 labelled training presses; errors are means "
-        "(px at 320x240, deg); see `vtrack.bench.generate.pose_study`.",
+        "cross indenter (angle mod 90 deg), 150 test presses, 24 labelled training presses, soft-argmax head, "
+        "2,500 Adam steps; errors are means (px at 320x240, deg); see `vtrack.bench.generate.pose_study`.",
         "Force-study rows (paper Table 8 analogue) are on REAL presses: train = the generator's 24 training "
         "presses, test = the 24 held-out ones; depth from the labelled radius (labels are integer px radii, i.e. "
         "depth steps of ~0.06 mm); force = Hertz proxy of the depth (assumed E*); see "
