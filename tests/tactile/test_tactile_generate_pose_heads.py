@@ -155,3 +155,12 @@ def test_pose_errors_split_the_x_error_into_bias_tail_and_range_ends():
     assert e["x_err_edge_px"] == pytest.approx(8.0) and e["x_err_centre_px"] == pytest.approx(2.0)
     assert e["y_err_px"] == pytest.approx(0.0, abs=1e-9) and e["angle_err_deg"] == pytest.approx(0.0, abs=1e-6)
     assert e["x_err_p90_px"] == pytest.approx(np.percentile([2, 2, 10, 6], 90))
+
+
+def test_pose_study_refuses_an_unknown_generated_label_source():
+    import pytest
+
+    from vtrack.bench.generate import pose_study
+
+    with pytest.raises(ValueError, match="gen_labels"):
+        pose_study(quick=True, gen_labels="oracle")
