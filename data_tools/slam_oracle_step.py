@@ -7,8 +7,8 @@ import os
 import sys
 
 import numpy as np
+from slam_oracle_common import OracleMotion
 
-from vtrack.eval.session_gt import SessionGroundTruth
 from vtrack.geometry import se3
 from vtrack.testing.sim import ycb_session
 from vtrack.tracking import run as R
@@ -19,13 +19,12 @@ obj, occ, secs = sys.argv[1], sys.argv[2], float(sys.argv[3])
 opts = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
 mods = tuple(opts.pop("modalities", ["vision", "touch"]))
 p = ycb_session(obj, occ, secs)
-g = SessionGroundTruth.load(p)
-ST = {}
+oracle = OracleMotion(p)
+g = oracle.g
 rows = []
 
 
-def M(t):
-    return g.poses_at(np.array([t]))[0] @ se3.invert(g.poses_at(np.array([ST["t0"]]))[0]) @ ST["T0"]
+M = oracle.pose
 
 
 orig_step = W.WindowTracker.step
@@ -63,23 +62,7 @@ def step(self, frame):
 
 
 W.WindowTracker.step = step
-orig_bt = R.build_tracker
-
-
-def bt(shape, mesh, T_init, **kw):
-    ST["T0"] = T_init.copy()
-    tr = orig_bt(shape, mesh, T_init, **kw)
-    s0 = tr.step
-
-    def s(frame):
-        ST.setdefault("t0", frame.t)
-        return s0(frame)
-
-    tr.step = s
-    return tr
-
-
-R.build_tracker = bt
+oracle.install()
 m = R.track_session(p, "", shape="slam", write=False, modalities=mods, **opts)
 a = np.array(rows)
 print(obj, occ, secs, opts, mods, "motion_err (should be ~0)", round(m["motion_err_mm"], 2))
