@@ -272,21 +272,35 @@ def evaluate_all(
         raise InputError("--quick evaluates the test split only, without the sweep", field="quick")
     data = generate(seed, quick=quick)
     res: dict = {"split": split, "quick": quick, "designs": {}}
+    loaded = {}
     for d in DESIGNS:
         if quick and d == "A":
             continue  # the smoke run compares the two designs the top-level keys need
         f = _model_file(Path(models) if models is not None else shipped_dir(), d)
         if not f.exists():
             continue
-        m, _ = load(models, d)
-        r = E.evaluate(m, data, split=split)
-        r["steering"] = asdict(m.steering)
+        loaded[d], _ = load(models, d)
+        r = E.evaluate(loaded[d], data, split=split)
+        r["steering"] = asdict(loaded[d].steering)
         res["designs"][d] = r
     if "none" not in res["designs"]:
         raise InputError(
             "model folder lacks none.pt", path=models or shipped_dir(), expected="'vtrack language train' output"
         )
-    base = res["designs"]["none"]
+    base, m = res["designs"]["none"], loaded["none"]
+
+    def inference_steering() -> dict:
+        # steering injected at inference only into the unsteered model, position and strength chosen on the
+        # validation contacts (never on the test split), then scored on ``split`` (``data`` is the full set here:
+        # not ``quick``)
+        if "inference_steering" not in res:
+            res["sweep_val"] = E.sweep(m, data, split="val")
+            chosen = E.select_on_val(res["sweep_val"])
+            res["inference_steering"] = {"chosen_on_val": chosen} | E.evaluate_inference_steering(
+                m, data, chosen, split=split
+            )
+        return res["inference_steering"]
+
     if "A-N" in res["designs"]:
         st = res["designs"]["A-N"]
         res["steered_source"] = "A-N design (trained with its injection, paper P1 0.02 + P4 0.5)"
@@ -296,19 +310,13 @@ def evaluate_all(
 
         from vtrack.language.model import Steering
 
-        m, _ = load(models, "none")
         st = E.evaluate(replace(m, steering=Steering("A-N", 0.02, 0.0, 0.0, 0.5)), data, split=split)
         res["steered_source"] = "A-N injected at inference into none at the paper's P1 0.02 + P4 0.5 (--quick)"
     else:
-        m, _ = load(models, "none")
-        full = generate(seed)
-        res["sweep_val"] = E.sweep(m, full, split="val")
-        chosen = E.select_on_val(res["sweep_val"])
-        res["inference_steering"] = {"chosen_on_val": chosen} | E.evaluate_inference_steering(
-            m, full, chosen, split=split
+        st = dict(base) | inference_steering()["A-N"]
+        res["steered_source"] = (
+            f"A-N injected at inference into none, chosen on val: {res['inference_steering']['chosen_on_val']}"
         )
-        st = dict(base) | res["inference_steering"]["A-N"]
-        res["steered_source"] = f"A-N injected at inference into none, chosen on val: {chosen}"
     for k in (
         "r1",
         "r5",
@@ -331,22 +339,13 @@ def evaluate_all(
     if not quick:
         res["description_oracle"] = E.description_oracle(data.subset(data.split == split))
     if sweep:
-        # steering injected at inference only into the unsteered model, position and strength chosen on the
-        # validation contacts (never on the test split), then scored on ``split``
-        m, _ = load(models, "none")
-        full = generate(seed)
-        res["distractor_effect"] = E.distractor_effect(m, full, split=split)
-        if "sweep_val" not in res:
-            res["sweep_val"] = E.sweep(m, full, split="val")
-            chosen = E.select_on_val(res["sweep_val"])
-            res["inference_steering"] = {"chosen_on_val": chosen} | E.evaluate_inference_steering(
-                m, full, chosen, split=split
-            )
-        res["freeform_steering"] = E.steering_freeform(m, full, split=split)
-        res["inference_steering_per_position"] = E.per_position_on_test(m, full, res["sweep_val"], split=split)
-        res["error_breakdown"] = E.error_breakdown(m, full, split=split)
-        res["distractor_variance"] = E.distractor_variance(m, full, split=split)
-        res["heavy_distractors"] = E.steering_heavy_distractors(m, full, split=split)
+        res["distractor_effect"] = E.distractor_effect(m, data, split=split)
+        inference_steering()
+        res["freeform_steering"] = E.steering_freeform(m, data, split=split)
+        res["inference_steering_per_position"] = E.per_position_on_test(m, data, res["sweep_val"], split=split)
+        res["error_breakdown"] = E.error_breakdown(m, data, split=split)
+        res["distractor_variance"] = E.distractor_variance(m, data, split=split)
+        res["heavy_distractors"] = E.steering_heavy_distractors(m, data, split=split)
     return res
 
 
