@@ -536,9 +536,7 @@ def rgb_joint_sensitivity(n_grasps: int = 40, step_deg: float = 5.0, seed: int =
                 qq[j] += step_deg
                 img = sim.render_rgb(sim.hand.capsules(qq, yaw), np.random.default_rng(0), noise=0.0)
                 diff = img.astype(np.float64) - base
-                rows.setdefault((JOINTS[j], state), []).append(
-                    (np.abs(diff).max(), np.sqrt((diff**2).sum()) / (0.015 * 255))
-                )
+                rows.setdefault((JOINTS[j], state), []).append((np.abs(diff).max(), _snr(img, base, RGB_NOISE_GREY)))
     return {
         f"{j}/{st}": {
             "max_grey": float(np.median([r[0] for r in v])),
@@ -561,6 +559,25 @@ def digit_joint_mask(touch: np.ndarray) -> np.ndarray:
         if d.name == "thumb":
             out[:, 0] = touch[:, i]
     return out
+
+
+#: per-pixel noise sigma of the simulated cameras in grey levels (RGB 0.015, IR 0.02 of full scale): the unit of
+#: the matched-filter SNR ``||image change|| / sigma`` of the observability diagnostics below
+RGB_NOISE_GREY, IR_NOISE_GREY = 0.015 * 255, 0.02 * 255
+
+
+def _snr(a: np.ndarray, b: np.ndarray, sigma: float) -> float:
+    """Matched-filter SNR of the change between two images: ``||a - b|| / sigma``."""
+    return float(np.sqrt(((np.asarray(a, np.float64) - b) ** 2).sum()) / sigma)
+
+
+def _noise_free_images(sim, q: np.ndarray, place) -> tuple[np.ndarray, np.ndarray]:
+    """(RGB, IR) float64 noise-free renders of hand pose ``q`` (deg) at ``place`` by ``sim``."""
+    caps = sim.hand.capsules(q, place=place)
+    return (
+        sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
+        sim.render_ir(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
+    )
 
 
 def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -> dict[str, np.ndarray]:
@@ -587,24 +604,17 @@ def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
     sim = HandDomeSimulator(grasp_set="varied")
-
-    def images(q: np.ndarray, place) -> tuple[np.ndarray, np.ndarray]:
-        caps = sim.hand.capsules(q, place=place)
-        rgb = sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64)
-        ir = sim.render_ir(caps, np.random.default_rng(0), noise=0.0).astype(np.float64)
-        return rgb, ir
-
     rgb_snr = np.zeros(q_all.shape)
     ir_snr = np.zeros(q_all.shape)
     for i, (q, pa) in enumerate(zip(q_all, place_all, strict=True)):
         place = HandPlace.from_array(pa)
-        rgb0, ir0 = images(q, place)
+        rgb0, ir0 = _noise_free_images(sim, q, place)
         for j in range(len(JOINTS)):
             qq = q.copy()
             qq[j] += step_deg
-            rgb1, ir1 = images(qq, place)
-            rgb_snr[i, j] = np.sqrt(((rgb1 - rgb0) ** 2).sum()) / (0.015 * 255)
-            ir_snr[i, j] = np.sqrt(((ir1 - ir0) ** 2).sum()) / (0.02 * 255)
+            rgb1, ir1 = _noise_free_images(sim, qq, place)
+            rgb_snr[i, j] = _snr(rgb1, rgb0, RGB_NOISE_GREY)
+            ir_snr[i, j] = _snr(ir1, ir0, IR_NOISE_GREY)
     out = {"rgb_snr": rgb_snr, "ir_snr": ir_snr, "observable": (rgb_snr >= OBS_SNR_MIN) | (ir_snr >= OBS_SNR_MIN)}
     if cache:
         from vtrack.io.jsonio import atomic_savez
@@ -626,13 +636,6 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
     sim = HandDomeSimulator(grasp_set="varied")
     hand, thumb = sim.hand, DIGITS[0]
 
-    def images(q, place):
-        caps = hand.capsules(q, place=place)
-        return (
-            sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
-            sim.render_ir(caps, np.random.default_rng(0), noise=0.0).astype(np.float64),
-        )
-
     dq, snr_rgb, snr_ir = [], [], []
     for q, pa in zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True):
         place = HandPlace.from_array(pa)
@@ -642,10 +645,10 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
             qq = hand.digit_ik(thumb, tip, q, place, r)
             if qq is None:
                 continue
-            (a0, b0), (a1, b1) = images(q, place), images(qq, place)
+            (a0, b0), (a1, b1) = _noise_free_images(sim, q, place), _noise_free_images(sim, qq, place)
             dq.append(float(np.abs(qq - q)[list(thumb.joints)].max()))
-            snr_rgb.append(float(np.sqrt(((a1 - a0) ** 2).sum()) / (0.015 * 255)))
-            snr_ir.append(float(np.sqrt(((b1 - b0) ** 2).sum()) / (0.02 * 255)))
+            snr_rgb.append(_snr(a1, a0, RGB_NOISE_GREY))
+            snr_ir.append(_snr(b1, b0, IR_NOISE_GREY))
             break
     return {
         "grasps": len(dq),
