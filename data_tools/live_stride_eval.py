@@ -66,8 +66,8 @@ def main() -> None:
         sess = ycb_session(obj, a.occlusion, a.seconds)
         for k in (int(x) for x in a.strides.split(",")):
             res = sync_replay(sess, camera_stride=k, **json.loads(a.opts))
-            row = {"object": obj, "stride": k, **{key: res.get(key) for key in (
-                "motion_err_mm", "steps", "camera_skipped", "cam_cpu_ms_per_tracked", "cam_cpu_s_per_session_s")}}  # fmt: skip
+            keys = ("motion_err_mm", "steps", "camera_skipped", "cam_cpu_ms_per_tracked", "cam_cpu_s_per_session_s")
+            row = {"object": obj, "stride": k, **{key: res.get(key) for key in keys}}
             rows.append(row)
             print(json.dumps(row), flush=True)
     if a.json:
