@@ -423,7 +423,9 @@ class TrackConsumer(Consumer):
             )
         c = self.config
         t = np.asarray(self.sf.times, dtype=np.float64)
-        period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0 / 30.0
+        period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        if not (np.isfinite(period) and period > 0):  # a stream still being recorded: assume 30 Hz
+            period = 1.0 / 30.0
         self.stride = CameraStride(c.camera_stride, c.max_camera_stride, c.track_budget, period)
         self._touch = TouchConsumer(self, mode) if (mode != "off" and self.touch_streams) else None
         self._frames = FramesConsumer(self) if fmode != "inline" else None
