@@ -153,3 +153,16 @@ def test_track_consumer_with_a_camera_stride_tracks_every_other_frame(tiny_sessi
     res = tc.finish()
     assert res["steps"] == 6 and res["camera_skipped"] == 6 and res["stride_hist"] == {"2": 6}
     assert [round(t / (sf.times[1] - sf.times[0])) for t, _ in tc.poses] == [0, 2, 4, 6, 8, 10]
+
+
+def test_replay_without_room_for_the_ring_falls_back_to_the_pipe(live_session, monkeypatch):
+    """A small /dev/shm (a container's 64 MB) must not crash the reader: the replay says so and pickles."""
+    import vtrack.live.shared as shared
+
+    assert shared.ring_dir(1 << 20) is not None  # the real check: this machine has room for 1 MB
+    monkeypatch.setattr(shared, "ring_dir", lambda nbytes: None)
+    src = SessionReplaySource(live_session, streams=["camera/cam0"], reader="process", speed=2.0)
+    c = Collect()
+    with pytest.warns(UserWarning, match="pipe transport"):
+        res = LivePipeline(src, [c]).run()
+    assert c.shared == 0 and len(c.got) >= 0.8 * 15 and res["consumers"]["collect"]["errors"] == 0

@@ -116,7 +116,9 @@ class FrameRing:
                 fields[stream][f] = (off, tuple(int(x) for x in shape), dt.str)
                 off += slots * int(np.prod(shape, dtype=np.int64)) * dt.itemsize
                 off = -(-off // 64) * 64  # cache-line aligned slots
-        base = "/dev/shm" if os.path.isdir("/dev/shm") else None  # else a plain temporary file (page cache)
+        base = ring_dir(off)
+        if base is None:
+            raise OSError(f"no room for a {off / 1e6:.0f} MB frame ring in /dev/shm or the temporary directory")
         fd, path = tempfile.mkstemp(prefix=f"vtrack-live-{os.getpid()}-{uuid.uuid4().hex[:8]}-", dir=base)
         os.ftruncate(fd, max(off, 8))
         os.close(fd)
@@ -160,6 +162,18 @@ class FrameRing:
         fin = getattr(self, "_finalizer", None)
         if fin is not None:
             fin()
+
+
+def ring_dir(nbytes: int) -> str | None:
+    """Where a ring of ``nbytes`` goes: ``/dev/shm`` (memory) if it has room for twice that (a container's
+    /dev/shm is often 64 MB, and writing past a tmpfs's size kills the writer with SIGBUS), else the temporary
+    directory (a file in the page cache), else None."""
+    for d in ("/dev/shm", tempfile.gettempdir()):
+        if os.path.isdir(d):
+            st = os.statvfs(d)
+            if st.f_bavail * st.f_frsize >= 2 * nbytes:
+                return d
+    return None
 
 
 def _remove(path: str) -> None:

@@ -303,8 +303,13 @@ class SessionReplaySource:
                     # a slot is reused `slots` frames of its stream later: the reader runs at most `prefetch`
                     # frames ahead of the emitter, so a consumer has >= 64 of the stream's frame periods
                     # (~1 s at 60 Hz) to read an emitted frame
-                    self.ring = FrameRing.create(shapes, self.prefetch + 64)
-                    layout = self.ring.layout
+                    try:
+                        self.ring = FrameRing.create(shapes, self.prefetch + 64)
+                        layout = self.ring.layout
+                    except OSError as e:  # no room for the ring: frames go pickled through the queue
+                        import warnings
+
+                        warnings.warn(f"live replay: {e}; falling back to the pipe transport", stacklevel=2)
             q: Any = ctx.Queue(maxsize=self.prefetch)
             stop_evt: Any = ctx.Event()
             wall0_v = ctx.Value("d", 0.0)
