@@ -16,13 +16,16 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
 - ``load1``: the machine's 1-minute load average at the start of the row (2 cores: above 2, every figure
   measured in wall time is inflated).
 
-Variants: ``default`` (what ``vtrack live`` does: in a child process the tactile pipeline on every tactile image
-as it arrives, in another the segmentation of each camera frame, a stage ahead of the tracker; the replay
-decoding the session in a third), ``frames in the touch process`` (segmentation and touch share one child),
-``frames inline`` (segmentation inside the tracker's step; last session's
-configurations, with the reader in a process or a thread), ``touch thread`` (the tactile pipeline in a worker
-thread sharing the GIL with the tracker) and ``touch in camera step`` (the newest image of each sensor is
-processed inside the camera step, as offline tracking does; tactile images in between are never read).
+Variants: ``default`` (what ``vtrack live`` does: the tactile pipeline on every tactile image as it arrives in a
+child process, segmentation + tracking in the tracker's step, the replay decoding the session in a third process
+into a shared-memory ring that the tracker's process and the touch child read in place), ``frames in their own
+process`` / ``frames in the touch process`` (segmentation a stage ahead of the tracker in a child),
+``frames inline, reader thread``, ``touch thread`` (the tactile pipeline in a worker thread sharing the GIL with
+the tracker), ``touch in camera step`` (the newest image of each sensor is processed inside the camera step, as
+offline tracking does; tactile images in between are never read), ``pickled transport`` (the default without
+the shared-memory ring: every frame pickled through the reader's queue, every tactile image again to the touch
+child) and ``adaptive camera stride`` (the tracker skips camera frames, stride <= 2, while its steps take longer
+than 0.9 camera periods; ``camera_strided_pct`` = camera frames it did not track).
 
 Cases: 3 shared YCB objects, 5 s sessions, occlusion none, or ``VTRACK_BENCH_LIVE_CASES`` =
 ``"object|occlusion|seconds;..."``. Quick mode: one 2 s session, the default variant.
@@ -44,6 +47,11 @@ VARIANTS = {
     "frames inline, reader thread": {"frames_worker": "inline", "reader": "thread"},
     "touch thread": {"touch_worker": "thread", "frames_worker": "inline", "reader": "thread"},
     "touch in camera step": {"touch_worker": "off", "frames_worker": "inline", "reader": "thread"},
+    # the reader process pickles every frame through the queue and the touch worker each image to its helper
+    # (no shared-memory ring): the transport before 2026-11-26 late morning
+    "pickled transport": {"transport": "pipe"},
+    # the tracker skips camera frames while its steps take longer than 0.9 camera periods (stride <= 2)
+    "adaptive camera stride": {"max_camera_stride": 2},
 }
 DEFAULT_VARIANT = "default (touch process, frames inline, reader process)"
 CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))
@@ -68,16 +76,23 @@ def _speed() -> float:
 
 def run_live(session, variant: dict, speed: float = 1.0) -> dict:
     """One replay of ``session`` (``speed`` x real time) into the ``track`` consumer (``variant``: its
-    options, plus ``reader`` = the replay's decoder, process | thread); the pipeline's result dict."""
+    options, plus ``reader`` = the replay's decoder, process | thread, and ``transport`` = shm | pipe); the
+    pipeline's result dict."""
     from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
     from vtrack.live.pipeline import LivePipeline
     from vtrack.live.sources import SessionReplaySource
 
     variant = dict(variant)
     reader = variant.pop("reader", "process")
+    transport = variant.pop("transport", "shm")
     cons = [make_consumer("track", session, **variant)]
     src = SessionReplaySource(
-        session, streams=replay_streams(session, cons), fields=replay_fields(cons), reader=reader, speed=speed
+        session,
+        streams=replay_streams(session, cons),
+        fields=replay_fields(cons),
+        reader=reader,
+        speed=speed,
+        transport=transport,
     )
     return LivePipeline(src, cons).run()
 
@@ -129,6 +144,13 @@ def run(quick: bool = False) -> BenchTable:
                 frames_cpu_ms=seg.get("cpu_ms_mean", float("nan")),
                 touch_cpu_ms=float(np.mean(touch_cpu)) if touch_cpu else float("nan"),
                 steps=tr["result"].get("steps", 0),
+                # camera frames the stride policy did not track, % of those the tracker took
+                camera_strided_pct=round(
+                    100.0
+                    * tr["result"].get("camera_skipped", 0)
+                    / max(tr["result"].get("camera_skipped", 0) + tr["result"].get("steps", 0), 1),
+                    2,
+                ),  # fmt: skip
                 # per worker (stage): which one sets real_time_factor_cpu
                 rtf_cpu_by_worker="; ".join(
                     f"{k} {v['real_time_factor_cpu']:g}"

@@ -12,6 +12,7 @@ Consumers are registry components (``live.<kind>``, :func:`make_consumer`); thei
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.live.pipeline import Consumer
+from vtrack.live.shared import FrameOverwritten
 from vtrack.live.sources import FrameEvent
 from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
 
@@ -36,7 +38,12 @@ class LiveTrackConfig:
     the newest contacts go with each frame), ``shared`` (the touch process's, which keeps its contacts), or
     ``inline`` (in the tracker's step); touch_downsample /
     touch_stride = the tactile pipeline's working-resolution factor and point stride (tracking's defaults,
-    :data:`vtrack.tracking.run.TRACK_TOUCH_DOWNSAMPLE`). The tracker's own options are
+    :data:`vtrack.tracking.run.TRACK_TOUCH_DOWNSAMPLE`); camera_stride = track every k-th camera frame (by
+    time: a frame is tracked once k - 0.5 camera periods have passed since the last tracked one; the frames in
+    between are neither segmented nor tracked); max_camera_stride = the stride the tracker may go up to while
+    it falls behind: after each step the stride becomes ceil(recent step wall time / (track_budget x camera
+    period)), between camera_stride and max_camera_stride, so the CPU it would spend on frames it cannot keep
+    up with goes to the touch stage and the replay instead. The tracker's own options are
     :class:`vtrack.tracking.window.TrackerOptions` (passed through)."""
 
     depth_stride: int = 4
@@ -46,6 +53,43 @@ class LiveTrackConfig:
     frames_worker: str = "inline"
     touch_downsample: int = TRACK_TOUCH_DOWNSAMPLE
     touch_stride: int = TRACK_TOUCH_STRIDE
+    camera_stride: int = 1
+    max_camera_stride: int = 1
+    track_budget: float = 0.9
+
+
+class CameraStride:
+    """Which camera frames the tracker takes (:class:`LiveTrackConfig` camera_stride / max_camera_stride /
+    track_budget): every k-th by time, k adapted to how long the tracker's steps take."""
+
+    def __init__(self, stride: int, max_stride: int, budget: float, period_s: float) -> None:
+        if stride < 1 or max_stride < 1 or not 0.0 < budget <= 4.0 or not period_s > 0:
+            raise InputError(
+                "camera stride needs camera_stride >= 1, max_camera_stride >= 1, 0 < track_budget <= 4",
+                field="camera_stride", got=(stride, max_stride, budget),
+            )  # fmt: skip
+        self.min, self.max, self.budget, self.period = int(stride), max(int(max_stride), int(stride)), budget, period_s
+        self.stride = self.min
+        self.last_t: float | None = None
+        self.step_s: float | None = None  # running mean of the tracked steps' wall time, s
+        self.skipped = 0
+        self.hist: dict[int, int] = {}  # tracked frames per stride in force
+
+    def take(self, t: float) -> bool:
+        """Whether the camera frame at stream time ``t`` (s) is tracked (else it is skipped, counted)."""
+        if self.last_t is not None and t - self.last_t < (self.stride - 0.5) * self.period:
+            self.skipped += 1
+            return False
+        self.last_t = t
+        self.hist[self.stride] = self.hist.get(self.stride, 0) + 1
+        return True
+
+    def done(self, wall_s: float) -> None:
+        """A tracked step took ``wall_s`` s (wall time: what the other processes left it): set the stride."""
+        self.step_s = wall_s if self.step_s is None else 0.7 * self.step_s + 0.3 * wall_s
+        if self.max > self.min:
+            need = int(np.ceil(self.step_s / (self.budget * self.period)))
+            self.stride = int(np.clip(need, self.min, self.max))
 
 
 @dataclass
@@ -139,6 +183,12 @@ def _helper_process(
         try:
             if msg[0] == "touch":
                 _, sensor, image = msg
+                if not isinstance(image, np.ndarray):  # a slot of the replay's shared ring: read in place
+                    try:
+                        image = image.read()  # a copy (the pipeline may keep it as its reference), checked
+                    except FrameOverwritten:
+                        conn.send(("overwritten",))
+                        continue
                 c = sf.touch.contact(sensor, image)  # type: ignore[union-attr]
                 contacts[sensor] = c
                 conn.send((c.points, c.normals, c.penetration_mm, c.valid, time.thread_time() - c0))
@@ -244,9 +294,14 @@ class TouchConsumer(Consumer):
 
         s = ev.stream.split("/", 1)[1]
         if self.mode != "process":
-            c = self.owner.sf.touch.contact(s, ev.data["image"])  # type: ignore[union-attr]
+            c = self.owner.sf.touch.contact(s, ev.read("image"))  # type: ignore[union-attr]  (own copy: kept as ref)
         else:
-            P, N, pen, valid, cpu = _Helper.call(self.owner.touch_helper.touch_conn, ("touch", s, ev.data["image"]))  # type: ignore[union-attr]
+            # a frame in the replay's shared ring goes by reference (the helper maps the ring), else pickled
+            image = ev.shared["image"] if ev.shared and "image" in ev.shared else ev.data["image"]
+            got = _Helper.call(self.owner.touch_helper.touch_conn, ("touch", s, image))  # type: ignore[union-attr]
+            if len(got) == 1:
+                raise FrameOverwritten(f"{ev.stream} frame {ev.index}")
+            P, N, pen, valid, cpu = got
             c = Contact(P, N, pen, valid)
             self.offload_cpu_s = cpu
         self.owner.images[s] = c  # one dict item assignment: atomic for the camera step reading it
@@ -286,10 +341,12 @@ class FramesConsumer(Consumer):
             self.q = o._joints(ev)
             return
         if ev.stream in o.touch_streams:
-            o.images[ev.stream.split("/", 1)[1]] = ev.data["image"]
+            o.images[ev.stream.split("/", 1)[1]] = ev.read("image")  # kept until the next camera frame
+            return
+        if not o.stride.take(ev.t):  # not tracked: not segmented either
             return
         k = o.sf.depth_stride
-        depth = np.ascontiguousarray(np.asarray(ev.data["depth"])[::k, ::k])
+        depth = ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k]))
         # the shared helper keeps the contacts it computed; else the newest ones (or raw images) go along
         touch = None if o.frames_helper is o.touch_helper else list(o.images.items())
         fr, cpu = _Helper.call(o.frames_helper.frames_conn, ("frame", ev.stream, ev.t, depth, self.q, touch))  # type: ignore[union-attr]
@@ -364,6 +421,12 @@ class TrackConsumer(Consumer):
             raise InputError(
                 "unknown frames worker", field="frames_worker", expected="process|shared|inline", got=fmode
             )
+        c = self.config
+        t = np.asarray(self.sf.times, dtype=np.float64)
+        period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        if not (np.isfinite(period) and period > 0):  # a stream still being recorded: assume 30 Hz
+            period = 1.0 / 30.0
+        self.stride = CameraStride(c.camera_stride, c.max_camera_stride, c.track_budget, period)
         self._touch = TouchConsumer(self, mode) if (mode != "off" and self.touch_streams) else None
         self._frames = FramesConsumer(self) if fmode != "inline" else None
         self.touch_helper: _Helper | None = None
@@ -436,23 +499,29 @@ class TrackConsumer(Consumer):
 
     def process(self, ev: FrameEvent) -> None:
         if "frame" in ev.data:  # built by the frames stage
+            t0 = time.perf_counter()
             self._step(ev, ev.data["frame"])
+            self.stride.done(time.perf_counter() - t0)
             return
         if ev.stream == "joints":
             self.q = self._joints(ev)
             return
         if ev.stream in self.touch_streams:
-            self.images[ev.stream.split("/", 1)[1]] = ev.data["image"]
+            self.images[ev.stream.split("/", 1)[1]] = ev.read("image")  # kept until the next camera frame
             return
+        if not self.stride.take(ev.t):
+            return
+        t0 = time.perf_counter()
         c = self.cams[ev.stream]
         k = self.sf.depth_stride
         raw = {
             "t": ev.t,
             "q": self.q,
-            "cams": [(c, np.asarray(ev.data["depth"])[::k, ::k], None)],
+            "cams": [(c, ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k])), None)],
             "touch": list(self.images.items()) if self.q is not None else [],
         }
         self._step(ev, self.sf.build(raw).tracking_frame())
+        self.stride.done(time.perf_counter() - t0)
 
     def _step(self, ev: FrameEvent, frame: Any) -> None:
         """One tracker step on a camera frame's tracking frame (the first frames start the tracker)."""
@@ -475,6 +544,9 @@ class TrackConsumer(Consumer):
             "touch_steps": self.touch_steps,
             "touch_worker": self._touch.mode if self._touch is not None else "off",
             "frames_worker": "process" if self._frames is not None else "inline",
+            # camera frames not tracked by the stride policy, and tracked frames per stride in force
+            "camera_skipped": self.stride.skipped,
+            "stride_hist": {str(k): v for k, v in sorted(self.stride.hist.items())},
             "modalities": list(self.sf.modalities),
             "mode": "known_shape" if self.mesh is not None else "slam",
         }
@@ -549,7 +621,7 @@ class ReconstructConsumer(Consumer):
             return
         c = self.cams[ev.stream]
         k = self.sf.depth_stride
-        depth = np.asarray(ev.data["depth"])
+        depth = ev.read("depth")
         fr = self.sf.build({"t": ev.t, "q": self.q, "cams": [(c, depth[::k, ::k], None)], "touch": []})
         mask = upsample_mask(fr.vision_mask[c.name], depth.shape)
         d = np.where(mask, depth.astype(np.float32) * c.depth_scale, 0.0).astype(np.float32)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from vtrack.live.shared import FrameOverwritten
 from vtrack.live.sources import FrameEvent
 
 #: Prefix of a stream a consumer stage derives from a source stream and hands to a later stage
@@ -135,6 +136,10 @@ class _Worker(threading.Thread):
             t0, c0 = time.perf_counter(), time.thread_time()
             try:
                 self.consumer.process(ev)
+            except FrameOverwritten:  # its shared slot was reused before it was read: a dropped frame
+                with self.cv:
+                    self.stats.dropped[ev.stream] = self.stats.dropped.get(ev.stream, 0) + 1
+                continue
             except Exception as e:  # keep the pipeline alive; the first error is reported
                 self.stats.errors += 1
                 if self.error is None:
@@ -195,6 +200,9 @@ class LivePipeline:
         for w in self.workers:  # in stage order: a stage may still forward its last frame to a later one
             w.close()
             w.join()
+        close = getattr(self.source, "close", None)
+        if close is not None:  # e.g. a replay's shared-memory ring: every frame is done with now
+            close()
         wall = time.perf_counter() - t0
         cpu_main = time.process_time() - cpu0  # all threads of this process (workers, emitter, a reader thread)
         active = src_stats.active_s or t_src

@@ -23,13 +23,24 @@ from vtrack.errors import InputError
 @dataclass
 class FrameEvent:
     """One frame of one stream: ``data`` holds the stream's fields; ``t`` is the stream time (s);
-    ``wall`` is the wall-clock time (``time.perf_counter``) at which it was emitted."""
+    ``wall`` is the wall-clock time (``time.perf_counter``) at which it was emitted. ``shared``: the fields
+    of ``data`` that are views into a shared-memory ring (:mod:`vtrack.live.shared`; a replay with a reader
+    process), by field: read them with :meth:`read` (checked against being overwritten) or hand the slot to
+    another process."""
 
     stream: str
     t: float
     index: int
     data: dict[str, np.ndarray]
     wall: float = 0.0
+    shared: dict[str, Any] | None = None
+
+    def read(self, field: str, fn: Callable[[np.ndarray], Any] = np.array) -> Any:
+        """``fn(data[field])`` (default: a copy); for a shared field checked afterwards, so that the result
+        is this frame's (raises :class:`vtrack.live.shared.FrameOverwritten` if the slot was reused)."""
+        if self.shared and field in self.shared:
+            return self.shared[field].read(fn)
+        return fn(self.data[field])
 
 
 @dataclass
@@ -61,10 +72,15 @@ class SourceStats:
 BLOCK_BYTES = 1 << 20
 
 
-def _block_frames(stream: Any, fields: Sequence[str] | None = None) -> int:
+#: block size of a reader process: it does not share the emitter's GIL, so larger blocks (fewer zarr calls, each
+#: ~1 ms of overhead) cost no emitter latency; the prefetch queue covers a block's read
+PROCESS_BLOCK_BYTES = 4 << 20
+
+
+def _block_frames(stream: Any, fields: Sequence[str] | None = None, block_bytes: int | None = None) -> int:
     fs = [stream.fields[f] for f in (fields if fields is not None else stream.fields)]
     per = sum(int(np.prod(f.shape[1:], dtype=np.int64)) * f.dtype.itemsize for f in fs)
-    return int(max(1, min(64, BLOCK_BYTES // max(per, 1))))
+    return int(max(1, min(64, (block_bytes or BLOCK_BYTES) // max(per, 1))))
 
 
 def _decode_loop(
@@ -76,9 +92,11 @@ def _decode_loop(
     cfg: tuple[float, float, float],
     stop: Any,
     fields: dict[str, list[str]] | None = None,
+    block_bytes: int | None = None,
 ) -> None:
     """Decode frames in schedule order and ``put`` them; skip (put ``data=None``) frames already too
-    late when reached. ``fields``: per stream, the fields to decode (default all). Ends with ``put(None)``."""
+    late when reached. ``fields``: per stream, the fields to decode (default all); ``block_bytes``: bytes per
+    block read (default :data:`BLOCK_BYTES`). Ends with ``put(None)``."""
     period, speed, max_lag_s = cfg
     cache: dict[str, tuple[int, dict[str, np.ndarray]]] = {}
     try:
@@ -95,7 +113,7 @@ def _decode_loop(
             s = reader[name]
             if not (0 <= i - i0 < len(next(iter(block.values()), ()))):
                 names = (fields or {}).get(name) or list(s.fields)
-                B = _block_frames(s, names)
+                B = _block_frames(s, names, block_bytes)
                 i0 = i
                 block = {f: s.fields[f][i : i + B] for f in names}
                 cache[name] = (i0, block)
@@ -113,9 +131,12 @@ def _reader_process(
     wall0_v: Any,
     cfg: tuple[float, float, float],
     fields: dict[str, list[str]] | None = None,
+    layout: Any = None,
 ) -> None:
     """Child-process reader: decoding runs outside the consumers' process (no GIL contention). Before its
-    end marker it reports its CPU seconds since it was ready (``("__cpu__", s)``)."""
+    end marker it reports its CPU seconds since it was ready (``("__cpu__", s)``). With a ring ``layout``
+    (:class:`vtrack.live.shared.RingLayout`) large fields are decoded into shared memory and only their
+    slot's sequence number is sent (``(item, ("__ring__", seq, small fields))``)."""
     try:
         from vtrack.io.session import open_session
         from vtrack.threads import limit_threads
@@ -126,16 +147,26 @@ def _reader_process(
         q.put(f"{type(e).__name__}: {e}")
         return
     q.put("ready")
+    block_bytes = PROCESS_BLOCK_BYTES
     c0 = time.process_time()
     while wall0_v.value == 0.0 and not stop.is_set():
         time.sleep(0.001)
 
+    ring = None
+    if layout is not None:
+        from vtrack.live.shared import FrameRing
+
+        ring = FrameRing(layout)
+
     def put(x: Any) -> None:
         if x is None:
             q.put(("__cpu__", time.process_time() - c0))
+        elif ring is not None and x[1] is not None and streams[x[0][2]] in layout.fields:
+            seq, rest = ring.write(streams[x[0][2]], x[1])
+            x = (x[0], ("__ring__", seq, rest))
         q.put(x)
 
-    _decode_loop(reader, streams, items, put, lambda: wall0_v.value, cfg, stop, fields)
+    _decode_loop(reader, streams, items, put, lambda: wall0_v.value, cfg, stop, fields, block_bytes)
 
 
 class SessionReplaySource:
@@ -153,6 +184,9 @@ class SessionReplaySource:
             contention with heavy consumers; costs a process start and a copy per frame).
         fields: per stream, the fields to decode and emit (default: all; e.g. a tracker needs a camera's
             ``depth`` only, and decoding the unused 640x480 colour image doubled the replay's cost).
+        transport: how a reader process hands frames over: ``shm`` (large fields are decoded into a
+            shared-memory ring, :mod:`vtrack.live.shared`; events carry views and ``shared`` slots that a
+            consumer can pass on to its own helper process) or ``pipe`` (pickled through a queue).
     """
 
     def __init__(
@@ -166,6 +200,7 @@ class SessionReplaySource:
         prefetch: int = 64,
         reader: str = "thread",
         fields: dict[str, Sequence[str]] | None = None,
+        transport: str = "shm",
     ) -> None:
         from vtrack.io.session import SessionReader, open_session
 
@@ -219,8 +254,20 @@ class SessionReplaySource:
         if reader not in ("thread", "process"):
             raise InputError("unknown replay reader", field="reader", expected="thread|process", got=reader)
         self.reader_kind = reader
+        if transport not in ("shm", "pipe"):
+            raise InputError("unknown replay transport", field="transport", expected="shm|pipe", got=transport)
+        self.transport = transport
+        self.ring: Any = None  # the shared-memory ring of the running replay (reader process + shm)
         self.stats = SourceStats()
         self._stop = threading.Event()
+
+    def close(self) -> None:
+        """Remove the shared-memory ring of the last run (after its consumers are done with its frames;
+        :class:`vtrack.live.pipeline.LivePipeline` calls it after joining its workers; else it goes when the
+        source is garbage-collected or at exit)."""
+        if self.ring is not None:
+            self.ring.close()
+            self.ring = None
 
     @property
     def duration(self) -> float:
@@ -247,12 +294,28 @@ class SessionReplaySource:
             import multiprocessing as mp
 
             ctx = mp.get_context("spawn")  # no fork: the parent has threads (zarr's event loop)
+            layout = None
+            if self.transport == "shm":
+                from vtrack.live.shared import FrameRing, ring_shapes
+
+                shapes = ring_shapes(self.reader, self.streams, self.fields)
+                if shapes:
+                    # a slot is reused `slots` frames of its stream later: the reader runs at most `prefetch`
+                    # frames ahead of the emitter, so a consumer has >= 64 of the stream's frame periods
+                    # (~1 s at 60 Hz) to read an emitted frame
+                    try:
+                        self.ring = FrameRing.create(shapes, self.prefetch + 64)
+                        layout = self.ring.layout
+                    except OSError as e:  # no room for the ring: frames go pickled through the queue
+                        import warnings
+
+                        warnings.warn(f"live replay: {e}; falling back to the pipe transport", stacklevel=2)
             q: Any = ctx.Queue(maxsize=self.prefetch)
             stop_evt: Any = ctx.Event()
             wall0_v = ctx.Value("d", 0.0)
             proc = ctx.Process(
                 target=_reader_process,
-                args=(str(self.reader.path), self.streams, items, q, stop_evt, wall0_v, cfg, self.fields),
+                args=(str(self.reader.path), self.streams, items, q, stop_evt, wall0_v, cfg, self.fields, layout),
                 daemon=True,
                 name="replay-read",
             )
@@ -285,6 +348,10 @@ class SessionReplaySource:
                     continue
                 (rep, rel, k, i), data = got
                 name = self.streams[k]
+                shared = None
+                if isinstance(data, tuple):  # ("__ring__", seq, small fields): large fields in the ring
+                    shared = self.ring.slots(name, data[1])
+                    data = {**data[2], **{f: v.view() for f, v in shared.items()}}
                 due = wall0 + (rel + rep * self.period) / self.speed
                 now = time.monotonic()
                 if data is not None and due > now:
@@ -297,7 +364,7 @@ class SessionReplaySource:
                 st.max_lag_s = max(st.max_lag_s, lag)
                 t = float(self.reader[name].t[i]) + rep * self.period
                 wall = time.perf_counter()
-                emit(FrameEvent(name, t, i, data, wall))
+                emit(FrameEvent(name, t, i, data, wall, shared))
                 st.emitted[name] = st.emitted.get(name, 0) + 1
                 if st.first_wall is None:
                     st.first_wall = wall
@@ -318,6 +385,7 @@ class SessionReplaySource:
                 if proc.is_alive():
                     proc.kill()
                 proc.join(1.0)
+
         st.seconds = time.monotonic() - wall0 + self.preroll_s
         return st
 

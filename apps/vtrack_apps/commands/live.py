@@ -41,6 +41,18 @@ def register(app: typer.Typer) -> None:
             help="track: segmentation 'inline' in the tracker (default), in its own child 'process' (a stage ahead of "
             "the tracker) or 'shared' with the touch process",
         ),
+        transport: str = typer.Option(
+            "shm",
+            "--transport",
+            help="with --reader process: frames decoded into a shared-memory ring read in place ('shm', default) "
+            "or pickled through pipes ('pipe')",
+        ),
+        camera_stride: int = typer.Option(None, "--camera-stride", help="track: track every k-th camera frame"),
+        max_camera_stride: int = typer.Option(
+            None,
+            "--max-camera-stride",
+            help="track: skip camera frames (stride up to this) while the tracker's steps exceed 0.9 camera periods",
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
         import os
@@ -63,6 +75,8 @@ def register(app: typer.Typer) -> None:
                 "init_pose": parse_pose(init_pose) if init_pose else None,
                 "touch_worker": touch_worker,
                 "frames_worker": frames_worker,
+                "camera_stride": camera_stride,
+                "max_camera_stride": max_camera_stride,
             },
             "reconstruct": {"poses": poses},
         }
@@ -79,6 +93,7 @@ def register(app: typer.Typer) -> None:
             loop=loop,
             reader=reader,
             fields=replay_fields(cons),
+            transport=transport,
         )
         res = LivePipeline(src, cons).run()
         so = res["source"]
