@@ -174,7 +174,9 @@ def sim_rows(n: int, draws: int, seed: int = 9, weights=(0.5, 0.75)) -> list[dic
                     "blur_mm": blur,
                     "detector": "exact (the true circles)",
                     "n": len(T),
-                    "vs_noisy": [noisy_reference_shares(T, T, s, rs, rd, draws, rng, nm) for nm, s, rs, rd in REFERENCES],
+                    "vs_noisy": [
+                        noisy_reference_shares(T, T, s, rs, rd, draws, rng, nm) for nm, s, rs, rd in REFERENCES
+                    ],
                 }
             )
     return rows
@@ -184,8 +186,8 @@ def _report(real: list[dict], sim: list[dict]) -> str:
     lines = ["real set: placement | subpixel | used | centre <= 2 px | radius <= 5 % | both"]
     for r in real:
         lines.append(
-            f"  {r['edge_weight']:.2f} | {r['subpixel']} | {r['n_used']}/{r['n']} | {100 * r['centre_within_2px']:.0f} % "
-            f"| {100 * r['radius_within_5pct']:.0f} % | {100 * r['both']:.0f} %"
+            f"  {r['edge_weight']:.2f} | {r['subpixel']} | {r['n_used']}/{r['n']} | "
+            f"{100 * r['centre_within_2px']:.0f} % | {100 * r['radius_within_5pct']:.0f} % | {100 * r['both']:.0f} %"
         )
     lines.append("sim: set | detector | vs exact both | vs references (sd px: mean both [p5-p95], P(>=90 %))")
     for r in sim:
