@@ -1,12 +1,11 @@
 """Measure ``vtrack calibrate``'s model choice (issue #21): the fixed default ``mlp`` vs ``--method auto``.
 
-    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json] [--no-reselect]
+    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json] [--reselect]
 
 ``SET`` is calibrated as ``vtrack calibrate`` does (auto labels: edge placement chosen on common circles;
-hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses and, with
-auto labels, the edge placement is chosen again with the chosen model (``reselect_edge`` of
-``calibrate_press_set``; ``--no-reselect``: keep the default model's placement, the protocol before
-2026-11-26 midday). Both the default ``mlp`` and the chosen model are scored:
+hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses; with
+``--reselect`` and auto labels the edge placement is then chosen again with the chosen model (the opt-in
+``reselect_edge`` of ``calibrate_press_set``). Both the default ``mlp`` and the chosen model are scored:
 - on ``FRESH_SET`` (e.g. 60 more presses of the same simulated unit, rendered with
   ``render_press_set(type, DIR, n=60, seed=S2, model=OpticalModel.for_sensor(type, S1))``), against its true
   circles;
@@ -24,7 +23,7 @@ import time
 from pathlib import Path
 
 
-def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, reselect: bool = True) -> dict:
+def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, reselect: bool = False) -> dict:
     """The comparison for one press set (see the module docstring)."""
     from vtrack.tactile.calibrate_set import _labelled_run, choose_model
     from vtrack.tactile.calibration import calibrate
@@ -81,12 +80,12 @@ def main() -> None:
     ap.add_argument("labels", choices=("auto", "hand"))
     ap.add_argument("--fresh", type=Path, default=None, help="fresh presses of the same unit (true circles)")
     ap.add_argument("--json", type=Path, default=None)
-    ap.add_argument("--no-reselect", action="store_true", help="keep the default model's edge placement")
+    ap.add_argument("--reselect", action="store_true", help="choose the edge placement again with the chosen model")
     a = ap.parse_args()
     from vtrack.threads import limit_threads
 
     limit_threads(1)
-    res = evaluate(a.set, a.labels, a.fresh, reselect=not a.no_reselect)
+    res = evaluate(a.set, a.labels, a.fresh, reselect=a.reselect)
     print(json.dumps(res))
     if a.json:
         from vtrack.io.jsonio import write_json
