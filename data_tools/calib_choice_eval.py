@@ -1,10 +1,11 @@
 """Measure ``vtrack calibrate``'s model choice (issue #21): the fixed default ``mlp`` vs ``--method auto``.
 
-    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json]
+    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json] [--reselect]
 
 ``SET`` is calibrated as ``vtrack calibrate`` does (auto labels: edge placement chosen on common circles;
-hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses. Both the
-default ``mlp`` and the chosen model are scored:
+hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses; with
+``--reselect`` and auto labels the edge placement is then chosen again with the chosen model (the opt-in
+``reselect_edge`` of ``calibrate_press_set``). Both the default ``mlp`` and the chosen model are scored:
 - on ``FRESH_SET`` (e.g. 60 more presses of the same simulated unit, rendered with
   ``render_press_set(type, DIR, n=60, seed=S2, model=OpticalModel.for_sensor(type, S1))``), against its true
   circles;
@@ -22,7 +23,7 @@ import time
 from pathlib import Path
 
 
-def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None) -> dict:
+def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, reselect: bool = False) -> dict:
     """The comparison for one press set (see the module docstring)."""
     from vtrack.tactile.calibrate_set import _labelled_run, choose_model
     from vtrack.tactile.calibration import calibrate
@@ -30,11 +31,8 @@ def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None) -> 
     from vtrack.tactile.pressset import load_press_set
 
     t0 = time.time()
-    run = _labelled_run(
-        root,
-        method="mlp",
+    kw = dict(
         holdout="every:4:3",
-        opts=None,
         labels=labels,
         edge_weights=(0.5, 0.75, 1.0),
         meta_file=None,
@@ -43,6 +41,7 @@ def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None) -> 
         ball_radius_mm=None,
         downsample="auto",
     )
+    run = _labelled_run(root, method="mlp", opts=None, **kw)
     if fresh:
         ref = load_press_set(fresh, labels="hand")
         presses, where = ref.presses, f"fresh {len(ref.presses)} presses vs true circles"
@@ -62,7 +61,15 @@ def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None) -> 
     name, method, opts, rows = choose_model(run.press_set, run.train)
     out["cv"] = rows
     out["chosen"] = name
-    out["auto"] = out["default_mlp"] if name == "mlp" else score(calibrate(run.press_set, method, run.train, opts))
+    if name == "mlp":
+        out["auto"] = out["default_mlp"]
+    elif reselect and run.edge_trials:  # as calibrate_press_set(reselect_edge=True)
+        rerun = _labelled_run(root, method=method, opts=opts, **kw)
+        out["edge_trials_chosen_model"] = rerun.edge_trials
+        out["auto"] = score(rerun.calib)
+    else:
+        out["auto"] = score(calibrate(run.press_set, method, run.train, opts))
+    out["reselect_edge"] = reselect
     out["seconds"] = round(time.time() - t0)
     return out
 
@@ -73,11 +80,12 @@ def main() -> None:
     ap.add_argument("labels", choices=("auto", "hand"))
     ap.add_argument("--fresh", type=Path, default=None, help="fresh presses of the same unit (true circles)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--reselect", action="store_true", help="choose the edge placement again with the chosen model")
     a = ap.parse_args()
     from vtrack.threads import limit_threads
 
     limit_threads(1)
-    res = evaluate(a.set, a.labels, a.fresh)
+    res = evaluate(a.set, a.labels, a.fresh, reselect=a.reselect)
     print(json.dumps(res))
     if a.json:
         from vtrack.io.jsonio import write_json

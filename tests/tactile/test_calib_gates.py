@@ -170,3 +170,25 @@ def test_label_sim_detector_meets_the_target_on_exact_circles():
     (row,) = mod.sweep(n=6, blurs=(0.12,), noises=(1.0,), weights=(0.75,))
     assert row["n_used"] >= 5 and row["both"] >= 5 / 6 - 1e-9, row
     assert abs(mod.exact_detector_share(1.37) - 0.655) < 0.01 and mod.exact_detector_share(0.0) == 1.0
+
+
+def test_label_noise_tool_exact_detector_against_a_hand_like_reference():
+    """data_tools/calib_label_noise.py: an exact detector scored against references with per-axis centre sd
+    1.33 px keeps 1 - exp(-2 / 1.33^2) = 68 % of presses within 2 px (never the 90 % of the target); against the
+    exact circles rounded to whole pixels it keeps them all (rounding moves a centre by <= 0.71 px)."""
+    import importlib.util
+
+    from vtrack.paths import REPO_ROOT
+
+    spec = importlib.util.spec_from_file_location("cln", REPO_ROOT / "data_tools" / "calib_label_noise.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rng = np.random.default_rng(3)
+    T = np.column_stack([rng.uniform(50, 600, 2000), rng.uniform(50, 400, 2000), rng.uniform(40, 70, 2000)])
+    r = mod.noisy_reference_shares(T, T, 1.33, 0.0, False, 20, rng)
+    assert abs(r["both_mean"] - (1 - np.exp(-2 / 1.33**2))) < 0.02 and r["p_at_least_90"] == 0.0, r
+    r = mod.noisy_reference_shares(T, T, 0.0, 0.0, True, 20, rng)
+    assert r["both_mean"] == 1.0 and r["p_at_least_90"] == 1.0, r
+    A = T.copy()
+    A[:, 2] *= 1.06  # every radius 6 % off: no press within 5 %, whatever the centres
+    assert mod.noisy_reference_shares(A, T, 0.0, 0.0, False, 1, rng)["both_mean"] == 0.0

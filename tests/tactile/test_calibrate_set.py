@@ -122,3 +122,40 @@ def test_mlp_on_colour_relative_to_the_background_round_trips_and_older_files_lo
     assert np.abs(swapped.slopes(img)[0] - rel.slopes(img)[0]).max() > 0.01
     with pytest.raises(InputError, match="unknown MLP feature set"):
         calibrate(ps, "mlp", train, TrainOptions(mlp_features="hsv", **small))
+
+
+@pytest.mark.slow
+def test_method_auto_can_choose_the_edge_placement_again_with_the_chosen_model(mini_set, tmp_path):
+    """With auto labels, ``method="auto"`` re-runs the placement trial with the model cross-validation chose
+    (here a LUT or photometric stereo instead of the MLP the first trial used) when asked (``reselect_edge``):
+    same held-out presses, same rule, rows naming the model; by default the MLP's placement is kept."""
+    import shutil
+
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+    from vtrack.tactile.calibration import TrainOptions
+
+    root = tmp_path / "unlabelled"
+    shutil.copytree(mini_set, root)
+    (root / "labels.csv").unlink()
+    kw = dict(
+        method="auto",
+        opts=TrainOptions(mlp_hidden=8, mlp_epochs=1, inside_per_press=300, flat_per_press=300),
+        candidates=(("lut", "lut", {}), ("ps", "ps", {})),
+    )
+    new = calibrate_press_set(root, reselect_edge=True, **kw)
+    old = calibrate_press_set(root, **kw)
+    name = new.calib.info["model"]
+    assert name in ("lut", "ps") and new.calib.method == name == old.calib.method
+    assert [t["edge_weight"] for t in new.edge_trials] == [0.5, 0.75, 1.0]
+    assert all(t["model"] == name for t in new.edge_trials) and not any("model" in t for t in old.edge_trials)
+    (chosen,) = [t for t in new.edge_trials if t["chosen"]]
+    assert new.calib.info["autolabel_edge_weight"] == chosen["edge_weight"]
+    pool = [t for t in new.edge_trials if t["n_presses"] >= 0.8 * max(u["n_presses"] for u in new.edge_trials)]
+    assert chosen["radius_abs_err_pct_median"] == min(t["radius_abs_err_pct_median"] for t in pool)
+    # the re-run trained the chosen model: its held-out errors are not the MLP trial's
+    errs = [[t["normal_err_deg_median"] for t in r.edge_trials] for r in (new, old)]
+    assert errs[0] != errs[1]
+    keys = ("model", "normal_err_deg_median", "radius_abs_err_pct_median", "chosen")
+    assert [[r[k] for k in keys] for r in new.cv] == [[r[k] for k in keys] for r in old.cv]
+    assert sum(r["chosen"] for r in new.cv) == 1
+    assert {p.file for p in new.test}.isdisjoint(new.calib.info["train_files"])

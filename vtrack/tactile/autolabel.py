@@ -53,6 +53,9 @@ class AutoLabelOptions:
     n_rays: int = 180
     #: where on the rim profile the edge is put: 0 = the ring's peak change, 1 = the steepest fall beyond it
     edge_weight: float = 0.75
+    #: refine the rim's fall and peak between the 0.5 px ray samples (parabola through the three samples
+    #: around each extreme) instead of taking the nearest sample
+    subpixel: bool = False
 
 
 @dataclass
@@ -90,6 +93,19 @@ def _robust_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, f
         keep = new
     res = np.hypot(x[keep] - cx, y[keep] - cy) - r
     return cx, cy, r, float(np.sqrt(np.mean(res * res))), keep
+
+
+def _parabola_offset(v: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Sub-sample offset (in [-0.5, 0.5] samples) of the minimum of each row of ``v`` near index ``j``: the
+    vertex of the parabola through ``v[j - 1], v[j], v[j + 1]`` (0 at the row ends or where it is flat)."""
+    n = v.shape[1]
+    i = np.arange(len(j))
+    jm, jp = np.clip(j - 1, 0, n - 1), np.clip(j + 1, 0, n - 1)
+    a, b, c = v[i, jm], v[i, j], v[i, jp]
+    den = a - 2.0 * b + c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where((den > 1e-12) & (j > 0) & (j < n - 1), 0.5 * (a - c) / den, 0.0)
+    return np.clip(np.nan_to_num(off), -0.5, 0.5)
 
 
 def _blank_reason(img: np.ndarray) -> str:
@@ -183,19 +199,27 @@ def detect_contact(
         der[~inside] = 0.0
         der[:, rr < 0.3 * r] = 0.0  # the centre of a press is flat-ish and changes little: not the rim
         j = np.argmin(der, axis=1)
+        jf = j.astype(np.float64)  # edge position in ray samples (fractional with ``subpixel``)
+        if o.subpixel:
+            jf = j + _parabola_offset(der, j)
         if o.edge_weight < 1.0:
             pk = np.where(np.arange(len(rr))[None, :] <= j[:, None], prof, -np.inf)
             pk[:, rr < 0.3 * r] = -np.inf
             jp = np.argmax(pk, axis=1)
             jp = np.where(np.isfinite(pk[idx, jp]), jp, j)
-            j = np.rint(jp + o.edge_weight * (j - jp)).astype(int)
+            jpf = jp + _parabola_offset(-prof, jp) * (jp != j) if o.subpixel else jp.astype(np.float64)
+            jf = jpf + o.edge_weight * (jf - jpf)
+            j = np.clip(np.rint(jf), 0, len(rr) - 1).astype(int)
+            if not o.subpixel:
+                jf = j.astype(np.float64)
         # the edge must lie inside the image with a little of the profile beyond it (else it is the border)
         beyond = np.minimum(j + 4, len(rr) - 1)
         good = inside[idx, beyond] & (der[idx, j] < 0.0)
         cov = float(good.mean())
         if good.sum() < 8:
             break
-        ex, ey = X[idx, j][good], Y[idx, j][good]
+        rad = np.interp(jf, np.arange(len(rr)), rr)  # the edge's radius along each ray (px)
+        ex, ey = (cx + cos[:, 0] * rad)[good], (cy + sin[:, 0] * rad)[good]
         cx2, cy2, r2, rms, keep = _robust_circle(ex, ey)
         if not np.isfinite(r2):
             break
