@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, sensor_config
+from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, rgb_model, sensor_config
 
 MODALITIES = ("rgb", "ir", "dual")
 HANDPOSE_VERSION = 2
@@ -596,9 +596,8 @@ def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -
     q_all = np.asarray(data["angles_deg"], np.float64)
     place_all = np.asarray(data["place"], np.float64)
     sensor = sensor_config("varied").to_dict()  # the IR image (and so its SNR) depends on the marker layout
-    key = hashlib.sha1(
-        q_all.tobytes() + place_all.tobytes() + str(step_deg).encode() + str(sorted(sensor.items())).encode()
-    ).hexdigest()[:12]
+    salt = str(sorted(sensor.items())).encode() + rgb_model("varied").encode()  # and the RGB one on its model
+    key = hashlib.sha1(q_all.tobytes() + place_all.tobytes() + str(step_deg).encode() + salt).hexdigest()[:12]
     path = cache_dir() / "dome" / f"handpose_obs_{key}.npz"
     if cache and path.exists():
         with np.load(path) as z:
