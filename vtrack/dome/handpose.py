@@ -628,15 +628,18 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
     For each grasp the thumb tip is held fixed and the IP / MCP ratio is changed by ``-scale`` (or ``+scale`` when
     that is out of reach); the thumb is re-solved by :meth:`HandModel.digit_ik`. Returns the medians of the
     largest thumb-joint change (deg) and of the noise-free image change as matched-filter SNR (RGB and IR, as in
-    :func:`joint_observability`), per grasp that could be re-solved."""
+    :func:`joint_observability`), per grasp that could be re-solved, and per grasp (``grasp_index`` into the
+    held-out set, ``snr_rgb``)."""
     from vtrack.dome.handsim import DIGITS, HandDomeSimulator, HandPlace, make_handpose_dataset
 
     te = make_handpose_dataset(TEST_N, seed, grasp_set="varied")
     sim = HandDomeSimulator(grasp_set="varied")
     hand, thumb = sim.hand, DIGITS[0]
 
-    dq, snr_rgb, snr_ir = [], [], []
-    for q, pa in zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True):
+    dq, snr_rgb, snr_ir, index = [], [], [], []
+    for i, (q, pa) in enumerate(
+        zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True)
+    ):
         place = HandPlace.from_array(pa)
         tip = hand._chain(thumb, q, 0.0, place)[-1]
         ratio = q[thumb.joints[2]] / max(q[thumb.joints[1]], 1e-6)
@@ -648,8 +651,11 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
             dq.append(float(np.abs(qq - q)[list(thumb.joints)].max()))
             snr_rgb.append(_snr(a1, a0, RGB_NOISE_GREY))
             snr_ir.append(_snr(b1, b0, IR_NOISE_GREY))
+            index.append(i)
             break
     return {
+        "grasp_index": index,
+        "snr_rgb": snr_rgb,
         "grasps": len(dq),
         "median_joint_change_deg": float(np.median(dq)),
         "median_snr_rgb": float(np.median(snr_rgb)),
