@@ -219,7 +219,14 @@ def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
     from vtrack.errors import InputError
 
     base = ["dome", "handpose", "train", "--out", str(tmp_path / "w.pt")]
-    for extra, field in ((["--ir-encoder", "graph"], "--ir-encoder"), (["--modalities", "rgb,depth"], "--modalities")):
+    bad = (
+        (["--ir-encoder", "graph"], "--ir-encoder"),
+        (["--modalities", "rgb,depth"], "--modalities"),
+        (["--joint-weights", "thumb_tip=2"], "--joint-weights"),
+        (["--joint-weights", "thumb_ip=-1"], "--joint-weights"),
+        (["--joint-weights", "thumb_ip"], "--joint-weights"),
+    )
+    for extra, field in bad:
         r = CliRunner().invoke(app, [*base, *extra])
         assert isinstance(r.exception, InputError) and r.exception.field == field
     assert not (tmp_path / "w.pt").exists()
@@ -412,3 +419,27 @@ def test_haze_rgb_model_sharp_on_the_shell_and_blurred_off_it() -> None:
     assert np.array_equal(a["ir"], b["ir"]) and not np.array_equal(a["rgb"], b["rgb"])
     with pytest.raises(ValueError):
         HandDomeSimulator(grasp_set="varied", rgb_model_name="nope")
+
+
+def test_per_joint_loss_weights() -> None:
+    """Per-joint weights (mean 1) inside both loss terms: equal weights give S25-S27 exactly; a weight of 3 on the
+    one wrong joint raises both terms by 3x / sqrt(3)x relative to the normalised unweighted loss."""
+    from vtrack.dome.handpose import joint_weight_vector, pose_loss
+
+    assert joint_weight_vector({}) is None
+    w = joint_weight_vector({"thumb_ip": 3.0})
+    assert abs(float(w.mean()) - 1.0) < 1e-6 and float(w[3] / w[0]) == pytest.approx(3.0)
+    gt = torch.zeros(4, 12)
+    pred = gt.clone()
+    pred[:, 3] = 2.0  # only the thumb IP is wrong
+    plain = pose_loss(pred, gt)
+    assert float(pose_loss(pred, gt, weights=joint_weight_vector({j: 1.0 for j in JOINTS}))) == pytest.approx(
+        float(plain)
+    )
+    mae, rmse = 2.0 / 12, np.sqrt(4.0 / 12)
+    assert float(plain) == pytest.approx(mae + rmse, rel=1e-5)
+    assert float(pose_loss(pred, gt, weights=w)) == pytest.approx(
+        float(w[3]) * mae + np.sqrt(float(w[3])) * rmse, rel=1e-5
+    )
+    with pytest.raises(ValueError):
+        joint_weight_vector({"thumb_tip": 2.0})

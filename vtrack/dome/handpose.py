@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +89,9 @@ class HandPoseTrainConfig:
     #: wall-time guard per net (s, 0 = none): training stops at the first validation past it and keeps the best
     #: checkpoint so far (the step budget stays the recipe; the guard only protects a shared machine's schedule)
     time_budget_s: float = 0.0
+    #: per-joint weights of the training loss (joint name -> weight, the others 1; normalised to mean 1), e.g. more
+    #: weight on the thumb MCP / IP; validation and checkpointing stay on the unweighted S25-S27 loss
+    joint_weights: dict[str, float] = field(default_factory=dict)
 
 
 def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
@@ -250,10 +253,29 @@ def model_inputs(modality: str, data: dict, idx: np.ndarray | slice) -> dict[str
     return out
 
 
-def pose_loss(pred_deg: torch.Tensor, gt_deg: torch.Tensor, lam_mae: float = 1.0, lam_rmse: float = 1.0):
-    """S25-S27: ``lam_mae * mean|e| + lam_rmse * (sqrt(mean e^2) + eps)`` over batch and the 12 joints (deg)."""
+def pose_loss(
+    pred_deg: torch.Tensor,
+    gt_deg: torch.Tensor,
+    lam_mae: float = 1.0,
+    lam_rmse: float = 1.0,
+    weights: torch.Tensor | None = None,
+):
+    """S25-S27: ``lam_mae * mean|e| + lam_rmse * (sqrt(mean e^2) + eps)`` over batch and the 12 joints (deg).
+    ``weights`` (12,): optional per-joint weights (mean 1) inside both means."""
     e = pred_deg - gt_deg
-    return lam_mae * e.abs().mean() + lam_rmse * (torch.sqrt((e * e).mean() + 1e-12) + 1e-6)
+    w = torch.ones(e.shape[-1]) if weights is None else weights
+    return lam_mae * (w * e.abs()).mean() + lam_rmse * (torch.sqrt((w * e * e).mean() + 1e-12) + 1e-6)
+
+
+def joint_weight_vector(weights: dict[str, float]) -> torch.Tensor | None:
+    """(12,) per-joint loss weights normalised to mean 1 from ``{joint name: weight}`` (others 1); None if empty."""
+    if not weights:
+        return None
+    bad = [k for k in weights if k not in JOINTS]
+    if bad or any(not np.isfinite(v) or v <= 0 for v in weights.values()):
+        raise ValueError(f"joint weights must be positive and name joints of {JOINTS}, got {weights}")
+    w = torch.tensor([float(weights.get(j, 1.0)) for j in JOINTS])
+    return w / w.mean()
 
 
 def pose_metrics(pred_deg: np.ndarray, gt_deg: np.ndarray) -> dict:
@@ -342,10 +364,11 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
         model = load_models(Path(tc.init))[0][modality]
         log(f"[handpose {modality}] fine-tuning from {tc.init} ({len(tr_idx)} training grasps)")
     val_in = model_inputs(modality, data, val_idx)
+    w = joint_weight_vector(tc.joint_weights)
 
     def loss_on(pos: np.ndarray) -> torch.Tensor:
         idx = np.sort(tr_idx[pos])
-        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse)
+        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse, w)
 
     @torch.no_grad()
     def val_loss() -> float:
