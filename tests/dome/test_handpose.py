@@ -219,7 +219,14 @@ def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
     from vtrack.errors import InputError
 
     base = ["dome", "handpose", "train", "--out", str(tmp_path / "w.pt")]
-    for extra, field in ((["--ir-encoder", "graph"], "--ir-encoder"), (["--modalities", "rgb,depth"], "--modalities")):
+    bad = (
+        (["--ir-encoder", "graph"], "--ir-encoder"),
+        (["--modalities", "rgb,depth"], "--modalities"),
+        (["--joint-weights", "thumb_tip=2"], "--joint-weights"),
+        (["--joint-weights", "thumb_ip=-1"], "--joint-weights"),
+        (["--joint-weights", "thumb_ip"], "--joint-weights"),
+    )
+    for extra, field in bad:
         r = CliRunner().invoke(app, [*base, *extra])
         assert isinstance(r.exception, InputError) and r.exception.field == field
     assert not (tmp_path / "w.pt").exists()
@@ -351,3 +358,88 @@ def test_varied_sensor_has_markers_over_the_whole_visible_cap() -> None:
     assert len(ir_reference_centers(HandDomeSimulator(grasp_set="varied").ir_reference())) == 397
     with pytest.raises(ValueError):
         sensor_config("nope")
+
+
+def test_ray_capsule_hits_at_the_right_depth_with_the_right_normal() -> None:
+    """The ``haze`` model's ray tracer: exact first-hit distance and outward normal of a capsule; 0 for a ray
+    that starts inside one (a pressing phalanx), inf for a miss."""
+    from vtrack.dome.handsim import _ray_capsules
+
+    caps = [(np.array([-10.0, 0.0, 10.0]), np.array([10.0, 0.0, 10.0]), 2.0, "index")]
+    o = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 9.0], [0.0, 5.0, 0.0], [14.0, 0.0, 0.0]])
+    v = np.array([[0.0, 0.0, 1.0]] * 4)
+    d, n = _ray_capsules(o, v, caps)
+    np.testing.assert_allclose(d[:2], [8.0, 0.0], atol=1e-9)
+    assert np.isinf(d[2])
+    np.testing.assert_allclose(n[0], [0.0, 0.0, -1.0], atol=1e-9)
+    # past the segment's end: the end sphere (centre (10, 0, 10), r 2) is hit at z = 10 - sqrt(4 - 16) -> miss,
+    # at x = 11 it is hit at z = 10 - sqrt(3)
+    d2, n2 = _ray_capsules(np.array([[11.0, 0.0, 0.0]]), v[:1], caps)
+    np.testing.assert_allclose(d2, [10.0 - np.sqrt(3.0)], atol=1e-9)
+    np.testing.assert_allclose(n2[0], [0.5, 0.0, -np.sqrt(3.0) / 2], atol=1e-9)
+    assert np.isinf(d[3])
+
+
+def test_haze_rgb_model_sharp_on_the_shell_and_blurred_off_it() -> None:
+    """The visible-light model of the varied set: a phalanx pressing the shell shows a sharp, bright-skin patch;
+    the same phalanx 15 mm off the shell is blurred (softer edges, larger footprint) but still seen; the
+    ``opacity`` model of the older sets keeps its flat colour. Both models draw the same random numbers, so the
+    IR frames of a grasp do not depend on the RGB model."""
+    from vtrack.dome.handsim import HAND_DOME_FULL, rgb_model
+
+    sim = HandDomeSimulator(grasp_set="varied")
+    assert sim.rgb_model == "haze" and rgb_model("mixed") == rgb_model("contact") == "opacity"
+    R, r = HAND_DOME_FULL.radius_mm, 8.0
+    n = np.array([np.sin(np.deg2rad(30)), 0.0, np.cos(np.deg2rad(30))])
+    t = np.cross(n, [0.0, 1.0, 0.0])
+
+    def image(gap: float) -> np.ndarray:
+        c = n * (R + r + gap)
+        caps = [(c - 12 * t, c + 12 * t, r, "index")]
+        return sim.render_rgb(caps, np.random.default_rng(0), noise=0.0).astype(np.float64)
+
+    empty = sim.render_rgb([(np.full(3, 1e3), np.full(3, 1e3 + 1), 1.0, "x")], np.random.default_rng(0), noise=0)
+    empty = empty.astype(np.float64)
+    near, far = image(-1.0), image(15.0)
+    d_near, d_far = (near - empty)[..., 0], (far - empty)[..., 0]
+    assert np.abs(d_near).max() > 50 and np.abs(d_far).max() > 50  # both are seen, not faded out
+
+    def sharpness(d: np.ndarray) -> float:  # steepest step / contrast of the phalanx's own image (rim cancels)
+        return max(np.abs(np.diff(d, axis=a)).max() for a in (0, 1)) / np.abs(d).max()
+
+    assert sharpness(d_near) > 1.5 * sharpness(d_far)  # measured 0.52 vs 0.27
+    assert (np.abs(d_far) > 10).sum() > 1.4 * (np.abs(d_near) > 10).sum()  # the blur spreads it (126 vs 74 px)
+    # skin (red > blue) where the phalanx presses
+    patch = near[np.abs(d_near) > 0.8 * np.abs(d_near).max()]
+    assert patch[:, 0].mean() > patch[:, 2].mean() + 20
+    sim.rgb_model = "opacity"  # the same grasp rendered by the other model: IR identical, RGB not
+    b = sim.sample(np.random.default_rng(5))
+    sim.rgb_model = "haze"
+    a = sim.sample(np.random.default_rng(5))
+    assert np.array_equal(a["ir"], b["ir"]) and not np.array_equal(a["rgb"], b["rgb"])
+    with pytest.raises(ValueError):
+        HandDomeSimulator(grasp_set="varied", rgb_model_name="nope")
+
+
+def test_per_joint_loss_weights() -> None:
+    """Per-joint weights (mean 1) inside both loss terms: equal weights give S25-S27 exactly; a weight of 3 on the
+    one wrong joint raises both terms by 3x / sqrt(3)x relative to the normalised unweighted loss."""
+    from vtrack.dome.handpose import joint_weight_vector, pose_loss
+
+    assert joint_weight_vector({}) is None
+    w = joint_weight_vector({"thumb_ip": 3.0})
+    assert abs(float(w.mean()) - 1.0) < 1e-6 and float(w[3] / w[0]) == pytest.approx(3.0)
+    gt = torch.zeros(4, 12)
+    pred = gt.clone()
+    pred[:, 3] = 2.0  # only the thumb IP is wrong
+    plain = pose_loss(pred, gt)
+    assert float(pose_loss(pred, gt, weights=joint_weight_vector({j: 1.0 for j in JOINTS}))) == pytest.approx(
+        float(plain)
+    )
+    mae, rmse = 2.0 / 12, np.sqrt(4.0 / 12)
+    assert float(plain) == pytest.approx(mae + rmse, rel=1e-5)
+    assert float(pose_loss(pred, gt, weights=w)) == pytest.approx(
+        float(w[3]) * mae + np.sqrt(float(w[3])) * rmse, rel=1e-5
+    )
+    with pytest.raises(ValueError):
+        joint_weight_vector({"thumb_tip": 2.0})

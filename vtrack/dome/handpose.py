@@ -22,14 +22,14 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
-from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, sensor_config
+from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, rgb_model, sensor_config
 
 MODALITIES = ("rgb", "ir", "dual")
 HANDPOSE_VERSION = 2
@@ -89,6 +89,9 @@ class HandPoseTrainConfig:
     #: wall-time guard per net (s, 0 = none): training stops at the first validation past it and keeps the best
     #: checkpoint so far (the step budget stays the recipe; the guard only protects a shared machine's schedule)
     time_budget_s: float = 0.0
+    #: per-joint weights of the training loss (joint name -> weight, the others 1; normalised to mean 1), e.g. more
+    #: weight on the thumb MCP / IP; validation and checkpointing stay on the unweighted S25-S27 loss
+    joint_weights: dict[str, float] = field(default_factory=dict)
 
 
 def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
@@ -250,10 +253,29 @@ def model_inputs(modality: str, data: dict, idx: np.ndarray | slice) -> dict[str
     return out
 
 
-def pose_loss(pred_deg: torch.Tensor, gt_deg: torch.Tensor, lam_mae: float = 1.0, lam_rmse: float = 1.0):
-    """S25-S27: ``lam_mae * mean|e| + lam_rmse * (sqrt(mean e^2) + eps)`` over batch and the 12 joints (deg)."""
+def pose_loss(
+    pred_deg: torch.Tensor,
+    gt_deg: torch.Tensor,
+    lam_mae: float = 1.0,
+    lam_rmse: float = 1.0,
+    weights: torch.Tensor | None = None,
+):
+    """S25-S27: ``lam_mae * mean|e| + lam_rmse * (sqrt(mean e^2) + eps)`` over batch and the 12 joints (deg).
+    ``weights`` (12,): optional per-joint weights (mean 1) inside both means."""
     e = pred_deg - gt_deg
-    return lam_mae * e.abs().mean() + lam_rmse * (torch.sqrt((e * e).mean() + 1e-12) + 1e-6)
+    w = torch.ones(e.shape[-1]) if weights is None else weights
+    return lam_mae * (w * e.abs()).mean() + lam_rmse * (torch.sqrt((w * e * e).mean() + 1e-12) + 1e-6)
+
+
+def joint_weight_vector(weights: dict[str, float]) -> torch.Tensor | None:
+    """(12,) per-joint loss weights normalised to mean 1 from ``{joint name: weight}`` (others 1); None if empty."""
+    if not weights:
+        return None
+    bad = [k for k in weights if k not in JOINTS]
+    if bad or any(not np.isfinite(v) or v <= 0 for v in weights.values()):
+        raise ValueError(f"joint weights must be positive and name joints of {JOINTS}, got {weights}")
+    w = torch.tensor([float(weights.get(j, 1.0)) for j in JOINTS])
+    return w / w.mean()
 
 
 def pose_metrics(pred_deg: np.ndarray, gt_deg: np.ndarray) -> dict:
@@ -342,10 +364,11 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
         model = load_models(Path(tc.init))[0][modality]
         log(f"[handpose {modality}] fine-tuning from {tc.init} ({len(tr_idx)} training grasps)")
     val_in = model_inputs(modality, data, val_idx)
+    w = joint_weight_vector(tc.joint_weights)
 
     def loss_on(pos: np.ndarray) -> torch.Tensor:
         idx = np.sort(tr_idx[pos])
-        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse)
+        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse, w)
 
     @torch.no_grad()
     def val_loss() -> float:
@@ -596,9 +619,8 @@ def joint_observability(data: dict, step_deg: float = 5.0, cache: bool = True) -
     q_all = np.asarray(data["angles_deg"], np.float64)
     place_all = np.asarray(data["place"], np.float64)
     sensor = sensor_config("varied").to_dict()  # the IR image (and so its SNR) depends on the marker layout
-    key = hashlib.sha1(
-        q_all.tobytes() + place_all.tobytes() + str(step_deg).encode() + str(sorted(sensor.items())).encode()
-    ).hexdigest()[:12]
+    salt = str(sorted(sensor.items())).encode() + rgb_model("varied").encode()  # and the RGB one on its model
+    key = hashlib.sha1(q_all.tobytes() + place_all.tobytes() + str(step_deg).encode() + salt).hexdigest()[:12]
     path = cache_dir() / "dome" / f"handpose_obs_{key}.npz"
     if cache and path.exists():
         with np.load(path) as z:
@@ -629,15 +651,18 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
     For each grasp the thumb tip is held fixed and the IP / MCP ratio is changed by ``-scale`` (or ``+scale`` when
     that is out of reach); the thumb is re-solved by :meth:`HandModel.digit_ik`. Returns the medians of the
     largest thumb-joint change (deg) and of the noise-free image change as matched-filter SNR (RGB and IR, as in
-    :func:`joint_observability`), per grasp that could be re-solved."""
+    :func:`joint_observability`), per grasp that could be re-solved, and per grasp (``grasp_index`` into the
+    held-out set, ``snr_rgb``)."""
     from vtrack.dome.handsim import DIGITS, HandDomeSimulator, HandPlace, make_handpose_dataset
 
     te = make_handpose_dataset(TEST_N, seed, grasp_set="varied")
     sim = HandDomeSimulator(grasp_set="varied")
     hand, thumb = sim.hand, DIGITS[0]
 
-    dq, snr_rgb, snr_ir = [], [], []
-    for q, pa in zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True):
+    dq, snr_rgb, snr_ir, index = [], [], [], []
+    for i, (q, pa) in enumerate(
+        zip(te["angles_deg"][:n_grasps].astype(np.float64), te["place"][:n_grasps], strict=True)
+    ):
         place = HandPlace.from_array(pa)
         tip = hand._chain(thumb, q, 0.0, place)[-1]
         ratio = q[thumb.joints[2]] / max(q[thumb.joints[1]], 1e-6)
@@ -649,8 +674,11 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
             dq.append(float(np.abs(qq - q)[list(thumb.joints)].max()))
             snr_rgb.append(_snr(a1, a0, RGB_NOISE_GREY))
             snr_ir.append(_snr(b1, b0, IR_NOISE_GREY))
+            index.append(i)
             break
     return {
+        "grasp_index": index,
+        "snr_rgb": snr_rgb,
         "grasps": len(dq),
         "median_joint_change_deg": float(np.median(dq)),
         "median_snr_rgb": float(np.median(snr_rgb)),

@@ -2,10 +2,15 @@
 
 A 12-joint articulated hand holds a dome of 70 mm radius (:data:`HAND_DOME`); the camera inside the dome sees
 
-(a) a visible-light ("RGB") image of the hand through the translucent shell: every shell point takes the skin
-    colour with an opacity that falls off with its distance to the nearest hand part (``exp(-gap / 5 mm)``: the
-    diffusing shell blurs and attenuates what lies behind it; a finger 2 cm off the shell is all but invisible),
-    then blur, vignetting, gain and noise;
+(a) a visible-light ("RGB") image of the hand through the translucent shell. Two image models
+    (:data:`RGB_MODELS`, :func:`rgb_model`): ``opacity`` (the ``mixed`` / ``contact`` sets and their nets): every
+    shell point takes the skin colour with an opacity that falls off with its distance to the nearest hand part
+    (``exp(-gap / 5 mm)``), one flat skin colour; ``haze`` (the ``varied`` set, the default task): each camera ray
+    is traced through the shell to the first hand surface it meets (depth ``d`` along the ray, surface normal),
+    the skin is lit by the dome's inner light (Lambert shading per link, irradiance falling with ``d``), and the
+    diffusing shell spreads the light from a surface ``d`` mm behind it over a disc that grows with ``d``
+    (Gaussian, sigma = ``d`` x :data:`HAZE_TAN`): a fingertip on the shell is sharp, a phalanx 2 cm off it is a
+    soft, darker smudge. Then vignetting, lens blur, gain and noise (same draws in both models);
 (b) the infrared marker image: every hand part that touches the shell is a spherical press
     (:class:`vtrack.dome.simulate.Press`) with a tangential drag along the closing direction of the finger, the
     marker displacements of all presses are superposed and rendered by :class:`DomeSimulator` (same renderer
@@ -59,8 +64,23 @@ HAND_DOME = DomeConfig(
 HAND_DOME_FULL = replace(HAND_DOME, marker_rings=11, marker_cap_deg=74.0)
 #: visible-light image side (px); the same fisheye as the IR camera, scaled
 RGB_SIZE = 64
-#: opacity fall-off (mm) of a hand part seen through the diffusing shell
+#: opacity fall-off (mm) of a hand part seen through the diffusing shell (``opacity`` image model)
 GAP_SCALE_MM = 5.0
+#: visible-light image models (:meth:`HandDomeSimulator.render_rgb`): ``opacity`` (flat skin colour, opacity
+#: ``exp(-gap / GAP_SCALE_MM)`` of the distance field) and ``haze`` (ray-traced depth and shading, blur growing
+#: with the distance of each surface from the shell)
+RGB_MODELS = ("opacity", "haze")
+#: ``haze``: tan of the angular spread (1 sigma) of the light the shell passes on: a surface ``d`` mm behind the
+#: shell is blurred on it with sigma ``d * HAZE_TAN`` mm (~19 deg; a hazy, not milky, shell: the paper's coating
+#: keeps the visible transmittance "relatively high", Fig. S6, and the hand is observed through it, S-Text 1)
+HAZE_TAN = 0.35
+#: ``haze``: the inner light reaching the skin falls as ``1 / (1 + d / HAZE_LIGHT_MM)^2`` with its distance d (mm)
+#: from the shell (the lit inner surface is an extended source of about this size)
+HAZE_LIGHT_MM = 20.0
+#: ``haze``: share of the skin's radiance that does not depend on its orientation (inter-reflections)
+HAZE_AMBIENT = 0.25
+#: ``haze``: depth layers (mm along the ray) rendered with one blur each
+HAZE_DEPTH_EDGES_MM = (0.0, 0.5, 2.0, 4.0, 7.0, 11.0, 16.0, 22.0, 30.0, 42.0, 60.0, 1e9)
 #: regressed joint angles (degrees), in output order
 JOINTS = (
     "thumb_cmc_abd",
@@ -152,6 +172,60 @@ VARIED_MAX_PEN_MM = 4.0
 #: joint limits (deg): proximal (finger MCP, thumb CMC) and distal (finger PIP, thumb MCP and IP)
 PROX_LIMITS_DEG = (-30.0, 95.0)
 DIST_LIMITS_DEG = (0.0, 110.0)
+
+
+def rgb_model(grasp_set: str) -> str:
+    """Visible-light image model of a grasp set (:data:`RGB_MODELS`): ``haze`` for ``varied`` (the default task),
+    ``opacity`` for ``mixed`` / ``contact`` (their cached simulations and shipped nets keep the model they had)."""
+    if grasp_set not in GRASP_SETS:
+        raise ValueError(f"unknown grasp set {grasp_set!r} ({', '.join(GRASP_SETS)})")
+    return "haze" if grasp_set == "varied" else "opacity"
+
+
+def _ray_capsules(o: np.ndarray, v: np.ndarray, caps: list) -> tuple[np.ndarray, np.ndarray]:
+    """First hit of rays ``o + t v`` (P, 3; unit ``v``) with the capsules ``caps`` (a, b, radius, name): distance
+    ``t`` (P,) in mm (0 where the ray starts inside a capsule, inf where it hits nothing) and the outward surface
+    normal at the hit (P, 3). Analytic ray-capsule intersection (cylinder body, then the end spheres)."""
+    A = np.stack([c[0] for c in caps])[None]  # (1, C, 3)
+    B = np.stack([c[1] for c in caps])[None]
+    r = np.array([c[2] for c in caps])[None]  # (1, C)
+    ba = B - A
+    oa = o[:, None] - A  # (P, C, 3)
+    vv = v[:, None]
+    L2 = (ba * ba).sum(-1)
+    bard = (ba * vv).sum(-1)
+    baoa = (ba * oa).sum(-1)
+    rdoa = (vv * oa).sum(-1)
+    oaoa = (oa * oa).sum(-1)
+    qa = np.maximum(L2 - bard * bard, 1e-9)
+    qb = L2 * rdoa - baoa * bard
+    qc = L2 * oaoa - baoa * baoa - r * r * L2
+    h = qb * qb - qa * qc
+    with np.errstate(invalid="ignore"):
+        tb = (-qb - np.sqrt(h)) / qa
+    yb = baoa + tb * bard
+    t = np.where((h >= 0) & (yb > 0) & (yb < L2), tb, np.inf)
+    for end in (A, B):  # the end spheres (where the body was missed or hit beyond its ends)
+        oc = o[:, None] - end
+        b2 = (vv * oc).sum(-1)
+        h2 = b2 * b2 - ((oc * oc).sum(-1) - r * r)
+        with np.errstate(invalid="ignore"):
+            ts = -b2 - np.sqrt(h2)
+        t = np.where((h2 >= 0) & np.isinf(t), ts, np.minimum(t, np.where(h2 >= 0, ts, np.inf)))
+    # inside a capsule at the ray start (a pressing phalanx): depth 0
+    tt = np.clip((oa * ba).sum(-1) / np.maximum(L2, 1e-12), 0.0, 1.0)
+    inside = (np.linalg.norm(oa - tt[..., None] * ba, axis=-1) < r).any(1)
+    t = np.where(t > 0, t, np.inf)
+    k = np.argmin(t, 1)
+    d = t[np.arange(len(o)), k]
+    d = np.where(inside, 0.0, d)
+    x = o + np.where(np.isfinite(d), d, 0.0)[:, None] * v
+    a, ab = A[0, k], ba[0, k]
+    s = np.clip(((x - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+    n = x - (a + s[:, None] * ab)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
+    n = np.where(inside[:, None], -v, n)  # skin flattened on the shell faces the camera
+    return d, n
 
 
 def sensor_config(grasp_set: str) -> DomeConfig:
@@ -463,11 +537,21 @@ class HandModel:
 class HandDomeSimulator:
     """Render (RGB, IR) image pairs of the hand holding the dome."""
 
-    def __init__(self, cfg: DomeConfig | None = None, rgb_size: int = RGB_SIZE, grasp_set: str = "mixed") -> None:
-        """``cfg``: the sensor (default :func:`sensor_config` of ``grasp_set``)."""
+    def __init__(
+        self,
+        cfg: DomeConfig | None = None,
+        rgb_size: int = RGB_SIZE,
+        grasp_set: str = "mixed",
+        rgb_model_name: str | None = None,
+    ) -> None:
+        """``cfg``: the sensor (default :func:`sensor_config` of ``grasp_set``); ``rgb_model_name``: the
+        visible-light image model (:data:`RGB_MODELS`, default :func:`rgb_model` of ``grasp_set``)."""
         from vtrack.dome.simulate import DomeSimulator
 
         cfg = sensor_config(grasp_set) if cfg is None else cfg
+        self.rgb_model = rgb_model(grasp_set) if rgb_model_name is None else rgb_model_name
+        if self.rgb_model not in RGB_MODELS:
+            raise ValueError(f"unknown RGB model {self.rgb_model!r} ({', '.join(RGB_MODELS)})")
         self.grasp_set = grasp_set
         self.cfg = cfg
         self.sim = DomeSimulator(cfg)
@@ -484,6 +568,13 @@ class HandDomeSimulator:
         rr = np.hypot(xx - (rgb_size - 1) / 2, yy - (rgb_size - 1) / 2) / (rgb_size / 2)
         self._vign = (1.0 - 0.3 * rr**2).ravel()
         self.rgb_size = rgb_size
+        # ``haze``: camera rays through the shell points (unit, dome frame) and the shell's size of one pixel (mm)
+        ray = self._shell - geo.camera_center
+        self._ray = ray / np.linalg.norm(ray, axis=1, keepdims=True)
+        grid = self._shell.reshape(rgb_size, rgb_size, 3)
+        ins = self._inside.reshape(rgb_size, rgb_size)
+        step = np.linalg.norm(np.diff(grid, axis=1), axis=-1)[ins[:, 1:] & ins[:, :-1]]
+        self._mm_per_px = float(np.median(step))
 
     def presses(self, caps: list, rng: np.random.Generator) -> list:
         """Spherical presses (depth mm) where phalanges meet the shell, with a drag along the closing
@@ -510,24 +601,69 @@ class HandDomeSimulator:
         return out
 
     def render_rgb(self, caps: list, rng: np.random.Generator, noise: float = 1.0) -> np.ndarray:
-        """(S, S, 3) uint8 visible-light image: hand silhouette through the translucent shell."""
+        """(S, S, 3) uint8 visible-light image of the hand through the translucent shell, by the simulator's
+        image model (:data:`RGB_MODELS`). Both models draw the same random numbers (background and skin gains,
+        pixel noise), so the IR frames drawn after them are the same whichever model renders the RGB image."""
         import cv2
 
-        p = self._shell
-        clear = np.ones(len(p))
-        for a, b, r, _ in caps:
-            gap = np.clip(_seg_point_dist(a, b, p) - r, 0.0, None)
-            clear *= 1.0 - 0.92 * np.exp(-gap / GAP_SCALE_MM)
-        alpha = 1.0 - clear
         bg = np.array([0.70, 0.74, 0.78]) * (rng.uniform(0.85, 1.1) if noise > 0 else 1.0)
         skin = np.array([0.78, 0.52, 0.42]) * (rng.uniform(0.85, 1.1) if noise > 0 else 1.0) * 0.6
-        img = (clear[:, None] * bg + alpha[:, None] * skin) * self._vign[:, None]
-        img[~self._inside] = 0.02
         S = self.rgb_size
+        if self.rgb_model == "haze":
+            img = self._haze_image(caps, bg, skin)
+        else:
+            p = self._shell
+            clear = np.ones(len(p))
+            for a, b, r, _ in caps:
+                gap = np.clip(_seg_point_dist(a, b, p) - r, 0.0, None)
+                clear *= 1.0 - 0.92 * np.exp(-gap / GAP_SCALE_MM)
+            alpha = 1.0 - clear
+            img = clear[:, None] * bg + alpha[:, None] * skin
+        img = img * self._vign[:, None]
+        img[~self._inside] = 0.02
         img = cv2.GaussianBlur(img.reshape(S, S, 3).astype(np.float32), (0, 0), 0.8)
         if noise > 0:
             img = img + rng.normal(0.0, 0.015 * noise, img.shape)
         return np.clip(img * 255, 0, 255).astype(np.uint8)
+
+    def _haze_image(self, caps: list, bg: np.ndarray, skin: np.ndarray) -> np.ndarray:
+        """(S * S, 3) radiance on the shell of the ``haze`` model (before vignetting, lens blur and noise).
+
+        Each pixel's ray leaves the shell point and meets the first hand surface at depth ``d`` (mm; 0 where a
+        phalanx presses the shell). That skin is lit by the dome's inner light: radiance ``skin * (HAZE_AMBIENT +
+        (1 - HAZE_AMBIENT) cos) / (1 + d / HAZE_LIGHT_MM)^2`` with ``cos`` between its normal and the ray (per-link
+        shading). The shell passes that light on through a cone of spread :data:`HAZE_TAN`: per depth layer
+        (:data:`HAZE_DEPTH_EDGES_MM`) the layer's radiance and coverage are blurred with sigma ``d * HAZE_TAN``
+        (mm on the shell, in px) and composited over the room light ``bg`` seen where no hand covers the view."""
+        import cv2
+
+        S = self.rgb_size
+        inside = self._inside
+        d = np.full(S * S, np.inf)
+        cosang = np.zeros(S * S)
+        dd, n = _ray_capsules(self._shell[inside], self._ray[inside], caps)
+        d[inside] = dd
+        cosang[inside] = np.clip(-(n * self._ray[inside]).sum(1), 0.0, 1.0)
+        hit = np.isfinite(d)
+        shade = np.where(
+            hit, (HAZE_AMBIENT + (1 - HAZE_AMBIENT) * cosang) / (1 + np.where(hit, d, 0) / HAZE_LIGHT_MM) ** 2, 0
+        )
+        rad = (shade[:, None] * skin[None]).reshape(S, S, 3).astype(np.float32)
+        acc = np.zeros((S, S, 3), np.float32)
+        cover = np.zeros((S, S), np.float32)
+        e = HAZE_DEPTH_EDGES_MM
+        for lo, hi in zip(e[:-1], e[1:], strict=True):
+            m = (hit & (d >= lo) & (d < hi)).reshape(S, S)
+            if not m.any():
+                continue
+            sig = max(0.5 * (lo + min(hi, 2 * e[-2] - e[-3])) * HAZE_TAN / self._mm_per_px, 0.3)
+            mf = m.astype(np.float32)
+            acc += cv2.GaussianBlur(rad * mf[..., None], (0, 0), sig)
+            cover += cv2.GaussianBlur(mf, (0, 0), sig)
+        scale = 1.0 / np.maximum(cover, 1.0)  # layers overlapping after the blur: keep the light bounded
+        cover = np.minimum(cover, 1.0)
+        img = acc * scale[..., None] + (1.0 - cover)[..., None] * bg[None, None].astype(np.float32)
+        return img.reshape(-1, 3).astype(np.float64)
 
     def render_ir(self, caps: list, rng: np.random.Generator, noise: float = 1.0) -> np.ndarray:
         """(S, S) uint8 infrared marker image with the contact deformations of all touching phalanges."""
@@ -572,6 +708,8 @@ def handpose_dataset_path(n: int, seed: int, grasp_set: str = "mixed") -> Path:
     key = {"n": n, "seed": seed, "cfg": sensor_config(grasp_set).to_dict(), "rgb": RGB_SIZE, "v": DATA_VERSION}
     if grasp_set != "mixed":  # the mixed set keeps its original cache key
         key["grasp_set"] = grasp_set
+    if rgb_model(grasp_set) != "opacity":  # the sets simulated with the first image model keep their keys
+        key["rgb_model"] = rgb_model(grasp_set)
     h = hashlib.sha1(json.dumps(key, sort_keys=True).encode()).hexdigest()[:10]
     return cache_dir() / "dome" / f"handpose_{n}_{seed}_{h}.npz"
 

@@ -328,6 +328,9 @@ def register(app: typer.Typer) -> None:
         time_budget_min: float = typer.Option(
             0.0, "--time-budget-min", min=0.0, help="stop a net at the first validation past this (min; 0 = none)"
         ),
+        joint_weights: str = typer.Option(
+            "", "--joint-weights", help="training-loss weights per joint, e.g. thumb_mcp=2,thumb_ip=3 (others 1)"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
@@ -335,7 +338,7 @@ def register(app: typer.Typer) -> None:
         (settings not listed in --modalities are kept from that file; the dual net fuses the two single nets)."""
         import json
 
-        from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, train_all
+        from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, joint_weight_vector, train_all
         from vtrack.dome.handsim import GRASP_SETS
         from vtrack.errors import InputError
 
@@ -349,7 +352,21 @@ def register(app: typer.Typer) -> None:
             raise InputError("unknown IR encoder", field="--ir-encoder", expected="markers or cnn", got=ir_encoder)
         if init is not None and not init.is_file():
             raise InputError("weights to fine-tune from not found", path=init, field="--init")
+        jw: dict[str, float] = {}
+        for item in (x.strip() for x in joint_weights.split(",") if x.strip()):
+            name, _, val = item.partition("=")
+            try:
+                jw[name.strip()] = float(val)
+            except ValueError:
+                raise InputError(
+                    "bad joint weight", field="--joint-weights", expected="name=number", got=item
+                ) from None
+        try:
+            joint_weight_vector(jw)
+        except ValueError as e:
+            raise InputError(str(e), field="--joint-weights", got=joint_weights) from None
         tc = HandPoseTrainConfig(
+            joint_weights=jw,
             n_train=n_train,
             steps=steps,
             fusion_steps=fusion_steps,
