@@ -278,6 +278,9 @@ def track_session(
         touch_stride=touch_stride,
         max_frames=max_frames,
         touch_downsample=touch_downsample,
+        # the colour term's feature tracks (RGB read only when it is on: the default path stays as cheap)
+        colour=float(opts.get("sigma_colour", 0.0) or 0.0) > 0 and method == "ours",
+        colour_opts=opts.pop("colour_opts", None),
     )
     mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known_shape" or method == "icp") else None
     if (shape == "known_shape" or method == "icp") and mesh_path is None:

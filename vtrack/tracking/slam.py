@@ -277,6 +277,7 @@ class SLAMTracker(WindowTracker):
             t0 = time.perf_counter()
             self.t_last = float(frame.t)
             self.history.append(StepInfo(t=float(frame.t), status="mapping"))
+            self._colour_anchor(frame, T, True)
         else:
             T = super().step(frame)
         t1 = time.perf_counter()

@@ -122,6 +122,14 @@ class TrackerOptions:
     kf_touch_points: int = 60
     velocity_decay_dt: float = 0.5  #: a gap longer than this resets the velocity, s
     seed: int = 0
+    #: colour term (0: off): colour feature tracks (``frame.info["colour_ids"]`` / ``["colour_points"]``, world, from
+    #: :mod:`vtrack.tracking.colour`) are anchored in the object frame when first seen; later observations must land
+    #: on their anchors, point-to-point with this sigma (m), robust (``kernel_colour``). Added AFTER the degeneracy
+    #: projection: it is what observes a spin about a symmetry axis that depth and touch leave to the motion prior
+    sigma_colour: float = 0.0
+    kernel_colour: float = 1.5  #: robust kernel width of the colour term, in sigmas
+    colour_gate: float = 0.01  #: drop tracks farther than this from their anchor at the prediction, m
+    colour_min_tracks: int = 6  #: fewer anchored tracks in a frame: no colour term there
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -179,6 +187,8 @@ class _Slot:
     #: projector of a twist onto the directions the slot's contacts constrain by their measured normals (None: all)
     proj_touch: np.ndarray | None = None
     n_vision: int = -1  #: segmented vision points of the frame when it was current (-1: count the slot's frame)
+    #: colour correspondences: world points (N, 3) of anchored tracks and their object-frame anchors (N, 3)
+    colour: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _hat3(v: np.ndarray) -> np.ndarray:
@@ -311,6 +321,7 @@ class WindowTracker:
         self.history: list[StepInfo] = []
         self._frame_count = 0
         self._t_vision: float | None = None  # time of the last frame with segmented vision points
+        self._anchors: dict[int, np.ndarray] = {}  # colour track id -> object-frame anchor (m)
 
     # -- public API ---------------------------------------------------------------------------
     def reset(self, T_world_object: np.ndarray) -> None:
@@ -319,6 +330,7 @@ class WindowTracker:
         self.velocity[:] = 0.0
         self.keyframes.clear()
         self.t_last = None
+        self._anchors.clear()
 
     @property
     def last_info(self) -> StepInfo | None:
@@ -348,6 +360,7 @@ class WindowTracker:
             n_free=0 if fr.free_points is None else len(fr.free_points),
         )
         cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy(), n_vision=fr.n_vision)
+        cur.colour = self._colour_pairs(fr, T_pred)
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
         if info.n_vision + info.n_touch + info.n_free == 0:
@@ -365,11 +378,72 @@ class WindowTracker:
                         info.status = "recovered"
         self._bound(cur, T_pred)
         self._commit(slots, cur, dt)
+        self._colour_anchor(fr, self.T, info.status not in ("lost", "no_data"))
         info.ms = (time.perf_counter() - t_start) * 1e3
         self.history.append(info)
         return self.T.copy()
 
     # -- internals ----------------------------------------------------------------------------
+    def _colour_pairs(self, fr: TrackingFrame, T_pred: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The frame's colour tracks that have an anchor and lie within ``colour_gate`` of it at the prediction:
+        (world points, object-frame anchors); None when the term is off or fewer than ``colour_min_tracks``."""
+        o = self.opts
+        if o.sigma_colour <= 0 or not self._anchors:
+            return None
+        ids = fr.info.get("colour_ids")
+        P = fr.info.get("colour_points")
+        if ids is None or P is None or len(ids) == 0:
+            return None
+        sel = [(k, a) for k, a in enumerate(np.asarray(ids).tolist()) if a in self._anchors]
+        if len(sel) < o.colour_min_tracks:
+            return None
+        P = np.asarray(P, np.float64)[[k for k, _ in sel]]
+        Q = np.array([self._anchors[a] for _, a in sel])
+        Ti = _inv(T_pred)
+        ok = np.isfinite(P).all(1) & (np.linalg.norm(P @ Ti[:3, :3].T + Ti[:3, 3] - Q, axis=1) < o.colour_gate)
+        if ok.sum() < o.colour_min_tracks:
+            return None
+        return P[ok], Q[ok]
+
+    def _colour_anchor(self, fr: TrackingFrame, T: np.ndarray, ok: bool) -> None:
+        """Anchor the frame's new colour tracks in the object frame at pose ``T`` (only if the frame was tracked:
+        ``ok``); forget the anchors of tracks that ended."""
+        if self.opts.sigma_colour <= 0:
+            return
+        ids = fr.info.get("colour_ids")
+        P = fr.info.get("colour_points")
+        if ids is None or P is None:
+            self._anchors.clear()
+            return
+        ids = np.asarray(ids).tolist()
+        keep = {a: self._anchors[a] for a in ids if a in self._anchors}
+        if ok and np.all(np.isfinite(T)):
+            Ti = _inv(T)
+            Q = np.asarray(P, np.float64) @ Ti[:3, :3].T + Ti[:3, 3]
+            for a, q in zip(ids, Q, strict=True):
+                if a not in keep and np.all(np.isfinite(q)):
+                    keep[a] = q
+        self._anchors = keep
+
+    def _colour_terms(self, s: _Slot) -> tuple[np.ndarray, np.ndarray, float]:
+        """6x6 normal matrix, gradient and robust cost of a slot's colour correspondences at its pose:
+        ``r = T^-1 p - q_anchor`` (object frame), ``dr/d delta = [-I, hat(T^-1 p)]``, robust on ``|r|``."""
+        o = self.opts
+        P, Q = s.colour  # type: ignore[misc]
+        Ti = _inv(s.T)
+        q = P @ Ti[:3, :3].T + Ti[:3, 3]
+        r = q - Q
+        w, rho = _robust_weights(np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust, o.kernel_colour)
+        w = w / o.sigma_colour**2
+        J = np.zeros((len(q), 3, 6))
+        J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = -1.0
+        J[:, 0, 4], J[:, 0, 5] = -q[:, 2], q[:, 1]  # hat(q)
+        J[:, 1, 3], J[:, 1, 5] = q[:, 2], -q[:, 0]
+        J[:, 2, 3], J[:, 2, 4] = -q[:, 1], q[:, 0]
+        H = np.einsum("n,nki,nkj->ij", w, J, J)
+        b = np.einsum("n,nki,nk->i", w, J, r)
+        return H, b, float(rho.sum())
+
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
         """Drop vision points far from the predicted surface (hand, background, flying pixels) and
         gel points of "free" sensors that would be deep inside the object (such a sensor is not free:
@@ -660,6 +734,12 @@ class WindowTracker:
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
             b[6 * i : 6 * i + 6] += bi
             cost += ci
+        for i, s in enumerate(slots):
+            if s.colour is not None:  # after the degeneracy test and projection (see TrackerOptions.sigma_colour)
+                Hc, bc, cc = self._colour_terms(s)
+                H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hc
+                b[6 * i : 6 * i + 6] += bc
+                cost += cc
         terms, cm = self._motion_terms(slots, v_before, dt_first)
         cost += cm
         for ids, Js, r, sq in terms:
