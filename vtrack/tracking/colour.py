@@ -116,12 +116,16 @@ class FeatureTracks:
         self.reset()
 
     def reset(self) -> None:
-        """Forget every track (e.g. before re-running from the first frame)."""
-        self._prev: np.ndarray | None = None  # normalised image inside _prev_box (float32 -> uint8)
+        """Forget every track (e.g. before re-running from the first frame); ids restart at 0."""
+        self._end_tracks()
+        self._next_id = 0
+
+    def _end_tracks(self) -> None:
+        """End every track (ids are not reused: a later track never takes an ended one's anchor)."""
+        self._prev: np.ndarray | None = None  # normalised image inside _prev_box (uint8)
         self._prev_box: tuple[int, int, int, int] | None = None
         self._pts = np.zeros((0, 2), np.float32)  # full-image pixel positions (x, y) in the previous frame
         self._ids = np.zeros(0, np.int64)
-        self._next_id = 0
 
     def update(self, grey: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Track the features into this frame and add new ones; returns ``(ids (N,), uv (N, 2) float px)`` of the
@@ -134,7 +138,7 @@ class FeatureTracks:
             raise InputError("colour image and mask differ in size", field="rgb", expected=mask.shape, got=grey.shape)
         box = _box(mask, o.roi_margin)
         if box is None or mask.sum() < 16:
-            self.reset()
+            self._end_tracks()
             return np.zeros(0, np.int64), np.zeros((0, 2))
         cur_full_box = box
         if self._prev_box is not None and len(self._pts):
