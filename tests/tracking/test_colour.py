@@ -87,7 +87,7 @@ def _frames(textured: bool, n: int = 40, colour: bool = True) -> list[TrackingFr
         if colour:
             ids, uv = tracks.update(grey, m)
             X, ok = backproject(uv, np.where(ms, zs, 0.0), k, K)
-            info = {"colour_ids": ids[ok], "colour_points": X[ok]}
+            info = {"colour_ids": ids[ok], "colour_points": X[ok], "colour_origins": np.zeros((int(ok.sum()), 3))}
         out.append(TrackingFrame(t=t, vision_points=V, info=info))
     return out
 

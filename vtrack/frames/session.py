@@ -44,6 +44,8 @@ from vtrack.geometry.camera import PinholeCamera
 from vtrack.tracking.frame import TrackingFrame
 
 SEGMENTATIONS = ("pipeline", "gt", "none")
+#: a colour track's full-resolution depth must agree with the depth-stride sample this well (m)
+_COLOUR_DEPTH_AGREE_M = 0.005
 
 
 @dataclass
@@ -96,9 +98,11 @@ class Frame:
     vision_mask: dict[str, np.ndarray] = field(default_factory=dict)
     contacts: dict[str, Contact] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
-    #: colour feature tracks (``colour=True`` only): track ids (N,) and their world points (N, 3) in this frame
+    #: colour feature tracks (``colour=True`` only): track ids (N,), their world points (N, 3) in this frame and the
+    #: world centres of the cameras that saw them (N, 3)
     colour_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     colour_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    colour_origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def tracking_frame(self) -> TrackingFrame:
         """The tracker's input (:class:`~vtrack.tracking.frame.TrackingFrame`)."""
@@ -108,7 +112,12 @@ class Frame:
             touch_points=self.touch_points if len(self.touch_points) else None,
             touch_normals=self.touch_normals if len(self.touch_normals) else None,
             free_points=self.free_points if len(self.free_points) else None,
-            info=dict(self.info, colour_ids=self.colour_ids, colour_points=self.colour_points)
+            info=dict(
+                self.info,
+                colour_ids=self.colour_ids,
+                colour_points=self.colour_points,
+                colour_origins=self.colour_origins,
+            )
             if len(self.colour_ids)
             else dict(self.info),
         )
@@ -324,17 +333,17 @@ class SessionFrames:
             k = self.depth_stride
             for c in self.cams:
                 j = int(c.stream.index_at(t)[0])
-                d = np.asarray(c.stream["depth"][j])[::k, ::k]
+                d_full = np.asarray(c.stream["depth"][j])
+                d = d_full[::k, ::k]
                 m = None
                 if c.gt_mask is not None:
                     from vtrack.eval.oracle import read_gt_mask
 
                     m = read_gt_mask(c.gt_mask, j)[::k, ::k]
                 raw["cams"].append((c, d, m))
-                if c.tracks is not None:
-                    from vtrack.tracking.colour import to_grey
-
-                    raw.setdefault("grey", {})[c.name] = to_grey(np.asarray(c.stream["rgb"][j]))
+                if c.tracks is not None:  # the colour term: RGB, and depth at full resolution for its tracks
+                    raw.setdefault("rgb", {})[c.name] = np.asarray(c.stream["rgb"][j])
+                    raw.setdefault("depth_full", {})[c.name] = d_full
         if self.touch is not None:
             for s in self.touch.sensors:
                 if self.sensor_poses and s not in self.sensor_poses:
@@ -357,6 +366,7 @@ class SessionFrames:
         info: dict = {}
         cids: list = []
         cpts: list[np.ndarray] = []
+        corg: list[np.ndarray] = []
         tp, tn, pen, sid, free = [], [], [], [], []
         in_contact: list[tuple[str, np.ndarray, Contact]] = []  # for the gel points beside the patches (see below)
         contacts: dict[str, Contact] = {}
@@ -402,11 +412,14 @@ class SessionFrames:
             pts, _ = cam.unproject(z, mask=mask, depth_scale=1.0)
             if len(pts):
                 vis.append(se3.transform_points(c.T_wc, pts))
-            grey = raw.get("grey", {}).get(c.name)
-            if c.tracks is not None and grey is not None:
-                ids, P = self._colour_tracks(c, grey, z, mask)
+            rgb = raw.get("rgb", {}).get(c.name)
+            if c.tracks is not None and rgb is not None:
+                from vtrack.tracking.colour import to_grey
+
+                ids, P = self._colour_tracks(c, to_grey(rgb), z, mask, raw.get("depth_full", {}).get(c.name))
                 cids.append(ids)
                 cpts.append(P)
+                corg.append(np.repeat(c.T_wc[None, :3, 3], len(P), axis=0))
         if in_contact and sum(len(v) for v in vis) < self.contact_free_max_vision:
             # gel points beside the contact patches, only in frames without (enough) vision: built only then
             free.extend(se3.transform_points(T_ws, self._beside_patch(s, c)) for s, T_ws, c in in_contact)
@@ -425,17 +438,27 @@ class SessionFrames:
             info=info,
             colour_ids=_cat(cids, 0).astype(np.int64),
             colour_points=_cat(cpts),
+            colour_origins=_cat(corg),
         )
 
-    def _colour_tracks(self, c: CameraView, grey: np.ndarray, z: np.ndarray, mask: np.ndarray):
+    def _colour_tracks(
+        self, c: CameraView, grey: np.ndarray, z: np.ndarray, mask: np.ndarray, depth_full: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Camera ``c``'s feature tracks in this frame: ids (made unique across cameras) and world points of the
-        tracks with a valid depth on the object mask (``z``, ``mask``: metres and mask at the depth stride)."""
+        tracks on the object mask with a valid depth (``z``, ``mask``: metres and mask at the depth stride; the depth
+        of a track is read at full resolution from ``depth_full`` when given, and must agree with the strided one
+        within ``_COLOUR_DEPTH_AGREE_M``: a track beside an occluding edge reads the occluder)."""
         from vtrack.tracking.colour import backproject
 
         k = self.depth_stride
         full = upsample_mask(mask, grey.shape) if mask.shape != grey.shape else mask
         ids, uv = c.tracks.update(grey, full[: grey.shape[0], : grey.shape[1]])
         X, ok = backproject(uv, np.where(mask, z, 0.0), k, c.cam.K)
+        if depth_full is not None and depth_full.shape == grey.shape:
+            scale = c.depth_scale if depth_full.dtype.kind in "ui" else 1.0
+            Xf, okf = backproject(uv, depth_full, 1, c.cam.K, scale, patch=2)
+            ok &= okf & (np.abs(Xf[:, 2] - X[:, 2]) < _COLOUR_DEPTH_AGREE_M)
+            X = Xf
         cam_no = self.cams.index(c)
         return ids[ok] * len(self.cams) + cam_no, se3.transform_points(c.T_wc, X[ok])
 

@@ -41,11 +41,15 @@ class ColourOptions:
     #: of the normalised image (mean 128 grey levels) for a new feature: on a uniform, shaded cylinder with the
     #: simulator's sensor noise (2 levels) the largest is 3.7e-4; the textured YCB mug's features reach 1e-3-7e-2
     min_eig: float = 5e-4
-    erode_px: int = 3  #: features start at least this far inside the object mask, px
-    win: int = 15  #: LK window, px
+    erode_px: int = 5  #: features start at least this far inside the object mask, px ...
+    keep_erode_px: int = 4  #: ... and tracks end when they come closer than this to its border, px
+    win: int = 9  #: LK window, px (a small one: near the border a window sees the static background)
     levels: int = 2  #: LK pyramid levels above the base
     fb_max_px: float = 0.5  #: forward-backward disagreement above which a track is dropped, px
     roi_margin: int = 24  #: px around the mask's box the images are processed in
+    #: look for new features only when fewer than this fraction of ``max_features`` tracks survive (detection costs
+    #: as much as tracking)
+    refill_frac: float = 0.75
 
     @classmethod
     def from_dict(cls, opts: dict | None) -> ColourOptions:
@@ -166,11 +170,17 @@ class FeatureTracks:
             yi = np.round(q[:, 1]).astype(int)
             inside = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
             ok &= inside
-            ok[ok] &= mask[yi[ok], xi[ok]]
+            keep = mask
+            if o.keep_erode_px > 0:
+                # a window that straddles the border sees the static background / occluder and is held back
+                kk = 2 * o.keep_erode_px + 1
+                keep = np.zeros_like(mask)
+                keep[r0:r1, c0:c1] = cv2.erode(mask[r0:r1, c0:c1].astype(np.uint8), np.ones((kk, kk), np.uint8)) > 0
+            ok[ok] &= keep[yi[ok], xi[ok]]
             ids, uv = self._ids[ok], q[ok]
         # new features where the tracks are thin
         need = o.max_features - len(ids)
-        if need > 0:
+        if len(ids) < o.refill_frac * o.max_features:
             sub = mask[r0:r1, c0:c1].astype(np.uint8)
             k = 2 * o.erode_px + 1
             allow = cv2.erode(sub, np.ones((k, k), np.uint8))
@@ -198,16 +208,29 @@ class FeatureTracks:
         return self._ids.copy(), self._pts.astype(np.float64)
 
 
-def backproject(uv: np.ndarray, z: np.ndarray, stride: int, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame points (N, 3) of full-resolution pixels ``uv`` (x, y) with depth read from ``z`` (metres,
-    the image subsampled by ``stride``, nearest sample); and which of them have a valid depth."""
+def backproject(
+    uv: np.ndarray, z: np.ndarray, stride: int, K: np.ndarray, scale: float = 1.0, patch: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points (N, 3) of full-resolution pixels ``uv`` (x, y) with depth read from ``z`` (the image
+    subsampled by ``stride``, nearest sample, times ``scale`` to metres; 0 / non-finite = no depth); and which of
+    them have a valid depth. ``patch`` > 0: the median of the valid depths in the (2 patch + 1)^2 samples around
+    (per-pixel sensor noise, ~1 mm on the simulated camera, averages down; a track's anchor keeps its depth)."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     if not len(uv):
         return np.zeros((0, 3)), np.zeros(0, bool)
     xi = np.clip(np.round(uv[:, 0] / stride).astype(int), 0, z.shape[1] - 1)
     yi = np.clip(np.round(uv[:, 1] / stride).astype(int), 0, z.shape[0] - 1)
-    d = z[yi, xi].astype(np.float64)
+    d = z[yi, xi].astype(np.float64) * scale
     ok = np.isfinite(d) & (d > 0)
+    if patch > 0 and ok.any():
+        o = np.arange(-patch, patch + 1)
+        ys = np.clip(yi[:, None, None] + o[None, :, None], 0, z.shape[0] - 1)
+        xs = np.clip(xi[:, None, None] + o[None, None, :], 0, z.shape[1] - 1)
+        zz = z[ys, xs].reshape(len(uv), -1).astype(np.float64) * scale
+        zz[~(np.isfinite(zz) & (zz > 0))] = np.nan
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(np.where(ok[:, None], zz, 0.0), axis=1)
+        d = np.where(ok & np.isfinite(med), med, d)
     d = np.where(ok, d, 0.0)
     X = np.stack([(uv[:, 0] - K[0, 2]) * d / K[0, 0], (uv[:, 1] - K[1, 2]) * d / K[1, 1], d], 1)
     return X, ok
