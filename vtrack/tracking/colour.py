@@ -49,7 +49,7 @@ class ColourOptions:
     roi_margin: int = 24  #: px around the mask's box the images are processed in
     #: look for new features only when fewer than this fraction of ``max_features`` tracks survive (detection costs
     #: as much as tracking)
-    refill_frac: float = 0.75
+    refill_frac: float = 0.5
 
     @classmethod
     def from_dict(cls, opts: dict | None) -> ColourOptions:
@@ -141,7 +141,7 @@ class FeatureTracks:
         if grey.shape != mask.shape:
             raise InputError("colour image and mask differ in size", field="rgb", expected=mask.shape, got=grey.shape)
         box = _box(mask, o.roi_margin)
-        if box is None or mask.sum() < 16:
+        if box is None or np.count_nonzero(mask) < 16:
             self._end_tracks()
             return np.zeros(0, np.int64), np.zeros((0, 2))
         cur_full_box = box
@@ -213,8 +213,9 @@ def backproject(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame points (N, 3) of full-resolution pixels ``uv`` (x, y) with depth read from ``z`` (the image
     subsampled by ``stride``, nearest sample, times ``scale`` to metres; 0 / non-finite = no depth); and which of
-    them have a valid depth. ``patch`` > 0: the median of the valid depths in the (2 patch + 1)^2 samples around
-    (per-pixel sensor noise, ~1 mm on the simulated camera, averages down; a track's anchor keeps its depth)."""
+    them have a valid depth. ``patch`` > 0: the mean of the valid depths in the (2 patch + 1)^2 samples around
+    (within 5 mm of the centre sample) replaces the centre sample: per-pixel sensor noise, ~1 mm on the simulated
+    camera, averages down (a track's anchor keeps its depth)."""
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
     if not len(uv):
         return np.zeros((0, 3)), np.zeros(0, bool)
@@ -227,10 +228,10 @@ def backproject(
         ys = np.clip(yi[:, None, None] + o[None, :, None], 0, z.shape[0] - 1)
         xs = np.clip(xi[:, None, None] + o[None, None, :], 0, z.shape[1] - 1)
         zz = z[ys, xs].reshape(len(uv), -1).astype(np.float64) * scale
-        zz[~(np.isfinite(zz) & (zz > 0))] = np.nan
-        with np.errstate(all="ignore"):
-            med = np.nanmedian(np.where(ok[:, None], zz, 0.0), axis=1)
-        d = np.where(ok & np.isfinite(med), med, d)
+        # the mean of the samples within 5 mm of the centre's depth (not across an occluding edge)
+        near = np.isfinite(zz) & (zz > 0) & (np.abs(zz - d[:, None]) < 0.005)
+        n = near.sum(1)
+        d = np.where(ok & (n > 0), np.where(near, zz, 0.0).sum(1) / np.maximum(n, 1), d)
     d = np.where(ok, d, 0.0)
     X = np.stack([(uv[:, 0] - K[0, 2]) * d / K[0, 0], (uv[:, 1] - K[1, 2]) * d / K[1, 1], d], 1)
     return X, ok
