@@ -126,6 +126,14 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 }
 
 
+#: Colour preset of SLAM (opt-in: ``track_session(..., **SLAM_COLOUR)``, ``vtrack track --shape slam --colour``): KLT
+#: feature tracks on the segmented object pixels (:mod:`vtrack.tracking.colour`) anchored in the object frame, each
+#: observation pulled onto its viewing ray at 1 mm (``TrackerOptions.sigma_colour``). 2 s YCB sessions, blind
+#: (docs/benchmarks/slam_colour.md): mean object-motion error none / medium 1.08 / 3.47 -> see that file; 5 s medium
+#: mug 32.8 -> 2.9 mm, potted meat 11.45 -> 3.6 mm. Costs the RGB read and a few ms of CPU per frame.
+SLAM_COLOUR: dict[str, float] = {"sigma_colour": 0.001}
+
+
 @dataclass
 class SLAMOptions:
     """Map of the SLAM tracker (metres, frames); defaults in one place. Tracker options
