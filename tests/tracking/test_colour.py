@@ -149,3 +149,26 @@ def test_feature_tracks_are_nan_safe_on_empty_masks():
     for f in frames[3:]:
         f.info["colour_points"] = np.full_like(f.info["colour_points"], np.nan)
     assert np.all(np.isfinite(np.array([tr.step(f) for f in frames])))
+
+
+def test_frames_layer_gives_colour_tracks_only_when_asked(tiny_session):
+    from scipy.spatial import cKDTree
+
+    from vtrack.frames.session import SessionFrames
+
+    plain = SessionFrames(tiny_session, max_frames=4)
+    assert "rgb" not in plain.read(0)  # the default path reads no RGB
+    assert "colour_ids" not in plain.frame(0)[0].tracking_frame().info
+    sf = SessionFrames(tiny_session, colour=True, max_frames=4)
+    seen = []
+    for i in range(len(sf)):
+        fr, _ = sf.frame(i)
+        seen.append(set(fr.colour_ids.tolist()))
+        assert len(fr.colour_ids) == len(fr.colour_points) == len(fr.colour_origins)
+        assert np.all(np.isfinite(fr.colour_points))
+    assert len(seen[0]) >= 10 and len(seen[-1] & seen[0]) >= 5  # tracks continue from frame to frame
+    # the tracks lie on the segmented object surface
+    d, _ = cKDTree(fr.vision_points).query(fr.colour_points)
+    assert np.median(d) < 0.004, np.median(d)
+    info = fr.tracking_frame().info
+    assert np.array_equal(info["colour_ids"], fr.colour_ids)

@@ -156,8 +156,8 @@ class SessionFrames:
         max_frames: keep only the first frames (0 = all).
         scene: override the session's embedded scene.
         colour: also read each camera's RGB and follow KLT feature tracks on the segmented object pixels
-            (:mod:`vtrack.tracking.colour`; the tracker's colour term, option ``sigma_colour``). Off by default:
-            the default path reads no RGB.
+            (:mod:`vtrack.tracking.colour`; the tracker's colour term, option ``sigma_colour``); cameras without
+            an ``rgb`` field give none. Off by default: the default path reads no RGB.
         colour_opts: :class:`~vtrack.tracking.colour.ColourOptions` overrides.
     """
 
@@ -248,14 +248,9 @@ class SessionFrames:
 
             co = ColourOptions.from_dict(colour_opts)
             for c in self.cams:
-                if "rgb" not in getattr(c.stream, "fields", ("rgb",)):
-                    raise InputError(
-                        "the colour term needs the camera's RGB images",
-                        path=self.path,
-                        field=f"camera/{c.name}.rgb",
-                        expected="an rgb field, or colour off",
-                    )
-                c.tracks = FeatureTracks(co)
+                # a depth-only camera gives no colour tracks (the tracker's colour term then has nothing to use)
+                if "rgb" in getattr(c.stream, "fields", ("rgb",)):
+                    c.tracks = FeatureTracks(co)
         if self.cams:
             t = self.cams[0].stream.t
         elif self.touch is not None and self.touch.sensors:

@@ -126,12 +126,16 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 }
 
 
-#: Colour preset of SLAM (opt-in: ``track_session(..., **SLAM_COLOUR)``, ``vtrack track --shape slam --colour``): KLT
-#: feature tracks on the segmented object pixels (:mod:`vtrack.tracking.colour`) anchored in the object frame, each
-#: observation pulled onto its viewing ray at 1 mm (``TrackerOptions.sigma_colour``). 2 s YCB sessions, blind
-#: (docs/benchmarks/slam_colour.md): mean object-motion error none / medium 1.08 / 3.47 -> see that file; 5 s medium
-#: mug 32.8 -> 2.9 mm, potted meat 11.45 -> 3.6 mm. Costs the RGB read and a few ms of CPU per frame.
-SLAM_COLOUR: dict[str, float] = {"sigma_colour": 0.001}
+#: SLAM's colour term (``TrackerOptions.sigma_colour``, m; SLAM's default since 2026-11-26): KLT feature tracks on
+#: the segmented object pixels (:mod:`vtrack.tracking.colour`, built by the frames layer when the term is on) anchored
+#: in the object frame, each observation pulled onto its viewing ray at 1 mm. Blind, 2 s YCB sessions
+#: (docs/benchmarks/slam_colour.md): mean object-motion error none / medium 1.08 / 3.47 -> 1.02 / 1.46 mm (mug at
+#: medium 12.77 -> 1.06); 5 s medium mug 32.8 -> 2.9 mm, potted meat 11.45 -> 3.9 mm; +3-4 % CPU per frame (A/B
+#: under load). ``sigma_colour=0`` turns it off (and the frames layer then reads no RGB).
+SLAM_COLOUR_SIGMA = 0.001
+#: the colour term on (``track_session(..., **SLAM_COLOUR)``; SLAM's default) / off (``SLAM_NO_COLOUR``)
+SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}
+SLAM_NO_COLOUR: dict[str, float] = {"sigma_colour": 0.0}
 
 
 @dataclass
@@ -202,6 +206,10 @@ class SLAMOptions:
         # it off and pulled its spin (2 s session, occlusion none, motion error 4.67 -> 1.31 mm at 3 mm; vision
         # alone 2.32); the hidden baseball at medium occlusion, tracked by touch, keeps 2.21 -> 2.32 mm.
         rest.setdefault("sigma_free", 0.003)
+        # Colour feature tracks observe what the map cannot: a body of revolution's spin (the mug once its handle is
+        # hidden; SLAM_COLOUR_SIGMA above for the measurements). No tracks in the frames (no RGB, no texture, frames
+        # built without colour): no term, the same poses as without it.
+        rest.setdefault("sigma_colour", SLAM_COLOUR_SIGMA)
         return so, bo, TrackerOptions.from_dict(rest)
 
 
