@@ -287,7 +287,7 @@ def track_session(
         touch_stride=touch_stride,
         max_frames=max_frames,
         touch_downsample=touch_downsample,
-        # the colour term's feature tracks (RGB read only when it is on: the default path stays as cheap)
+        # the colour term's feature tracks: RGB is read only when the tracker uses them (SLAM by default)
         colour=method == "ours" and colour_term_on(shape, opts),
         colour_opts=opts.pop("colour_opts", None),
     )
