@@ -38,6 +38,6 @@ print("session", path, flush=True)
 sf = SessionFrames(path, colour=True, colour_opts=opts.get("colour_opts"))
 n = [len(sf.frame(i)[0].colour_ids) for i in range(len(sf))]
 print(f"colour tracks per frame: mean {np.mean(n):.1f}, max {max(n)}", flush=True)
-for o in ({}, opts):
+for o in ({"sigma_colour": 0.0}, opts):
     m = track_session(path, "", shape="slam", write=False, **o)
     print(json.dumps(o), f"motion error {m['motion_err_mm']:.3f} mm", flush=True)
