@@ -44,6 +44,8 @@ from vtrack.geometry.camera import PinholeCamera
 from vtrack.tracking.frame import TrackingFrame
 
 SEGMENTATIONS = ("pipeline", "gt", "none")
+#: a colour track's full-resolution depth must agree with the depth-stride sample this well (m)
+_COLOUR_DEPTH_AGREE_M = 0.005
 
 
 @dataclass
@@ -57,6 +59,7 @@ class CameraView:
     depth_scale: float
     segmenter: Any = None
     gt_mask: Any = None  # oracle ablation only
+    tracks: Any = None  #: :class:`~vtrack.tracking.colour.FeatureTracks` when the colour term is on
     _strided: dict = field(default_factory=dict)
 
     def strided(self, k: int, shape: tuple[int, int]) -> PinholeCamera:
@@ -95,6 +98,11 @@ class Frame:
     vision_mask: dict[str, np.ndarray] = field(default_factory=dict)
     contacts: dict[str, Contact] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    #: colour feature tracks (``colour=True`` only): track ids (N,), their world points (N, 3) in this frame and the
+    #: world centres of the cameras that saw them (N, 3)
+    colour_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    colour_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    colour_origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def tracking_frame(self) -> TrackingFrame:
         """The tracker's input (:class:`~vtrack.tracking.frame.TrackingFrame`)."""
@@ -104,7 +112,14 @@ class Frame:
             touch_points=self.touch_points if len(self.touch_points) else None,
             touch_normals=self.touch_normals if len(self.touch_normals) else None,
             free_points=self.free_points if len(self.free_points) else None,
-            info=dict(self.info),
+            info=dict(
+                self.info,
+                colour_ids=self.colour_ids,
+                colour_points=self.colour_points,
+                colour_origins=self.colour_origins,
+            )
+            if len(self.colour_ids)
+            else dict(self.info),
         )
 
 
@@ -140,6 +155,10 @@ class SessionFrames:
             (baseball at medium occlusion, 4 frames with vision in 150: 18.9 -> 6.5 mm).
         max_frames: keep only the first frames (0 = all).
         scene: override the session's embedded scene.
+        colour: also read each camera's RGB and follow KLT feature tracks on the segmented object pixels
+            (:mod:`vtrack.tracking.colour`; the tracker's colour term, option ``sigma_colour``); cameras without
+            an ``rgb`` field give none. Off by default: the default path reads no RGB.
+        colour_opts: :class:`~vtrack.tracking.colour.ColourOptions` overrides.
     """
 
     def __init__(
@@ -156,6 +175,8 @@ class SessionFrames:
         touch_downsample: int | str = "auto",
         contact_free_margin_m: float = 0.002,
         contact_free_max_vision: int = 30,
+        colour: bool = False,
+        colour_opts: dict | None = None,
     ) -> None:
         from vtrack.io.session import SessionReader, open_session
 
@@ -221,6 +242,15 @@ class SessionFrames:
             self.cams.append(CameraView(name.split("/", 1)[1], s, cam, T_wc, float(a.get("depth_scale", 0.001))))
         if "vision" in self.modalities:
             self._setup_segmentation()
+        self.colour = bool(colour) and "vision" in self.modalities
+        if self.colour:
+            from vtrack.tracking.colour import ColourOptions, FeatureTracks
+
+            co = ColourOptions.from_dict(colour_opts)
+            for c in self.cams:
+                # a depth-only camera gives no colour tracks (the tracker's colour term then has nothing to use)
+                if "rgb" in getattr(c.stream, "fields", ("rgb",)):
+                    c.tracks = FeatureTracks(co)
         if self.cams:
             t = self.cams[0].stream.t
         elif self.touch is not None and self.touch.sensors:
@@ -283,6 +313,8 @@ class SessionFrames:
         for c in self.cams:
             if c.segmenter is not None:
                 c.segmenter.reset()
+            if c.tracks is not None:
+                c.tracks.reset()
 
     def __len__(self) -> int:
         return len(self.times)
@@ -296,13 +328,17 @@ class SessionFrames:
             k = self.depth_stride
             for c in self.cams:
                 j = int(c.stream.index_at(t)[0])
-                d = np.asarray(c.stream["depth"][j])[::k, ::k]
+                d_full = np.asarray(c.stream["depth"][j])
+                d = d_full[::k, ::k]
                 m = None
                 if c.gt_mask is not None:
                     from vtrack.eval.oracle import read_gt_mask
 
                     m = read_gt_mask(c.gt_mask, j)[::k, ::k]
                 raw["cams"].append((c, d, m))
+                if c.tracks is not None:  # the colour term: RGB, and depth at full resolution for its tracks
+                    raw.setdefault("rgb", {})[c.name] = np.asarray(c.stream["rgb"][j])
+                    raw.setdefault("depth_full", {})[c.name] = d_full
         if self.touch is not None:
             for s in self.touch.sensors:
                 if self.sensor_poses and s not in self.sensor_poses:
@@ -323,6 +359,9 @@ class SessionFrames:
             q = None if self.q is None else self.q[i]
             poses = {s: P[i] for s, P in self.sensor_poses.items()}
         info: dict = {}
+        cids: list = []
+        cpts: list[np.ndarray] = []
+        corg: list[np.ndarray] = []
         tp, tn, pen, sid, free = [], [], [], [], []
         in_contact: list[tuple[str, np.ndarray, Contact]] = []  # for the gel points beside the patches (see below)
         contacts: dict[str, Contact] = {}
@@ -368,6 +407,14 @@ class SessionFrames:
             pts, _ = cam.unproject(z, mask=mask, depth_scale=1.0)
             if len(pts):
                 vis.append(se3.transform_points(c.T_wc, pts))
+            rgb = raw.get("rgb", {}).get(c.name)
+            if c.tracks is not None and rgb is not None:
+                from vtrack.tracking.colour import to_grey
+
+                ids, P = self._colour_tracks(c, to_grey(rgb), z, mask, raw.get("depth_full", {}).get(c.name))
+                cids.append(ids)
+                cpts.append(P)
+                corg.append(np.repeat(c.T_wc[None, :3, 3], len(P), axis=0))
         if in_contact and sum(len(v) for v in vis) < self.contact_free_max_vision:
             # gel points beside the contact patches, only in frames without (enough) vision: built only then
             free.extend(se3.transform_points(T_ws, self._beside_patch(s, c)) for s, T_ws, c in in_contact)
@@ -384,7 +431,31 @@ class SessionFrames:
             vision_mask=masks,
             contacts=contacts,
             info=info,
+            colour_ids=_cat(cids, 0).astype(np.int64),
+            colour_points=_cat(cpts),
+            colour_origins=_cat(corg),
         )
+
+    def _colour_tracks(
+        self, c: CameraView, grey: np.ndarray, z: np.ndarray, mask: np.ndarray, depth_full: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Camera ``c``'s feature tracks in this frame: ids (made unique across cameras) and world points of the
+        tracks on the object mask with a valid depth (``z``, ``mask``: metres and mask at the depth stride; the depth
+        of a track is read at full resolution from ``depth_full`` when given, and must agree with the strided one
+        within ``_COLOUR_DEPTH_AGREE_M``: a track beside an occluding edge reads the occluder)."""
+        from vtrack.tracking.colour import backproject
+
+        k = self.depth_stride
+        full = upsample_mask(mask, grey.shape) if mask.shape != grey.shape else mask
+        ids, uv = c.tracks.update(grey, full[: grey.shape[0], : grey.shape[1]])
+        X, ok = backproject(uv, np.where(mask, z, 0.0), k, c.cam.K)
+        if depth_full is not None and depth_full.shape == grey.shape:
+            scale = c.depth_scale if depth_full.dtype.kind in "ui" else 1.0
+            Xf, okf = backproject(uv, depth_full, 1, c.cam.K, scale, patch=2)
+            ok &= okf & (np.abs(Xf[:, 2] - X[:, 2]) < _COLOUR_DEPTH_AGREE_M)
+            X = Xf
+        cam_no = self.cams.index(c)
+        return ids[ok] * len(self.cams) + cam_no, se3.transform_points(c.T_wc, X[ok])
 
     def _gel(self, sensor: str, n_rows: int = 5, n_cols: int = 4) -> np.ndarray:
         """:func:`~vtrack.frames.touch.gel_free_points` of a sensor (fixed per sensor: built once)."""

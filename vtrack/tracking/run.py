@@ -209,6 +209,15 @@ def known_shape_touch_defaults(opts: dict[str, Any], modalities: Sequence[str]) 
     return opts
 
 
+def colour_term_on(shape: str, opts: dict) -> bool:
+    """Whether the tracker built from ``shape`` and ``opts`` uses the colour term (``sigma_colour`` > 0; SLAM's
+    default is on, known shape's off), i.e. whether its frames need colour feature tracks."""
+    from vtrack.tracking.slam import SLAM_COLOUR_SIGMA
+
+    default = SLAM_COLOUR_SIGMA if shape == "slam" else 0.0
+    return float(opts.get("sigma_colour", default) or 0.0) > 0
+
+
 def track_session(
     session_dir: str | Path,
     out_dir: str | Path,
@@ -278,6 +287,9 @@ def track_session(
         touch_stride=touch_stride,
         max_frames=max_frames,
         touch_downsample=touch_downsample,
+        # the colour term's feature tracks: RGB is read only when the tracker uses them (SLAM by default)
+        colour=method == "ours" and colour_term_on(shape, opts),
+        colour_opts=opts.pop("colour_opts", None),
     )
     mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known_shape" or method == "icp") else None
     if (shape == "known_shape" or method == "icp") and mesh_path is None:

@@ -126,6 +126,19 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 }
 
 
+#: SLAM's colour term (``TrackerOptions.sigma_colour``, m; SLAM's default since 2026-11-26): KLT feature tracks on
+#: the segmented object pixels (:mod:`vtrack.tracking.colour`, built by the frames layer when the term is on) anchored
+#: in the object frame, each observation pulled onto its viewing ray at 1 mm. Blind, 2 s YCB sessions
+#: (docs/benchmarks/slam_colour.md): mean object-motion error none / medium 1.08 / 3.47 -> 1.02 / 1.46 mm (mug at
+#: medium 12.77 -> 1.06); 5 s medium 9.16 -> 3.30 mm (mug 32.8 -> 2.9); 5 s unoccluded 3.17 -> 2.11 mm but the
+#: well-tracked mustard 1.03 -> 4.81 mm (open); +3-6 % CPU per frame (A/B under load). ``sigma_colour=0`` turns it
+#: off (and the frames layer then reads no RGB).
+SLAM_COLOUR_SIGMA = 0.001
+#: the colour term on (``track_session(..., **SLAM_COLOUR)``; SLAM's default) / off (``SLAM_NO_COLOUR``)
+SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}
+SLAM_NO_COLOUR: dict[str, float] = {"sigma_colour": 0.0}
+
+
 @dataclass
 class SLAMOptions:
     """Map of the SLAM tracker (metres, frames); defaults in one place. Tracker options
@@ -194,6 +207,10 @@ class SLAMOptions:
         # it off and pulled its spin (2 s session, occlusion none, motion error 4.67 -> 1.31 mm at 3 mm; vision
         # alone 2.32); the hidden baseball at medium occlusion, tracked by touch, keeps 2.21 -> 2.32 mm.
         rest.setdefault("sigma_free", 0.003)
+        # Colour feature tracks observe what the map cannot: a body of revolution's spin (the mug once its handle is
+        # hidden; SLAM_COLOUR_SIGMA above for the measurements). No tracks in the frames (no RGB, no texture, frames
+        # built without colour): no term, the same poses as without it.
+        rest.setdefault("sigma_colour", SLAM_COLOUR_SIGMA)
         return so, bo, TrackerOptions.from_dict(rest)
 
 
@@ -277,6 +294,7 @@ class SLAMTracker(WindowTracker):
             t0 = time.perf_counter()
             self.t_last = float(frame.t)
             self.history.append(StepInfo(t=float(frame.t), status="mapping"))
+            self._colour_anchor(frame, T, True)
         else:
             T = super().step(frame)
         t1 = time.perf_counter()

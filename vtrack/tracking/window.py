@@ -122,6 +122,22 @@ class TrackerOptions:
     kf_touch_points: int = 60
     velocity_decay_dt: float = 0.5  #: a gap longer than this resets the velocity, s
     seed: int = 0
+    #: colour term (0: off): colour feature tracks (``frame.info["colour_ids"]`` / ``["colour_points"]``, world, from
+    #: :mod:`vtrack.tracking.colour`) are anchored in the object frame when first seen; later observations must land
+    #: on their anchors, point-to-point with this sigma (m), robust (``kernel_colour``). Added AFTER the degeneracy
+    #: projection: it is what observes a spin about a symmetry axis that depth and touch leave to the motion prior
+    sigma_colour: float = 0.0
+    kernel_colour: float = 1.5  #: robust kernel width of the colour term, in sigmas
+    colour_gate: float = 0.01  #: drop tracks farther than this from their anchor at the prediction, m
+    colour_min_tracks: int = 6  #: fewer anchored tracks in a frame: no colour term there
+    #: > 0: the colour term acts only along the eigen-directions of the frame's depth / touch data weaker than this
+    #: fraction of the strongest (rotation scaled by ``object_radius``, as in the degeneracy test): colour observes
+    #: what the geometry leaves free and does not fight it where the geometry is good (LK on shaded texture is
+    #: biased towards rest); 0: in every direction
+    colour_ratio: float = 0.0
+    #: ``ray``: an anchor must lie on its track's viewing ray (the observation's depth, the noisiest part, is not
+    #: used); ``point``: on the observed 3D point (see ``_colour_terms``)
+    colour_residual: str = "ray"
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -143,6 +159,12 @@ class TrackerOptions:
                 expected="> 0 m",
                 got=o.sigma_touch_weak,
             )
+        if o.colour_residual not in ("ray", "point"):
+            raise InputError(
+                "unknown colour residual", field="colour_residual", expected="ray|point", got=o.colour_residual
+            )
+        if not (o.sigma_colour >= 0 and np.isfinite(o.sigma_colour)):
+            raise InputError("sigma_colour must be >= 0 (m; 0: off)", field="sigma_colour", got=o.sigma_colour)
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
         return o
@@ -179,6 +201,11 @@ class _Slot:
     #: projector of a twist onto the directions the slot's contacts constrain by their measured normals (None: all)
     proj_touch: np.ndarray | None = None
     n_vision: int = -1  #: segmented vision points of the frame when it was current (-1: count the slot's frame)
+    #: colour correspondences: world points (N, 3) of anchored tracks, their object-frame anchors (N, 3) and the world
+    #: centres of the cameras that saw them (N, 3)
+    colour: tuple[np.ndarray, ...] | None = None
+    #: projector of a twist onto the directions the colour term acts along (None: all of them; see colour_ratio)
+    proj_colour: np.ndarray | None = None
 
 
 def _hat3(v: np.ndarray) -> np.ndarray:
@@ -311,6 +338,7 @@ class WindowTracker:
         self.history: list[StepInfo] = []
         self._frame_count = 0
         self._t_vision: float | None = None  # time of the last frame with segmented vision points
+        self._anchors: dict[int, np.ndarray] = {}  # colour track id -> object-frame anchor (m)
 
     # -- public API ---------------------------------------------------------------------------
     def reset(self, T_world_object: np.ndarray) -> None:
@@ -319,6 +347,7 @@ class WindowTracker:
         self.velocity[:] = 0.0
         self.keyframes.clear()
         self.t_last = None
+        self._anchors.clear()
 
     @property
     def last_info(self) -> StepInfo | None:
@@ -348,6 +377,7 @@ class WindowTracker:
             n_free=0 if fr.free_points is None else len(fr.free_points),
         )
         cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy(), n_vision=fr.n_vision)
+        cur.colour = self._colour_pairs(fr, T_pred)
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
         if info.n_vision + info.n_touch + info.n_free == 0:
@@ -365,11 +395,127 @@ class WindowTracker:
                         info.status = "recovered"
         self._bound(cur, T_pred)
         self._commit(slots, cur, dt)
+        self._colour_anchor(fr, self.T, info.status not in ("lost", "no_data"))
         info.ms = (time.perf_counter() - t_start) * 1e3
         self.history.append(info)
         return self.T.copy()
 
     # -- internals ----------------------------------------------------------------------------
+    def _colour_pairs(self, fr: TrackingFrame, T_pred: np.ndarray) -> tuple[np.ndarray, ...] | None:
+        """The frame's colour tracks that have an anchor and lie within ``colour_gate`` of it at the prediction:
+        (world points, object-frame anchors, world camera centres or None when the frame names none: the point
+        residual); None when the term is off or fewer than ``colour_min_tracks``."""
+        o = self.opts
+        if o.sigma_colour <= 0 or not self._anchors:
+            return None
+        ids = fr.info.get("colour_ids")
+        P = fr.info.get("colour_points")
+        if ids is None or P is None or len(ids) == 0:
+            return None
+        sel = [(k, a) for k, a in enumerate(np.asarray(ids).tolist()) if a in self._anchors]
+        if len(sel) < o.colour_min_tracks:
+            return None
+        rows = [k for k, _ in sel]
+        P = np.asarray(P, np.float64)[rows]
+        Q = np.array([self._anchors[a] for _, a in sel])
+        C = fr.info.get("colour_origins")
+        if C is not None and len(C) == len(ids):
+            C = np.asarray(C, np.float64)[rows]
+        elif fr.info.get("camera_origin") is not None:
+            C = np.broadcast_to(np.asarray(fr.info["camera_origin"], np.float64), P.shape)
+        else:
+            C = None  # no camera centre known: the point residual
+        Ti = _inv(T_pred)
+        ok = np.isfinite(P).all(1) & (np.linalg.norm(P @ Ti[:3, :3].T + Ti[:3, 3] - Q, axis=1) < o.colour_gate)
+        if o.colour_residual == "ray" and C is not None:
+            ok &= np.isfinite(C).all(1) & (np.linalg.norm(P - C, axis=1) > 1e-6)
+        if ok.sum() < o.colour_min_tracks:
+            return None
+        return P[ok], Q[ok], (None if C is None else np.array(C[ok]))
+
+    def _colour_anchor(self, fr: TrackingFrame, T: np.ndarray, ok: bool) -> None:
+        """Anchor the frame's new colour tracks in the object frame at pose ``T`` (only if the frame was tracked:
+        ``ok``); forget the anchors of tracks that ended."""
+        if self.opts.sigma_colour <= 0:
+            return
+        ids = fr.info.get("colour_ids")
+        P = fr.info.get("colour_points")
+        if ids is None or P is None:
+            self._anchors.clear()
+            return
+        ids = np.asarray(ids).tolist()
+        keep = {a: self._anchors[a] for a in ids if a in self._anchors}
+        if ok and np.all(np.isfinite(T)):
+            Ti = _inv(T)
+            Q = np.asarray(P, np.float64) @ Ti[:3, :3].T + Ti[:3, 3]
+            for a, q in zip(ids, Q, strict=True):
+                if a not in keep and np.all(np.isfinite(q)):
+                    keep[a] = q
+        self._anchors = keep
+
+    def _colour_projector(self, H: np.ndarray) -> np.ndarray | None:
+        """Projector of a twist onto the eigen-directions of the data block ``H`` weaker than ``colour_ratio`` of
+        the strongest (None: ``colour_ratio`` is 0, i.e. every direction); a zero matrix when none is weak."""
+        o = self.opts
+        if o.colour_ratio <= 0:
+            return None
+        L = o.object_radius
+        S = np.diag([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
+        Hs = S @ H @ S
+        lam, U = np.linalg.eigh(0.5 * (Hs + Hs.T))
+        Uw = U[:, lam < o.colour_ratio * max(float(lam[-1]), 0.0)]
+        return S @ Uw @ Uw.T @ np.diag([1.0, 1.0, 1.0, L, L, L])
+
+    def _colour_terms(self, s: _Slot) -> tuple[np.ndarray, np.ndarray, float]:
+        """6x6 normal matrix, gradient and robust cost of a slot's colour correspondences at its pose, robust on the
+        residual's norm. ``colour_residual``:
+
+        - ``ray``: the anchor ``T q`` (world) against the track's viewing ray from the camera centre ``c`` through
+          the observed point ``p``: ``r = (I - d d^T)(T q - c)``, ``d = (p - c)/|p - c|``; the depth of the
+          observation (noisy: ~1.3 mm on the simulated sensor against ~0.2 mm laterally) does not enter;
+          ``dr/d delta = (I - d d^T) R [I, -hat(q)]``;
+        - ``point``: ``r = T^-1 p - q`` (object frame), ``dr/d delta = [-I, hat(T^-1 p)]``.
+
+        With a projector ``proj_colour`` the term sees only the projected part of the motion since ``T_lin``."""
+        o = self.opts
+        P, Q, C = s.colour  # type: ignore[misc]
+        Pc = s.proj_colour
+        if Pc is not None and not Pc.any():
+            return np.zeros((6, 6)), np.zeros(6), 0.0
+        T = s.T if Pc is None or s.T_lin is None else s.T_lin @ _exp(Pc @ _log(_inv(s.T_lin) @ s.T))
+        J = np.zeros((len(Q), 3, 6))
+        if o.colour_residual == "ray" and C is not None:
+            R = T[:3, :3]
+            wq = Q @ R.T + T[:3, 3]
+            d = P - C
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            e = wq - C
+            r = e - d * np.sum(d * e, axis=1, keepdims=True)
+            # R [I, -hat(q)] = [R, -hat(R q) R]
+            Rq = Q @ R.T
+            J[:, :, :3] = R
+            hx = np.zeros((len(Q), 3, 3))
+            hx[:, 0, 1], hx[:, 0, 2] = -Rq[:, 2], Rq[:, 1]
+            hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
+            hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
+            J[:, :, 3:] = -hx @ R
+            J -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J)[:, None, :]
+        else:
+            Ti = _inv(T)
+            q = P @ Ti[:3, :3].T + Ti[:3, 3]
+            r = q - Q
+            J[:, 0, 0] = J[:, 1, 1] = J[:, 2, 2] = -1.0
+            J[:, 0, 4], J[:, 0, 5] = -q[:, 2], q[:, 1]  # hat(q)
+            J[:, 1, 3], J[:, 1, 5] = q[:, 2], -q[:, 0]
+            J[:, 2, 3], J[:, 2, 4] = -q[:, 1], q[:, 0]
+        w, rho = _robust_weights(np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust, o.kernel_colour)
+        w = w / o.sigma_colour**2
+        H = np.einsum("n,nki,nkj->ij", w, J, J)
+        b = np.einsum("n,nki,nk->i", w, J, r)
+        if Pc is not None:
+            H, b = Pc.T @ H @ Pc, Pc.T @ b
+        return H, b, float(rho.sum())
+
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
         """Drop vision points far from the predicted surface (hand, background, flying pixels) and
         gel points of "free" sensors that would be deep inside the object (such a sensor is not free:
@@ -660,6 +806,12 @@ class WindowTracker:
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hi
             b[6 * i : 6 * i + 6] += bi
             cost += ci
+        for i, s in enumerate(slots):
+            if s.colour is not None:  # after the degeneracy test and projection (see TrackerOptions.sigma_colour)
+                Hc, bc, cc = self._colour_terms(s)
+                H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hc
+                b[6 * i : 6 * i + 6] += bc
+                cost += cc
         terms, cm = self._motion_terms(slots, v_before, dt_first)
         cost += cm
         for ids, Js, r, sq in terms:
@@ -675,13 +827,14 @@ class WindowTracker:
         n = len(slots)
         dt_first = slots[-1].t - (self.t_last if self.t_last is not None else slots[-1].t - o.nominal_dt)
         for s in slots:
-            s.proj = s.proj_touch = None
+            s.proj = s.proj_touch = s.proj_colour = None
         H, b, cost, datas = self._total(slots, v_before, dt_first)
         dims = 0
         for i, s in enumerate(slots):
             nv = s.n_vision if s.n_vision >= 0 else s.frame.n_vision
             s.reg, d, s.proj = self._degeneracy(datas[i], nv)
             s.T_lin = s.T.copy()
+            s.proj_colour = self._colour_projector(datas[i]) if s.colour is not None else None
             recent = self._t_vision is not None and s.t - self._t_vision <= o.touch_blind_vision_s
             if nv < o.touch_weak_vision and (nv > 0 or recent):
                 # not in a touch-only run: there nothing else holds the directions the contacts leave free, and the
@@ -689,7 +842,7 @@ class WindowTracker:
                 s.proj_touch = self._touch_projector(s.T, s.frame)
             if i == n - 1:
                 dims = d
-        if any(s.proj is not None or s.proj_touch is not None for s in slots):
+        if any(s.proj is not None or s.proj_touch is not None or s.proj_colour is not None for s in slots):
             H, b, cost, _ = self._total(slots, v_before, dt_first)
         lam = o.lm_lambda
         it = 0

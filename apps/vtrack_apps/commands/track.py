@@ -39,6 +39,12 @@ def register(app: typer.Typer) -> None:
             help="SLAM back end: re-localise a spin lost by more than 1 rad (a search over the full turn with a "
             "symmetry test; needs --refine and loop closure; opt-in: it can close false turns, see docs/tracking.md)",
         ),
+        colour: bool = typer.Option(
+            True,
+            "--colour/--no-colour",
+            help="SLAM: colour term, KLT feature tracks on the object's pixels (observes a spin about a symmetry "
+            "axis that depth and touch do not see; needs the camera's RGB and surface texture; about 3 % more CPU)",
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -78,6 +84,10 @@ def register(app: typer.Typer) -> None:
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
                 opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure, spin_search=spin_search)
+                if not colour:
+                    from vtrack.tracking.slam import SLAM_NO_COLOUR
+
+                    opts.update(SLAM_NO_COLOUR)
         m = track_session(
             session,
             out,

@@ -1,0 +1,237 @@
+"""Colour (feature-track) observations for SLAM: KLT tracks on the segmented object pixels.
+
+Depth and touch do not see a body of revolution spin about its axis (a mug once its handle is hidden: see
+docs/benchmarks/slam_medium.md); its surface colour does, when it has texture. This module turns a camera's
+grey images into **feature tracks**: object pixels followed from frame to frame by pyramidal Lucas-Kanade
+(OpenCV ``calcOpticalFlowPyrLK``), back-projected with the frame's depth to world points. Each track has an
+integer id; the tracker (:class:`~vtrack.tracking.window.WindowTracker`, option ``sigma_colour``) anchors a
+track in the object frame the first time it sees it and then asks every later observation of it to land on
+that anchor (a robust 3D-3D term) - the object's motion between the frames, which a spin about a symmetry axis
+leaves to colour alone.
+
+Shading: the simulator's (and a real scene's) light is fixed in the world, so on a spinning cylinder the
+shading stays put in the image while the texture moves; LK on raw intensities is pulled towards rest (the
+5 s medium mug: 52 of 135 deg recovered). The image is divided by its local mean inside the object mask (a
+masked Gaussian of ``blur_px``), which keeps the texture and removes most of the smooth shading (106 of 135 deg,
+``data_tools``-style check in docs/benchmarks/slam_colour.md).
+
+Graceful degradation: features are kept only where the normalised image has a corner whose minimum
+eigenvalue is above ``min_eig`` (absolute, on the normalised image: a uniformly coloured object has none, its
+shading divided out), away from the mask's border (occluding contours and fingers are not object-fixed);
+tracks must pass a forward-backward check and stay on the mask with valid depth. No tracks: no term.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vtrack.errors import InputError
+
+
+@dataclass
+class ColourOptions:
+    """KLT feature tracks on the object (pixels of the full-resolution image)."""
+
+    max_features: int = 80  #: tracks kept at once
+    min_distance: int = 4  #: px between features
+    blur_px: float = 5.0  #: sigma of the masked local mean the image is divided by (shading removal), px
+    #: minimum eigenvalue of the structure tensor (``cv2.cornerMinEigenVal``, 3x3 block, Sobel 3, OpenCV's scale)
+    #: of the normalised image (mean 128 grey levels) for a new feature: on a uniform, shaded cylinder with the
+    #: simulator's sensor noise (2 levels) the largest is 3.7e-4; the textured YCB mug's features reach 1e-3-7e-2
+    min_eig: float = 5e-4
+    erode_px: int = 5  #: features start at least this far inside the object mask, px ...
+    keep_erode_px: int = 4  #: ... and tracks end when they come closer than this to its border, px
+    win: int = 9  #: LK window, px (a small one: near the border a window sees the static background)
+    levels: int = 2  #: LK pyramid levels above the base
+    fb_max_px: float = 0.5  #: forward-backward disagreement above which a track is dropped, px
+    roi_margin: int = 24  #: px around the mask's box the images are processed in
+    #: look for new features only when fewer than this fraction of ``max_features`` tracks survive (detection costs
+    #: as much as tracking)
+    refill_frac: float = 0.5
+
+    @classmethod
+    def from_dict(cls, opts: dict | None) -> ColourOptions:
+        from vtrack.config import checked_fields
+
+        o = cls(**checked_fields(cls, opts or {}, "colour"))
+        if o.max_features < 1 or o.win < 3 or o.blur_px <= 0 or o.levels < 0:
+            raise InputError(
+                "colour options out of range",
+                field="colour",
+                expected="max_features >= 1, win >= 3, blur_px > 0, levels >= 0",
+                got=(o.max_features, o.win, o.blur_px, o.levels),
+            )
+        return o
+
+
+def to_grey(rgb: np.ndarray) -> np.ndarray:
+    """uint8 grey (H, W) of an RGB (H, W, 3) or grey (H, W) image."""
+    import cv2
+
+    a = np.asarray(rgb)
+    if a.ndim == 3 and a.shape[2] >= 3:
+        return cv2.cvtColor(np.ascontiguousarray(a[..., :3]).astype(np.uint8), cv2.COLOR_RGB2GRAY)
+    if a.ndim == 2:
+        return a.astype(np.uint8)
+    raise InputError("colour image must be (H, W) or (H, W, 3)", field="rgb", got=a.shape)
+
+
+def normalise_shading(grey: np.ndarray, mask: np.ndarray, blur_px: float) -> np.ndarray:
+    """float32 image: ``grey`` divided by its masked local mean (Gaussian ``blur_px``) x 128 inside ``mask``,
+    128 outside (texture kept, smooth light-fixed shading removed; a uniform surface becomes flat)."""
+    import cv2
+
+    g = grey.astype(np.float32)
+    m = mask.astype(np.float32)
+    num = cv2.GaussianBlur(g * m, (0, 0), blur_px)
+    den = cv2.GaussianBlur(m, (0, 0), blur_px)
+    mean = num / np.maximum(den, 1e-3)
+    out = np.full(g.shape, 128.0, np.float32)
+    ok = mask & (mean > 1.0)
+    out[ok] = 128.0 * g[ok] / mean[ok]
+    return out
+
+
+def _box(mask: np.ndarray, margin: int) -> tuple[int, int, int, int] | None:
+    rows = np.flatnonzero(mask.any(1))
+    if not len(rows):
+        return None
+    cols = np.flatnonzero(mask.any(0))
+    h, w = mask.shape
+    return (
+        max(0, rows[0] - margin),
+        min(h, rows[-1] + margin + 1),
+        max(0, cols[0] - margin),
+        min(w, cols[-1] + margin + 1),
+    )
+
+
+class FeatureTracks:
+    """KLT tracks of one camera (image-space state; no pose). ``update`` per frame, in time order.
+
+    Args:
+        options: :class:`ColourOptions` or a dict of overrides.
+    """
+
+    def __init__(self, options: ColourOptions | dict | None = None) -> None:
+        self.opts = options if isinstance(options, ColourOptions) else ColourOptions.from_dict(options)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track (e.g. before re-running from the first frame); ids restart at 0."""
+        self._end_tracks()
+        self._next_id = 0
+
+    def _end_tracks(self) -> None:
+        """End every track (ids are not reused: a later track never takes an ended one's anchor)."""
+        self._prev: np.ndarray | None = None  # normalised image inside _prev_box (uint8)
+        self._prev_box: tuple[int, int, int, int] | None = None
+        self._pts = np.zeros((0, 2), np.float32)  # full-image pixel positions (x, y) in the previous frame
+        self._ids = np.zeros(0, np.int64)
+
+    def update(self, grey: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Track the features into this frame and add new ones; returns ``(ids (N,), uv (N, 2) float px)`` of the
+        tracks seen in this frame (continuing ones keep their id). An empty / missing mask ends every track."""
+        import cv2
+
+        o = self.opts
+        mask = np.asarray(mask, bool)
+        if grey.shape != mask.shape:
+            raise InputError("colour image and mask differ in size", field="rgb", expected=mask.shape, got=grey.shape)
+        box = _box(mask, o.roi_margin)
+        if box is None or np.count_nonzero(mask) < 16:
+            self._end_tracks()
+            return np.zeros(0, np.int64), np.zeros((0, 2))
+        cur_full_box = box
+        if self._prev_box is not None and len(self._pts):
+            pb = self._prev_box
+            box = (min(box[0], pb[0]), max(box[1], pb[1]), min(box[2], pb[2]), max(box[3], pb[3]))
+        r0, r1, c0, c1 = box
+        norm = normalise_shading(grey[r0:r1, c0:c1], mask[r0:r1, c0:c1], o.blur_px)
+        img = np.clip(norm, 0, 255).astype(np.uint8)
+        ids = np.zeros(0, np.int64)
+        uv = np.zeros((0, 2), np.float32)
+        if self._prev is not None and len(self._pts):
+            # the previous image in the union box (it was stored in its own box)
+            pr0, pr1, pc0, pc1 = self._prev_box  # type: ignore[misc]
+            prev = np.full(img.shape, 128, np.uint8)
+            prev[pr0 - r0 : pr1 - r0, pc0 - c0 : pc1 - c0] = self._prev
+            p0 = (self._pts - np.array([c0, r0], np.float32)).reshape(-1, 1, 2)
+            lk = dict(winSize=(o.win, o.win), maxLevel=o.levels)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, img, p0, None, **lk)
+            pb, stb, _ = cv2.calcOpticalFlowPyrLK(img, prev, p1, None, **lk)
+            ok = (st.ravel() == 1) & (stb.ravel() == 1) & np.isfinite(p1.reshape(-1, 2)).all(1)
+            fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
+            ok &= fb < o.fb_max_px
+            q = p1.reshape(-1, 2) + np.array([c0, r0], np.float32)
+            xi = np.round(q[:, 0]).astype(int)
+            yi = np.round(q[:, 1]).astype(int)
+            inside = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
+            ok &= inside
+            keep = mask
+            if o.keep_erode_px > 0:
+                # a window that straddles the border sees the static background / occluder and is held back
+                kk = 2 * o.keep_erode_px + 1
+                keep = np.zeros_like(mask)
+                keep[r0:r1, c0:c1] = cv2.erode(mask[r0:r1, c0:c1].astype(np.uint8), np.ones((kk, kk), np.uint8)) > 0
+            ok[ok] &= keep[yi[ok], xi[ok]]
+            ids, uv = self._ids[ok], q[ok]
+        # new features where the tracks are thin
+        need = o.max_features - len(ids)
+        if len(ids) < o.refill_frac * o.max_features:
+            sub = mask[r0:r1, c0:c1].astype(np.uint8)
+            k = 2 * o.erode_px + 1
+            allow = cv2.erode(sub, np.ones((k, k), np.uint8))
+            for x, y in uv - np.array([c0, r0], np.float32):
+                cv2.circle(allow, (int(round(x)), int(round(y))), o.min_distance, 0, -1)
+            if allow.any():
+                eig = cv2.cornerMinEigenVal(img, 3, 3)
+                cand = cv2.goodFeaturesToTrack(
+                    img, need, 1e-3, o.min_distance, mask=allow, blockSize=3, useHarrisDetector=False
+                )
+                if cand is not None:
+                    c = cand.reshape(-1, 2)
+                    strong = eig[c[:, 1].astype(int), c[:, 0].astype(int)] > o.min_eig
+                    c = c[strong]
+                    new_ids = np.arange(self._next_id, self._next_id + len(c))
+                    self._next_id += len(c)
+                    ids = np.concatenate([ids, new_ids])
+                    uv = np.concatenate([uv, c + np.array([c0, r0], np.float32)])
+        # keep this frame's image in its own box for the next frame
+        cr0, cr1, cc0, cc1 = cur_full_box
+        self._prev = img[cr0 - r0 : cr1 - r0, cc0 - c0 : cc1 - c0].copy()
+        self._prev_box = cur_full_box
+        self._pts = uv.astype(np.float32)
+        self._ids = ids.astype(np.int64)
+        return self._ids.copy(), self._pts.astype(np.float64)
+
+
+def backproject(
+    uv: np.ndarray, z: np.ndarray, stride: int, K: np.ndarray, scale: float = 1.0, patch: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points (N, 3) of full-resolution pixels ``uv`` (x, y) with depth read from ``z`` (the image
+    subsampled by ``stride``, nearest sample, times ``scale`` to metres; 0 / non-finite = no depth); and which of
+    them have a valid depth. ``patch`` > 0: the mean of the valid depths in the (2 patch + 1)^2 samples around
+    (within 5 mm of the centre sample) replaces the centre sample: per-pixel sensor noise, ~1 mm on the simulated
+    camera, averages down (a track's anchor keeps its depth)."""
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    if not len(uv):
+        return np.zeros((0, 3)), np.zeros(0, bool)
+    xi = np.clip(np.round(uv[:, 0] / stride).astype(int), 0, z.shape[1] - 1)
+    yi = np.clip(np.round(uv[:, 1] / stride).astype(int), 0, z.shape[0] - 1)
+    d = z[yi, xi].astype(np.float64) * scale
+    ok = np.isfinite(d) & (d > 0)
+    if patch > 0 and ok.any():
+        o = np.arange(-patch, patch + 1)
+        ys = np.clip(yi[:, None, None] + o[None, :, None], 0, z.shape[0] - 1)
+        xs = np.clip(xi[:, None, None] + o[None, None, :], 0, z.shape[1] - 1)
+        zz = z[ys, xs].reshape(len(uv), -1).astype(np.float64) * scale
+        # the mean of the samples within 5 mm of the centre's depth (not across an occluding edge)
+        near = np.isfinite(zz) & (zz > 0) & (np.abs(zz - d[:, None]) < 0.005)
+        n = near.sum(1)
+        d = np.where(ok & (n > 0), np.where(near, zz, 0.0).sum(1) / np.maximum(n, 1), d)
+    d = np.where(ok, d, 0.0)
+    X = np.stack([(uv[:, 0] - K[0, 2]) * d / K[0, 0], (uv[:, 1] - K[1, 2]) * d / K[1, 1], d], 1)
+    return X, ok
