@@ -35,6 +35,15 @@ def register(app: typer.Typer) -> None:
         extra_train: int = typer.Option(
             None, "--extra-train", help="extra training contacts per material (default: the data's, 16)"
         ),
+        appearance: str = typer.Option(
+            "random",
+            "--appearance",
+            help="distractor clause of the training texts: random (canonical) | instance (each material's fixed "
+            "colour / shape: the correlated-appearance study)",
+        ),
+        lm_appearance: bool = typer.Option(
+            False, "--lm-appearance", help="the describer's targets carry the instance appearance clause too"
+        ),
     ) -> None:
         """Generate the procedural materials (cached) and train no-steering, A-only and A-N models alike."""
         import torch
@@ -43,7 +52,13 @@ def register(app: typer.Typer) -> None:
 
         torch.set_num_threads(1)
         designs = tuple(design) if design else DESIGNS
+        from vtrack.errors import InputError
+
+        if appearance not in ("random", "instance"):
+            raise InputError("unknown appearance", field="--appearance", expected="random | instance", got=appearance)
         recipe = {} if cls_weight is None else {"cls_weight": cls_weight}
+        if appearance != "random" or lm_appearance:
+            recipe |= {"appearance": appearance, "lm_appearance": lm_appearance}
         folder = train_all(
             out,
             epochs=epochs,
