@@ -49,7 +49,12 @@ def test_correlated_training_and_steering_evaluation_on_a_tiny_set() -> None:
     from the grids, the random-direction share is a fraction and the describer names a colour / shape."""
     import torch
 
-    from vtrack.language.appearance import GENERATION_ALPHAS, RETRIEVAL_ALPHAS, steering_correlated
+    from vtrack.language.appearance import (
+        GENERATION_ALPHAS,
+        RETRIEVAL_ALPHAS,
+        steering_correlated,
+        trained_design_rows,
+    )
     from vtrack.language.model import Steering, train
 
     torch.set_num_threads(1)
@@ -60,9 +65,7 @@ def test_correlated_training_and_steering_evaluation_on_a_tiny_set() -> None:
     imgs = np.repeat(base, per, 0) + rng.normal(0, 0.1, (n_mat * per, 3, 60, 80)).astype(np.float32)
     data = procedural_set(per_material=per, n_materials=n_mat, images=imgs)
     data.split = np.where(data.contact < 4, "train", np.where(data.contact < 6, "val", "test"))
-    model = train(
-        data, steering=Steering("none"), epochs=3, batch=8, seed=0, appearance="instance", lm_appearance=True
-    )
+    model = train(data, steering=Steering("none"), epochs=3, batch=8, seed=0, appearance="instance", lm_appearance=True)
     assert model.meta["appearance"] == "instance" and model.meta["max_len"] > 24
     assert {"red", "blue", "square", "round"} <= set(model.vocab)
     r = steering_correlated(model, data, n_random=2)
@@ -80,3 +83,7 @@ def test_correlated_training_and_steering_evaluation_on_a_tiny_set() -> None:
         assert 0.0 <= none[row]["r1"] <= 1.0 and np.isfinite(none[row]["silhouette"])
     assert 0.0 <= r["attention_on_appearance"] <= 1.0
     assert 0.0 <= none["generation"]["appearance_share"] <= 1.0
+    # the trained-design rows score the model as it is (its own steering: none here), on the same texts
+    rows = trained_design_rows(model, data)
+    assert rows["other_appearance"]["r1"] == pytest.approx(none["other_appearance"]["r1"])
+    assert rows["generation"]["bleu1"] == pytest.approx(none["generation"]["bleu1"])

@@ -189,3 +189,26 @@ def steering_correlated(
             np.mean(vals[metric] >= out["test"][f"A-N {P}"][metric])
         )
     return out
+
+
+def trained_design_rows(model, data: TactileSet, *, split: str = "test") -> dict:
+    """A model trained with its steering active (the paper's Table V designs: P1 0.02 + P4 0.5 in training and
+    inference) scored as trained on the held-out contacts: retrieval with the other / the instance appearance
+    and BLEU-1 against the other-appearance references, its own injections on (compare with
+    :func:`steering_correlated`'s ``none`` rows of the unsteered model trained alike)."""
+    st = data.subset(data.split == split)
+    pick = lambda r: {k: r[k] for k in _KEYS}  # noqa: E731
+    tt = appearance_texts(st, "other")
+    hyp = model.describe(st.images)
+    return {
+        "steering": dict(model.steering.__dict__),
+        "other_appearance": pick(retrieval(model, st, texts=tt)),
+        "instance_appearance": pick(retrieval(model, st, texts=appearance_texts(st, "instance"))),
+        "no_appearance": pick(retrieval(model, st, distractor=False)),
+        "attention_on_appearance": attention_on_appearance(model, tt[0]),
+        "generation": {
+            "bleu1": bleu1(hyp, tt[0]),
+            "bleu1_tactile_refs": bleu1(hyp, st.texts(mode=2, distractor=False)),
+            "appearance_share": appearance_share(hyp),
+        },
+    }

@@ -79,6 +79,12 @@ def register(app: typer.Typer) -> None:
         sweep: bool = typer.Option(False, "--sweep", help="also sweep P1-P4 x strength on the val split"),
         seed: int = typer.Option(0, "--seed", help="data seed the models were trained with"),
         quick: bool = typer.Option(False, "--quick", help="2 test contacts per material (smoke test, seconds)"),
+        appearance_study: bool = typer.Option(
+            False,
+            "--appearance-study",
+            help="also the correlated-appearance steering study (held-out contacts described with another "
+            "appearance; strengths chosen on val)",
+        ),
     ) -> None:
         """Retrieval R@1/R@5, BLEU-1, silhouette, selection, OOD: no steering vs A-N steering."""
         import torch
@@ -90,7 +96,7 @@ def register(app: typer.Typer) -> None:
         if split not in ("test", "val"):
             raise InputError("unknown split", field="split", expected="test | val", got=split)
         torch.set_num_threads(1)
-        res = evaluate_all(models, seed=seed, split=split, sweep=sweep, quick=quick)
+        res = evaluate_all(models, seed=seed, split=split, sweep=sweep, quick=quick, appearance_study=appearance_study)
         for k in ("r1", "r5", "bleu1", "silhouette", "select_2way", "select_3way"):
             typer.echo(f"{k:12s} {res[k]:.3f} -> steered {res[k + '_steered']:.3f}")
         typer.echo(f"ood_r1       {res['ood_r1']:.3f} (chance {res['ood_chance_r1']:.3f})")
