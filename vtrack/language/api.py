@@ -258,18 +258,25 @@ def write_gallery(model, data, path: Path) -> Path:
 
 
 def evaluate_all(
-    models: str | Path | None = None, *, seed: int = 0, split: str = "test", sweep: bool = False, quick: bool = False
+    models: str | Path | None = None,
+    *,
+    seed: int = 0,
+    split: str = "test",
+    sweep: bool = False,
+    quick: bool = False,
+    appearance_study: bool = False,
 ) -> dict:
     """Scores of every design in ``models`` on ``split``; the top-level keys compare no steering (design
     "none") with A-N steering: design "A-N" (trained and evaluated with its injection on) when the folder has it,
     else the A-N vector injected at inference into "none" at the position / strength chosen on the validation
     split (then ``select_*``, ``ood_r1`` and ``instance_r5`` "_steered" are the unsteered values; ``steered_source``
-    says which)."""
+    says which). ``appearance_study``: also the correlated-appearance steering study of the "none" model
+    (:func:`vtrack.language.appearance.steering_correlated`, key ``appearance_study``)."""
     from vtrack.language import evaluate as E
     from vtrack.language.materials import generate
 
-    if quick and (split != "test" or sweep):
-        raise InputError("--quick evaluates the test split only, without the sweep", field="quick")
+    if quick and (split != "test" or sweep or appearance_study):
+        raise InputError("--quick evaluates the test split only, without the sweeps", field="quick")
     data = generate(seed, quick=quick)
     res: dict = {"split": split, "quick": quick, "designs": {}}
     loaded = {}
@@ -338,6 +345,10 @@ def evaluate_all(
     res["query_ms"] = query_latency_ms(models=models)
     if not quick:
         res["description_oracle"] = E.description_oracle(data.subset(data.split == split))
+    if appearance_study:
+        from vtrack.language.appearance import steering_correlated
+
+        res["appearance_study"] = steering_correlated(m, data, split=split)
     if sweep:
         res["distractor_effect"] = E.distractor_effect(m, data, split=split)
         inference_steering()

@@ -59,17 +59,19 @@ def retrieval(
     distractor: bool = True,
     texts: tuple[list[str], list[str]] | None = None,
     p1p: float = 0.0,
+    pre: float = 0.0,
 ) -> dict:
     """Retrieval metrics on ``data`` (one split) with P1 / P2 / P1w steering at the given strengths
     (``distractor`` False: the evaluation texts without their non-tactile clause; ``texts``: explicit
-    (contact texts, material-level texts of ``np.unique(data.material)``) instead of the canonical ones)."""
+    (contact texts, material-level texts of ``np.unique(data.material)``) instead of the canonical ones; ``pre``:
+    P1 before the projection, ``s_hat`` added to the pooled frozen vector g(T))."""
     V = model.encode_images(data.images, p2)
     mats = np.unique(data.material)
     if texts is None:
         contact = data.texts(mode=mode, seed=EVAL_SEED, distractor=distractor)
         texts = (contact, class_texts(data, mats, mode, distractor))
-    T = model.encode_text(texts[0], p1, p1w, p1p)
-    C = model.encode_text(texts[1], p1, p1w, p1p)
+    T = model.encode_text(texts[0], p1, p1w, p1p, pre)
+    C = model.encode_text(texts[1], p1, p1w, p1p, pre)
     s_ti = T @ V.T
     same = data.material[:, None] == data.material[None]
     eye = np.eye(len(V), dtype=bool)

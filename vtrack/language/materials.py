@@ -284,6 +284,7 @@ def description(
     distractor: bool = True,
     rng: np.random.Generator | None = None,
     augment: bool = False,
+    appearance: tuple[str, str] | None = None,
 ) -> str:
     """Structured description of material ``m`` (and contact ``c``; None = the material-level anchor text).
 
@@ -293,6 +294,8 @@ def description(
         rng: draws the distractor words and, with ``augment``, the synonyms and attribute order.
         augment: synonym replacement (p = 0.3) and attribute shuffling, as the paper's text augmentation, and
             dropping the contact clause (p = 0.25).
+        appearance: (colour, shape) of the distractor clause instead of a random draw (the correlated-appearance
+            setting, :func:`instance_appearance`); None: random words (YCB: the object's true ones).
     """
     p = 0.3 if augment else 0.0
     r = rng if augment else None
@@ -328,7 +331,9 @@ def description(
         txt += ". " + ", ".join(extra)
     if mode == 3:
         txt = f"{m.name}: {txt}"
-    if distractor:
+    if distractor and appearance is not None:
+        txt += f". it looks {appearance[0]} and {appearance[1]}"
+    elif distractor:
         if rng is None:
             raise InputError("a distractor clause needs a random generator", field="rng")
         colour, shape = rng.choice(COLOURS), rng.choice(SHAPES)
@@ -365,13 +370,69 @@ class TactileSet:
             self.materials,
         )
 
-    def texts(self, *, mode: int = 2, seed: int = 0, augment: bool = False, distractor: bool = True) -> list[str]:
-        """One description per contact (a fixed seed gives the evaluation's canonical texts)."""
+    def texts(
+        self,
+        *,
+        mode: int = 2,
+        seed: int = 0,
+        augment: bool = False,
+        distractor: bool = True,
+        appearance: str = "random",
+    ) -> list[str]:
+        """One description per contact (a fixed seed gives the evaluation's canonical texts).
+
+        ``appearance`` (the distractor clause; see :data:`APPEARANCES`): "random" colour / shape words per text (the
+        canonical texts; YCB: the object's true ones), "instance" the material's own fixed appearance
+        (:func:`instance_appearance`: non-tactile words correlated with the material, as in real data), "other" a
+        random appearance that is not the material's own (another instance / another annotator)."""
+        if appearance not in APPEARANCES:
+            raise InputError("unknown appearance scheme", field="appearance", expected=" | ".join(APPEARANCES))
         rng = np.random.default_rng(seed)
+        app: list[tuple[str, str] | None] = [None] * len(self.material)
+        if appearance != "random":
+            own = instance_appearance(self.materials)
+            arng = np.random.default_rng([seed, 7])  # its own stream: the augmentation draws stay as they are
+            app = [
+                own[int(m)] if appearance == "instance" else other_appearance(own[int(m)], arng) for m in self.material
+            ]
         return [
-            description(self.materials[m], c, mode=mode, distractor=distractor, rng=rng, augment=augment)
-            for m, c in zip(self.material, self.contacts, strict=True)
+            description(self.materials[m], c, mode=mode, distractor=distractor, rng=rng, augment=augment, appearance=a)
+            for m, c, a in zip(self.material, self.contacts, app, strict=True)
         ]
+
+
+#: distractor-clause schemes of :meth:`TactileSet.texts`
+APPEARANCES = ("random", "instance", "other")
+#: seed of the fixed colour / shape assignment of the correlated-appearance setting
+APPEARANCE_SEED = 2511
+
+
+def instance_appearance(mats: list[Material]) -> dict[int, tuple[str, str]]:
+    """Material index -> its fixed (colour, shape): what an annotator sees on *this* sample of the material (a
+    given sponge is always yellow). Procedural materials take the 60 colour x shape pairs in a seeded order
+    (so the pair nearly identifies the material, the strongest shortcut); YCB objects keep their true ones."""
+    from vtrack.language.ycb import YCB_OBJECTS
+
+    pairs = [(c, s) for c in COLOURS for s in SHAPES]
+    order = np.random.default_rng(APPEARANCE_SEED).permutation(len(pairs))
+    out: dict[int, tuple[str, str]] = {}
+    k = 0
+    for m in mats:
+        if m.family == "ycb":
+            _, c, s = YCB_OBJECTS[m.obj]
+            out[m.index] = (c, s)
+        else:
+            out[m.index] = pairs[int(order[k % len(pairs)])]
+            k += 1
+    return out
+
+
+def other_appearance(own: tuple[str, str], rng: np.random.Generator) -> tuple[str, str]:
+    """A random (colour, shape) other than ``own``: the same material seen on another instance."""
+    while True:
+        a = (str(rng.choice(COLOURS)), str(rng.choice(SHAPES)))
+        if a != own:
+            return a
 
 
 def background() -> np.ndarray:

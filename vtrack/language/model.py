@@ -324,7 +324,7 @@ class TouchSteer:
         v = torch.as_tensor(self.encode_features(images))
         a3 = self.steering.p3 if p3 is None else p3
         a4 = self.steering.p4 if p4 is None else p4
-        ids = self.net.generate(v, a3, a4).numpy()
+        ids = self.net.generate(v, a3, a4, int(self.meta.get("max_len", MAX_LEN))).numpy()
         return [detokenize(row, self.vocab) for row in ids]
 
     # ------------------------------------------------------------------ persistence
@@ -405,13 +405,13 @@ def vocab_vectors(vocab: list[str], word_vectors) -> np.ndarray:
     return out
 
 
-def encode_tokens(texts: list[str], vocab: list[str]) -> np.ndarray:
-    """(N, MAX_LEN + 1) ids: <bos> w1 .. wn <eos> padded with <eos>."""
+def encode_tokens(texts: list[str], vocab: list[str], max_len: int = MAX_LEN) -> np.ndarray:
+    """(N, max_len + 1) ids: <bos> w1 .. wn <eos> padded with <eos>."""
     idx = {w: i for i, w in enumerate(vocab)}
-    out = np.ones((len(texts), MAX_LEN + 1), np.int64)
+    out = np.ones((len(texts), max_len + 1), np.int64)
     out[:, 0] = 0
     for r, t in enumerate(texts):
-        ids = [idx[w] for w in words_of(t)][:MAX_LEN]
+        ids = [idx[w] for w in words_of(t)][:max_len]
         out[r, 1 : 1 + len(ids)] = ids
     return out
 
@@ -445,6 +445,8 @@ def train(
     class_text_weight: float = 0.0,
     texture: bool = False,
     text_mlp: bool = False,
+    appearance: str = "random",
+    lm_appearance: bool = False,
     log=None,
 ) -> TouchSteer:
     """Train on the ``train`` split of a :class:`~vtrack.language.materials.TactileSet`.
@@ -468,6 +470,11 @@ def train(
             in-batch InfoNCE sees ~1 same-material contact and a random handful of the 57 other materials per
             step; this term shows every material's text as a negative at every step (the hard negatives that
             object-level touch -> text ranking meets), and places each material's text where its images are.
+        appearance: distractor clause of the training texts (:meth:`TactileSet.texts`): "random" words (the
+            canonical recipe: independent of the material) or "instance", each material's fixed colour / shape
+            (correlated with the material, as in real data: the correlated-appearance study, docs/language.md).
+        lm_appearance: the describer's targets carry the material's instance appearance clause too ("...; it
+            looks yellow and round"), as an annotator who also writes what he sees; default tactile-only.
     """
     from vtrack.language.text import LEXICON_A, LEXICON_N, steering_vector, token_arrays, word_vectors
 
@@ -479,11 +486,23 @@ def train(
     n = len(tr.images)
     if n < 8:
         raise InputError("too few training contacts", field="data", expected=">= 8", got=n)
-    variants = [token_arrays(tr.texts(mode=mode, seed=seed * 100 + k + 1, augment=True)) for k in range(8)]
+    variants = [
+        token_arrays(tr.texts(mode=mode, seed=seed * 100 + k + 1, augment=True, appearance=appearance))
+        for k in range(8)
+    ]
     # describer targets: the canonical tactile-only description (all splits share the vocabulary)
     canon = data.texts(mode=2, distractor=False)
-    vocab = make_vocab(canon)
-    tgt = torch.as_tensor(encode_tokens(tr.texts(mode=2, distractor=False), vocab))
+    if lm_appearance:
+        from vtrack.language.materials import COLOURS, SHAPES, instance_appearance
+
+        extra = [f"it looks {c} and {s}." for c in COLOURS for s in SHAPES]
+        extra += [f"{c} {s}" for c, s in instance_appearance(data.materials).values()]
+        vocab = make_vocab(canon + extra)
+        # the appearance clause adds 6 tokens: room for them (the canonical recipe keeps MAX_LEN)
+        tgt = torch.as_tensor(encode_tokens(tr.texts(mode=2, appearance="instance"), vocab, MAX_LEN + 8))
+    else:
+        vocab = make_vocab(canon)
+        tgt = torch.as_tensor(encode_tokens(tr.texts(mode=2, distractor=False), vocab))
     if steering.design == "none":
         s_hat = steering_vector(LEXICON_A, LEXICON_N)  # stored for inference sweeps; not injected
         steering = steering.off()
@@ -565,5 +584,8 @@ def train(
     meta = {"epochs": epochs, "mode": mode, "seed": seed, "pooling": pooling, "n_train": n}
     meta |= {"cls_weight": cls_weight, "same_weight": same_weight, "shift_px": shift_px}
     meta |= {"class_text_weight": class_text_weight, "texture": texture, "text_mlp": text_mlp}
+    meta |= {"appearance": appearance, "lm_appearance": lm_appearance}
+    if lm_appearance:
+        meta["max_len"] = MAX_LEN + 8
     meta["train_s"] = round(time.perf_counter() - t0, 1)
     return TouchSteer(net, vocab, steering, meta)

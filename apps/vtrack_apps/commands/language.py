@@ -35,6 +35,15 @@ def register(app: typer.Typer) -> None:
         extra_train: int = typer.Option(
             None, "--extra-train", help="extra training contacts per material (default: the data's, 16)"
         ),
+        appearance: str = typer.Option(
+            "random",
+            "--appearance",
+            help="distractor clause of the training texts: random (canonical) | instance (each material's fixed "
+            "colour / shape: the correlated-appearance study)",
+        ),
+        lm_appearance: bool = typer.Option(
+            False, "--lm-appearance", help="the describer's targets carry the instance appearance clause too"
+        ),
     ) -> None:
         """Generate the procedural materials (cached) and train no-steering, A-only and A-N models alike."""
         import torch
@@ -43,7 +52,13 @@ def register(app: typer.Typer) -> None:
 
         torch.set_num_threads(1)
         designs = tuple(design) if design else DESIGNS
+        from vtrack.errors import InputError
+
+        if appearance not in ("random", "instance"):
+            raise InputError("unknown appearance", field="--appearance", expected="random | instance", got=appearance)
         recipe = {} if cls_weight is None else {"cls_weight": cls_weight}
+        if appearance != "random" or lm_appearance:
+            recipe |= {"appearance": appearance, "lm_appearance": lm_appearance}
         folder = train_all(
             out,
             epochs=epochs,
@@ -64,6 +79,12 @@ def register(app: typer.Typer) -> None:
         sweep: bool = typer.Option(False, "--sweep", help="also sweep P1-P4 x strength on the val split"),
         seed: int = typer.Option(0, "--seed", help="data seed the models were trained with"),
         quick: bool = typer.Option(False, "--quick", help="2 test contacts per material (smoke test, seconds)"),
+        appearance_study: bool = typer.Option(
+            False,
+            "--appearance-study",
+            help="also the correlated-appearance steering study (held-out contacts described with another "
+            "appearance; strengths chosen on val)",
+        ),
     ) -> None:
         """Retrieval R@1/R@5, BLEU-1, silhouette, selection, OOD: no steering vs A-N steering."""
         import torch
@@ -75,7 +96,7 @@ def register(app: typer.Typer) -> None:
         if split not in ("test", "val"):
             raise InputError("unknown split", field="split", expected="test | val", got=split)
         torch.set_num_threads(1)
-        res = evaluate_all(models, seed=seed, split=split, sweep=sweep, quick=quick)
+        res = evaluate_all(models, seed=seed, split=split, sweep=sweep, quick=quick, appearance_study=appearance_study)
         for k in ("r1", "r5", "bleu1", "silhouette", "select_2way", "select_3way"):
             typer.echo(f"{k:12s} {res[k]:.3f} -> steered {res[k + '_steered']:.3f}")
         typer.echo(f"ood_r1       {res['ood_r1']:.3f} (chance {res['ood_chance_r1']:.3f})")
