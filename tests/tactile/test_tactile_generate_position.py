@@ -100,3 +100,11 @@ def test_nearest_reference_prefers_depth_and_angle_modulo_the_symmetry():
     assert nearest_reference(np.array([100, 100, 2.0]), 1.0, P, D) == 1
     assert nearest_reference(np.array([100, 100, 2.0]), 0.3, P, D) == 0
     assert nearest_reference(np.array([290, 190, 40.0]), 1.0, P, D) == 2
+
+
+@pytest.mark.parametrize("kw", [{"ref_frame": "mask"}, {"ref_choice": "random"}])
+def test_pose_study_refuses_unknown_reference_options(kw):
+    from vtrack.bench.generate import pose_study
+
+    with pytest.raises(ValueError, match=next(iter(kw))):
+        pose_study(quick=True, **kw)
