@@ -288,14 +288,14 @@ def pose_study(
     steps: int = 0,
     seed: int = 0,
     heads: tuple[str, ...] = ("flat",),
-    gen_refs: int = 1,
+    gen_refs: int = 24,
     sets: tuple[str, ...] = ("real-only", "generated"),
     pos_weight: float = 1.0,
     n_gen: int = 0,
     moments_row: bool = False,
     gen_labels: str = "target",
     ref_frame: str = "label",
-    ref_choice: str = "cycle",
+    ref_choice: str = "nearest",
 ) -> list[dict]:
     """Contact-pose (x, y, theta) regression on SIMULATED presses (paper Table 2 analogue; stated as such).
 
@@ -303,7 +303,8 @@ def pose_study(
     4242) on the real GelSight background at 320x240; the object is the cross (4-fold symmetric, angle mod
     90 deg). Test: 150 presses at random poses and depths 0.3-1.2 mm (the same for every ``seed``). Training
     budgets: ``real-only`` = 24 labelled presses; ``generated`` = the same 24 + 400 generated from
-    ``gen_refs`` of them (random pose and depth, two-stage generator); ``PCA`` = centroid and principal axis
+    ``gen_refs`` of them (random pose and depth, two-stage generator; default: all 24, each target from the
+    nearest one); ``PCA`` = centroid and principal axis
     of the detected contact (no training). ``seed`` draws the 24 training presses, the generated poses and the
     CNN initialisation (seed 0 = the draws of the earlier single-seed runs); every head in ``heads``
     (:data:`POSE_HEADS`) is trained on each of ``sets`` (``real-only``, ``generated``; e.g. one per process),
@@ -314,12 +315,12 @@ def pose_study(
     (default) = its pose label as the reference pose and the cross's footprint at that label as its mask (the
     labelled press's indenter is known), so the generated contact sits at its target label;
     ``"detected"`` = the earlier runs' detected footprint and its centroid, with the label only correcting the
-    centroid's offset (generated contacts then sit 3-17 px off their labels; recorded ablation).
-    ``ref_choice``: which of the ``gen_refs`` references each generated image comes from: ``"cycle"`` (in turn)
-    or ``"nearest"`` (the one closest to the target in depth, angle mod 90 deg and position, see
-    :func:`nearest_reference`: the generator then only makes small moves, and a deep target keeps the deep
-    reference's cast shadows instead of a shallow reference's having none). Rows also
-    give the x error's bias, 90th percentile and its mean at the ends of the x range (``|x - W/2| > W/4``) and
+    centroid's offset (generated contacts then sit 3-17 px off their labels; the runs before 2026-11-26 late
+    morning used it with ``gen_refs=1``; recorded ablation). ``ref_choice``: which of the ``gen_refs``
+    references each generated image comes from: ``"cycle"`` (in turn) or ``"nearest"`` (default: the one
+    closest to the target in depth, angle mod 90 deg and position, see :func:`nearest_reference`; the generator
+    then only makes small moves, and a deep target keeps a deep reference's cast shadows). Rows also give
+    the x error's bias, 90th percentile and its mean at the ends of the x range (``|x - W/2| > W/4``) and
     in the middle.
     """
     import cv2
