@@ -108,3 +108,22 @@ def test_pose_study_refuses_unknown_reference_options(kw):
 
     with pytest.raises(ValueError, match=next(iter(kw))):
         pose_study(quick=True, **kw)
+
+
+def test_cli_ref_pose_places_the_contact_relative_to_the_label(tmp_path, setup):
+    import cv2
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    ref, bg, render, _ = setup
+    cv2.imwrite(str(tmp_path / "ref.png"), ref)
+    cv2.imwrite(str(tmp_path / "background.png"), bg)
+    out = tmp_path / "out.png"
+    runner = CliRunner()
+    args = ["tactile", "generate", str(tmp_path / "ref.png"), "--depth", str(DEPTH), "--out", str(out)]
+    r = runner.invoke(app, [*args, "--position", "190,135,0", "--ref-pose", f"{REF.x},{REF.y},{REF.theta_deg}"])
+    assert r.exit_code == 0, r.output
+    d = _displacement(cv2.imread(str(out)), render(gd.Pose(190.0, 135.0, REF.theta_deg), DEPTH, 30), bg)
+    assert np.hypot(*d) < 1.5, d  # measured 0.51 px
+    r = runner.invoke(app, [*args, "--ref-pose", "1,2,3,4"])
+    assert r.exit_code != 0 and isinstance(r.exception, InputError) and "--ref-pose" in str(r.exception)
