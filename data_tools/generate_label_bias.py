@@ -5,8 +5,13 @@ captures the generated images, their position labels and requested depths, and c
 contact centre measured on the generated image by `weighted_moments_pose` (the same measure is within ~1 px of the
 truth on the simulated test presses: its test-set row gives the bias). With ``--truth N`` it also renders the first
 N generated poses with the study's own "real" sensor unit (the simulator, i.e. what a real press at that label
-looks like; evaluation only) and reports the generated minus the true press's measured centre, which cancels the
-measure's own bias: that difference is the generator's position error.
+looks like; evaluation only) and reports the generated minus the true press's measured centre (which cancels the
+measure's own bias, but still mixes in shading differences) and the shape displacement between the two (phase
+correlation of the colour-change magnitudes): the generator's position error.
+
+Defaults = the pose study's (label frame, every labelled press a reference, the nearest one per target); the runs
+before 2026-11-26 late morning are ``--ref-frame detected --refs 1 --choice cycle``. Results:
+docs/benchmarks/generate_pose_exact.md.
 
 Usage: python data_tools/generate_label_bias.py SEED [--ref-frame label|detected] [--refs K --choice cycle|nearest]
 [--truth N]
