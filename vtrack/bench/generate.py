@@ -288,12 +288,14 @@ def pose_study(
     steps: int = 0,
     seed: int = 0,
     heads: tuple[str, ...] = ("flat",),
-    gen_refs: int = 1,
+    gen_refs: int = 24,
     sets: tuple[str, ...] = ("real-only", "generated"),
     pos_weight: float = 1.0,
     n_gen: int = 0,
     moments_row: bool = False,
     gen_labels: str = "target",
+    ref_frame: str = "label",
+    ref_choice: str = "nearest",
 ) -> list[dict]:
     """Contact-pose (x, y, theta) regression on SIMULATED presses (paper Table 2 analogue; stated as such).
 
@@ -301,15 +303,24 @@ def pose_study(
     4242) on the real GelSight background at 320x240; the object is the cross (4-fold symmetric, angle mod
     90 deg). Test: 150 presses at random poses and depths 0.3-1.2 mm (the same for every ``seed``). Training
     budgets: ``real-only`` = 24 labelled presses; ``generated`` = the same 24 + 400 generated from
-    ``gen_refs`` of them (random pose and depth, two-stage generator); ``PCA`` = centroid and principal axis
+    ``gen_refs`` of them (random pose and depth, two-stage generator; default: all 24, each target from the
+    nearest one); ``PCA`` = centroid and principal axis
     of the detected contact (no training). ``seed`` draws the 24 training presses, the generated poses and the
     CNN initialisation (seed 0 = the draws of the earlier single-seed runs); every head in ``heads``
     (:data:`POSE_HEADS`) is trained on each of ``sets`` (``real-only``, ``generated``; e.g. one per process),
     with ``pos_weight`` on the position loss (see :func:`_train_pose_cnn`); ``n_gen`` > 0 overrides the number
     of generated images; ``moments_row`` adds the :func:`weighted_moments_pose` baseline after PCA;
     ``gen_labels="measured"`` labels each generated image's position by that baseline measured on it instead of
-    its generation target. Rows also
-    give the x error's bias, 90th percentile and its mean at the ends of the x range (``|x - W/2| > W/4``) and
+    its generation target. ``ref_frame`` says how the reference press is given to the generator: ``"label"``
+    (default) = its pose label as the reference pose and the cross's footprint at that label as its mask (the
+    labelled press's indenter is known), so the generated contact sits at its target label;
+    ``"detected"`` = the earlier runs' detected footprint and its centroid, with the label only correcting the
+    centroid's offset (generated contacts then sit 3-17 px off their labels; the runs before 2026-11-26 late
+    morning used it with ``gen_refs=1``; recorded ablation). ``ref_choice``: which of the ``gen_refs``
+    references each generated image comes from: ``"cycle"`` (in turn) or ``"nearest"`` (default: the one
+    closest to the target in depth, angle mod 90 deg and position, see :func:`nearest_reference`; the generator
+    then only makes small moves, and a deep target keeps a deep reference's cast shadows). Rows also give
+    the x error's bias, 90th percentile and its mean at the ends of the x range (``|x - W/2| > W/4``) and
     in the middle.
     """
     import cv2
@@ -319,6 +330,10 @@ def pose_study(
 
     if gen_labels not in ("target", "measured"):
         raise ValueError(f"gen_labels must be 'target' or 'measured', got {gen_labels!r}")
+    if ref_frame not in ("label", "detected"):
+        raise ValueError(f"ref_frame must be 'label' or 'detected', got {ref_frame!r}")
+    if ref_choice not in ("cycle", "nearest"):
+        raise ValueError(f"ref_choice must be 'cycle' or 'nearest', got {ref_choice!r}")
     from vtrack.tactile.generate import data as gd
     from vtrack.tactile.generate.generator import TactileGenerator
     from vtrack.tactile.sensors import default_background
@@ -378,15 +393,26 @@ def pose_study(
     for k, (p, d) in enumerate(zip(gP, gD, strict=True)):
         if "generated" not in sets:  # the draws above keep every set's stream the same
             break
-        r = k % max(1, min(gen_refs, n_real))
-        ref_mask = gd.detect_contact(real_imgs[r], bg)
-        rp = gd.mask_pose(ref_mask)
-        # the reference's own angle label gives the footprint's orientation offset (moments cannot for a cross)
-        target = gd.Pose(
-            float(p[0]) + (rp.x - real_P[r, 0]),
-            float(p[1]) + (rp.y - real_P[r, 1]),
-            rp.theta_deg + float(p[2] - real_P[r, 2]),
-        )
+        n_refs = max(1, min(gen_refs, n_real))
+        if ref_choice == "nearest":
+            r = nearest_reference(p, float(d), real_P[:n_refs], real_D[:n_refs], sym)
+        else:
+            r = k % n_refs
+        if ref_frame == "label":
+            # the reference's pose label and the footprint of the known indenter at that label: the same
+            # (mask, pose) pairing the generator was trained with, so the target pose IS the generated label
+            rp = gd.Pose(*map(float, real_P[r]))
+            ref_mask = gd.indenter_mask("cross", (H, W), rp, float(real_D[r]), mpp)
+            target = gd.Pose(*map(float, p))
+        else:
+            ref_mask = gd.detect_contact(real_imgs[r], bg)
+            rp = gd.mask_pose(ref_mask)
+            # the reference's own angle label gives the footprint's orientation offset (moments cannot for a cross)
+            target = gd.Pose(
+                float(p[0]) + (rp.x - real_P[r, 0]),
+                float(p[1]) + (rp.y - real_P[r, 1]),
+                rp.theta_deg + float(p[2] - real_P[r, 2]),
+            )
         reqs.append(
             gen.prepare(
                 real_imgs[r],
@@ -395,10 +421,12 @@ def pose_study(
                 target_depth_mm=float(d),
                 target_pose=target,
                 ref_mask=ref_mask,
+                ref_pose=rp,
             )
         )
     Xt = torch.from_numpy(feats(test_imgs))
     src = f"{min(gen_refs, n_real)} reference{'s' * (gen_refs > 1)}"
+    src += ", nearest to each target" if ref_choice == "nearest" and gen_refs > 1 else ""
     budgets = [("CNN real-only", f"{n_real} real", feats(real_imgs), real_P)] if "real-only" in sets else []
     if "generated" in sets:
         gen_imgs = np.stack(gen.generate_many(reqs, bg))
@@ -428,13 +456,39 @@ def pose_study(
             label = name if head == "flat" else f"{name} ({head} head)"
             label += f", position loss x{pos_weight:g}" if pos_weight != 1.0 else ""
             label += ", generated positions measured" if gen_labels == "measured" and "generated" in name else ""
+            label += ", reference by its detected footprint" if ref_frame == "detected" and "generated" in name else ""
             rows.append(
                 {"method": label, "train": f"{train}, {done} steps", "head": head, "seed": seed}
-                | {"pos_weight": pos_weight}
+                | {"pos_weight": pos_weight, "ref_frame": ref_frame, "gen_refs": gen_refs, "ref_choice": ref_choice}
                 | _pose_errors(pred, test_P, W, H, sym)
             )
             log.info("pose study seed %d: %s", seed, rows[-1])
     return rows
+
+
+def nearest_reference(
+    target: np.ndarray,
+    depth_mm: float,
+    ref_poses: np.ndarray,
+    ref_depths: np.ndarray,
+    sym: int = 4,
+    depth_scale_mm: float = 0.15,
+    angle_scale_deg: float = 10.0,
+    pos_scale_px: float = 80.0,
+) -> int:
+    """Index of the labelled reference closest to a generation target ``(x px, y px, theta deg)`` at ``depth_mm``:
+    least sum of squared differences in depth (per ``depth_scale_mm``), orientation modulo 360/``sym`` (per
+    ``angle_scale_deg``) and position (per ``pos_scale_px``). Depth and orientation come first: a rigid move
+    rotates the reference's cast shadows (fixed in the sensor frame in a real press) and the generator's depth
+    response is weakest far from the reference's depth."""
+    period = 360.0 / sym
+    dth = (ref_poses[:, 2] - target[2] + period / 2) % period - period / 2
+    cost = (
+        ((ref_depths - depth_mm) / depth_scale_mm) ** 2
+        + (dth / angle_scale_deg) ** 2
+        + (np.hypot(ref_poses[:, 0] - target[0], ref_poses[:, 1] - target[1]) / pos_scale_px) ** 2
+    )
+    return int(np.argmin(cost))
 
 
 def pose_study_seeds(

@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 
 
-def _parse_position(text: str):
+def _parse_position(text: str, option: str = "--position"):
     from vtrack.errors import InputError
     from vtrack.tactile.generate.data import Pose
 
@@ -20,7 +20,7 @@ def _parse_position(text: str):
     except ValueError:
         parts = []
     if len(parts) not in (2, 3):
-        raise InputError("bad --position", field="--position", expected="x,y[,theta] (px, px, deg)", got=text)
+        raise InputError(f"bad {option}", field=option, expected="x,y[,theta] (px, px, deg)", got=text)
     return Pose(parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0)
 
 
@@ -36,6 +36,12 @@ def register_generate(tac: typer.Typer) -> None:
         mask: Path = typer.Option(None, "--mask", help="target contact mask (PNG, white = contact; sets the pose)"),
         position: str = typer.Option(
             None, "--position", help="target contact centroid and rotation: x,y[,theta] (px, px, deg vs the reference)"
+        ),
+        ref_pose: str = typer.Option(
+            None,
+            "--ref-pose",
+            help="the reference contact's labelled pose x,y[,theta] (px, px, deg): the target is placed relative to "
+            "it, not to the detected footprint's centroid (which a dim or unevenly lit contact pulls off centre)",
         ),
         background: Path = typer.Option(
             None, "--background", help="no-contact frame (default: background.png beside the reference)"
@@ -91,12 +97,20 @@ def register_generate(tac: typer.Typer) -> None:
                 raise InputError("cannot read mask image", path=mask, field="--mask")
             tmask = gd.check_mask(m > 127, (H, W), path=mask)
         pose = _parse_position(position) if position is not None else None
+        labelled = _parse_position(ref_pose, "--ref-pose") if ref_pose is not None else None
         if pose is not None:
-            rp = gd.mask_pose(ref_mask)
+            rp = labelled if labelled is not None else gd.mask_pose(ref_mask)
             pose = gd.Pose(pose.x, pose.y, rp.theta_deg + pose.theta_deg)
         gen = TactileGenerator(weights, mode=mode)
         img = gen.generate(
-            ref, bg, ref_depth_mm=ref_d, target_depth_mm=tgt_d, target_pose=pose, target_mask=tmask, ref_mask=ref_mask
+            ref,
+            bg,
+            ref_depth_mm=ref_d,
+            target_depth_mm=tgt_d,
+            target_pose=pose,
+            target_mask=tmask,
+            ref_mask=ref_mask,
+            ref_pose=labelled,
         )
         out.parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out), img)

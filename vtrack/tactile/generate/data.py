@@ -345,6 +345,17 @@ def indenter_height(name: str, shape_hw: tuple[int, int], pose: Pose, depth_mm: 
     return np.clip(h, 0, None).astype(np.float32)
 
 
+#: Indentation (mm) above which a pixel belongs to an indenter's footprint (:func:`indenter_mask`).
+FOOTPRINT_MIN_MM = 0.02
+
+
+def indenter_mask(name: str, shape_hw: tuple[int, int], pose: Pose, depth_mm: float, mm_per_px: float) -> np.ndarray:
+    """uint8 {0, 1} footprint of a known indenter at a labelled pose and depth: the mask the generator was
+    trained with (indentation > :data:`FOOTPRINT_MIN_MM`). Use it with that label as ``ref_pose`` so the
+    reference's mask and pose agree (a mask detected from the image can miss the contact's dim parts)."""
+    return (indenter_height(name, shape_hw, pose, depth_mm, mm_per_px) > FOOTPRINT_MIN_MM).astype(np.uint8)
+
+
 # ----------------------------------------------------------------------------------------------- data sets
 @dataclass
 class PressBank:
@@ -446,7 +457,7 @@ def sim_bank(
                     h = indenter_height(name, (H, W), pose, float(d), mm_per_px)
                     img = model.render(h, mm_per_px, background, rng, noise=1.0)
                     D.append(img.astype(np.float32) - bgf)
-                    Mk.append((h > 0.02).astype(np.uint8))
+                    Mk.append((h > FOOTPRINT_MIN_MM).astype(np.uint8))
                     P.append((pose.x, pose.y, pose.theta_deg))
                     Dp.append(float(d))
                     G.append(g)

@@ -130,23 +130,30 @@ class TactileGenerator:
 
     # ------------------------------------------------------------------ request preparation
     def _reference(
-        self, ref: np.ndarray, bg: np.ndarray, ref_mask: np.ndarray | None
+        self, ref: np.ndarray, bg: np.ndarray, ref_mask: np.ndarray | None, ref_pose: gd.Pose | None = None
     ) -> tuple[np.ndarray, gd.Pose, float, np.ndarray]:
-        """(footprint, pose, footprint radius px, smoothed windowed colour change) of a reference; the last
-        reference is cached (keyed by a hash of every pixel: a subsampled hash would serve a different reference
-        that differs only between the samples), so many targets from one reference cost one preparation."""
+        """(footprint, pose, footprint radius px, smoothed windowed colour change) of a reference.
+
+        The pose is ``ref_pose`` when given (a labelled reference), else the footprint's centroid and principal
+        axis. The generator was trained with the label's centre and angle as the reference pose, so moving the
+        contact about its label puts it exactly where the target pose says; a footprint centroid can sit several
+        px off the true centre (a shaded cross thresholded at half its peak loses its dim arms) and a symmetric
+        footprint has no principal axis. The last reference is cached (keyed by a hash of every pixel and the
+        pose: a subsampled hash would serve a different reference that differs only between the samples), so
+        many targets from one reference cost one preparation."""
         import hashlib
 
         h = hashlib.blake2b(digest_size=16)
         for a in (ref, bg) + (() if ref_mask is None else (np.asarray(ref_mask),)):
             h.update(str(a.shape).encode())
             h.update(np.ascontiguousarray(a).tobytes())
+        h.update(repr(ref_pose).encode())
         key = h.hexdigest()
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         H, W = ref.shape[:2]
         m = gd.detect_contact(ref, bg) if ref_mask is None else gd.check_mask(ref_mask, (H, W))
-        rp = gd.mask_pose(m)
+        rp = gd.mask_pose(m) if ref_pose is None else ref_pose
         radius = gd.footprint_radius(m, rp)
         delta = ref.astype(np.float32) - bg.astype(np.float32)
         out = (m, rp, radius, gd.reference_patch(delta, gd.contact_window(m, feather=gd.FEATHER), radius))
@@ -163,6 +170,7 @@ class TactileGenerator:
         target_pose: gd.Pose | None = None,
         target_mask: np.ndarray | None = None,
         ref_mask: np.ndarray | None = None,
+        ref_pose: gd.Pose | None = None,
         rotation_deg: float = 0.0,
         _second: bool = False,
     ) -> Request:
@@ -181,7 +189,9 @@ class TactileGenerator:
                 got=bg.shape,
             )
         H, W = ref.shape[:2]
-        ref_mask, rp, radius, patch = self._reference(ref, bg, ref_mask)
+        if ref_pose is not None:
+            gd.check_pose_in_gel(ref_pose, (H, W), field="ref_pose")
+        ref_mask, rp, radius, patch = self._reference(ref, bg, ref_mask, ref_pose)
         if target_mask is not None:
             tm = gd.check_mask(target_mask, (H, W))
             tp = gd.mask_pose(tm)
@@ -195,7 +205,7 @@ class TactileGenerator:
         then = None
         if self.mode == "separate" and not _second:
             # step 1 = force only, at the reference's own pose; step 2 (in generate_many) moves its output
-            then = {"target_pose": tp, "ref_mask": ref_mask, "depth": float(target_depth_mm)}
+            then = {"target_pose": tp, "ref_mask": ref_mask, "ref_pose": rp, "depth": float(target_depth_mm)}
             tp = rp
         x, A, M = gd.crop_inputs(patch, ref_mask, rp, tp, radius)
         if self.mode == "shift":  # the baseline moves the patch as it is, noise included
@@ -251,6 +261,7 @@ class TactileGenerator:
                         target_depth_mm=t["depth"],
                         target_pose=t["target_pose"],
                         ref_mask=t["ref_mask"],
+                        ref_pose=t["ref_pose"],
                         _second=True,
                     )
                 )
@@ -273,6 +284,10 @@ class TactileGenerator:
                 the reference's pose; ``rotation_deg`` then rotates in place).
             target_mask: a target footprint (the reference template moved; its centroid and axis set the pose).
             ref_mask: the reference footprint (default: detected).
+            ref_pose: the reference contact's labelled pose (px, deg; default: the centroid and principal axis
+                of ``ref_mask``). Give it when the reference is labelled: the target pose is then relative to
+                the label, and the generated contact sits exactly at ``target_pose`` (see
+                :func:`~.data.indenter_mask` for a footprint consistent with a label).
         """
         req = self.prepare(reference, background, **kw)
         if self.net2 is not None:
