@@ -127,7 +127,11 @@ class TrackerOptions:
     #: on their anchors, point-to-point with this sigma (m), robust (``kernel_colour``). Added AFTER the degeneracy
     #: projection: it is what observes a spin about a symmetry axis that depth and touch leave to the motion prior
     sigma_colour: float = 0.0
-    kernel_colour: float = 1.5  #: robust kernel width of the colour term, in sigmas
+    #: robust kernel width of the colour term, in sigmas. 0.5 (Huber: quadratic to 0.5 mm at 1 mm sigma, then a
+    #: constant pull per track): the tracks slip ~8 % behind the true motion and a wide kernel let their summed
+    #: pull beat well-conditioned geometry (5 s unoccluded mustard 1.5 sigmas: 4.81 mm, 0.5: 3.36; mug kept:
+    #: docs/benchmarks/slam_colour.md, "Tighter kernel")
+    kernel_colour: float = 0.5
     colour_gate: float = 0.01  #: drop tracks farther than this from their anchor at the prediction, m
     colour_min_tracks: int = 6  #: fewer anchored tracks in a frame: no colour term there
     #: > 0: the colour term acts only along the eigen-directions of the frame's depth / touch data weaker than this
