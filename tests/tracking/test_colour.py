@@ -172,3 +172,31 @@ def test_frames_layer_gives_colour_tracks_only_when_asked(tiny_session):
     assert np.median(d) < 0.004, np.median(d)
     info = fr.tracking_frame().info
     assert np.array_equal(info["colour_ids"], fr.colour_ids)
+
+
+def test_slipped_tracks_are_reanchored_at_the_committed_pose():
+    # camera at the origin looking down +z; object at CENTRE; three tracks anchored in frame 1
+    P0 = CENTRE + np.array([[0.01, 0.0, -0.03], [-0.01, 0.0, -0.03], [0.0, 0.01, -0.03]])
+    opts = {"sigma_colour": 0.001, "colour_reanchor": 0.002, "object_radius": RADIUS}
+    tr = WindowTracker(_CylinderSDF(), _pose(0.0), opts)
+    info = {"colour_ids": np.array([0, 1, 2]), "colour_points": P0, "camera_origin": np.zeros(3)}
+    tr._colour_anchor(TrackingFrame(t=0.0, info=info), _pose(0.0), True)
+    a0 = {k: v.copy() for k, v in tr._anchors.items()}
+    # frame 2, object still: track 0 slipped 3 mm across its ray (re-anchored), track 1 0.5 mm (kept), track 2 moved
+    # 5 mm ALONG its ray (depth noise: the ray residual does not see it, kept)
+    P1 = P0.copy()
+    P1[0, 1] += 0.003
+    P1[1, 1] += 0.0005
+    P1[2] *= 1.0 + 0.005 / np.linalg.norm(P1[2])
+    info = {"colour_ids": np.array([0, 1, 2]), "colour_points": P1, "camera_origin": np.zeros(3)}
+    tr._colour_anchor(TrackingFrame(t=1 / FPS, info=info), _pose(0.0), True)
+    Ti = np.linalg.inv(_pose(0.0))
+    assert np.allclose(tr._anchors[0], P1[0] @ Ti[:3, :3].T + Ti[:3, 3])
+    assert np.array_equal(tr._anchors[1], a0[1]) and np.array_equal(tr._anchors[2], a0[2])
+    # off (the default): nothing is re-anchored; an age limit of 1 frame re-anchors every track
+    for extra, moved in (({}, set()), ({"colour_max_age": 1}, {0, 1, 2})):
+        tr = WindowTracker(_CylinderSDF(), _pose(0.0), {**opts, "colour_reanchor": 0.0, **extra})
+        tr._colour_anchor(TrackingFrame(t=0.0, info={**info, "colour_points": P0}), _pose(0.0), True)
+        tr._frame_count += 1
+        tr._colour_anchor(TrackingFrame(t=1 / FPS, info=info), _pose(0.0), True)
+        assert {k for k in range(3) if not np.array_equal(tr._anchors[k], a0[k])} == moved

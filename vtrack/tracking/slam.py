@@ -128,11 +128,12 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 
 #: SLAM's colour term (``TrackerOptions.sigma_colour``, m; SLAM's default since 2026-11-26): KLT feature tracks on
 #: the segmented object pixels (:mod:`vtrack.tracking.colour`, built by the frames layer when the term is on) anchored
-#: in the object frame, each observation pulled onto its viewing ray at 1 mm. Blind, 2 s YCB sessions
-#: (docs/benchmarks/slam_colour.md): mean object-motion error none / medium 1.08 / 3.47 -> 1.02 / 1.46 mm (mug at
-#: medium 12.77 -> 1.06); 5 s medium 9.16 -> 3.30 mm (mug 32.8 -> 2.9); 5 s unoccluded 3.17 -> 2.11 mm but the
-#: well-tracked mustard 1.03 -> 4.81 mm (open); +3-6 % CPU per frame (A/B under load). ``sigma_colour=0`` turns it
-#: off (and the frames layer then reads no RGB).
+#: in the object frame, each observation pulled onto its viewing ray at 1 mm (Huber at 0.5 sigma,
+#: ``kernel_colour``). Blind YCB sessions (docs/benchmarks/slam_colour.md), mean object-motion error without ->
+#: with colour: 2 s none / medium 1.08 / 3.47 -> 0.87 / 1.32 mm (mug at medium 12.77 -> 0.99); 5 s medium
+#: 9.16 -> 3.03 mm (mug 32.8 -> 2.9); 5 s none 3.17 -> 1.62 mm, but the well-tracked mustard still 1.03 -> 3.36 mm
+#: (4.81 with the first kernel, 1.5 sigma); heavy occlusion 2 s 4.81 -> 3.73 mm; +3-6 % CPU per frame (A/B under
+#: load). ``sigma_colour=0`` turns it off (and the frames layer then reads no RGB).
 SLAM_COLOUR_SIGMA = 0.001
 #: the colour term on (``track_session(..., **SLAM_COLOUR)``; SLAM's default) / off (``SLAM_NO_COLOUR``)
 SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}

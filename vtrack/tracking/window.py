@@ -127,7 +127,11 @@ class TrackerOptions:
     #: on their anchors, point-to-point with this sigma (m), robust (``kernel_colour``). Added AFTER the degeneracy
     #: projection: it is what observes a spin about a symmetry axis that depth and touch leave to the motion prior
     sigma_colour: float = 0.0
-    kernel_colour: float = 1.5  #: robust kernel width of the colour term, in sigmas
+    #: robust kernel width of the colour term, in sigmas. 0.5 (Huber: quadratic to 0.5 mm at 1 mm sigma, then a
+    #: constant pull per track): the tracks slip ~8 % behind the true motion and a wide kernel let their summed
+    #: pull beat well-conditioned geometry (5 s unoccluded mustard 1.5 sigmas: 4.81 mm, 0.5: 3.36; mug kept:
+    #: docs/benchmarks/slam_colour.md, "Tighter kernel")
+    kernel_colour: float = 0.5
     colour_gate: float = 0.01  #: drop tracks farther than this from their anchor at the prediction, m
     colour_min_tracks: int = 6  #: fewer anchored tracks in a frame: no colour term there
     #: > 0: the colour term acts only along the eigen-directions of the frame's depth / touch data weaker than this
@@ -138,6 +142,13 @@ class TrackerOptions:
     #: ``ray``: an anchor must lie on its track's viewing ray (the observation's depth, the noisiest part, is not
     #: used); ``point``: on the observed 3D point (see ``_colour_terms``)
     colour_residual: str = "ray"
+    #: > 0: after each tracked frame, a track whose anchor lies farther than this from its observation at the
+    #: committed pose (the term's residual, m) is re-anchored there: LK tracks slip on the surface (they recover
+    #: ~92 % of the motion), and an anchor that keeps an old slip pulls the pose back for the track's whole life
+    colour_reanchor: float = 0.0
+    #: > 0: tracks anchored this many frames ago are re-anchored at the committed pose (bounds the slip a track
+    #: accumulates against its anchor; the term then observes the motion over at most this many frames)
+    colour_max_age: int = 0
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -165,6 +176,13 @@ class TrackerOptions:
             )
         if not (o.sigma_colour >= 0 and np.isfinite(o.sigma_colour)):
             raise InputError("sigma_colour must be >= 0 (m; 0: off)", field="sigma_colour", got=o.sigma_colour)
+        if not (o.colour_reanchor >= 0 and np.isfinite(o.colour_reanchor)) or o.colour_max_age < 0:
+            raise InputError(
+                "colour re-anchoring out of range",
+                field="colour_reanchor",
+                expected="colour_reanchor >= 0 (m), colour_max_age >= 0 (frames)",
+                got=(o.colour_reanchor, o.colour_max_age),
+            )
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
         return o
@@ -339,6 +357,7 @@ class WindowTracker:
         self._frame_count = 0
         self._t_vision: float | None = None  # time of the last frame with segmented vision points
         self._anchors: dict[int, np.ndarray] = {}  # colour track id -> object-frame anchor (m)
+        self._anchor_frame: dict[int, int] = {}  # colour track id -> frame count when anchored
 
     # -- public API ---------------------------------------------------------------------------
     def reset(self, T_world_object: np.ndarray) -> None:
@@ -348,6 +367,7 @@ class WindowTracker:
         self.keyframes.clear()
         self.t_last = None
         self._anchors.clear()
+        self._anchor_frame.clear()
 
     @property
     def last_info(self) -> StepInfo | None:
@@ -435,23 +455,55 @@ class WindowTracker:
 
     def _colour_anchor(self, fr: TrackingFrame, T: np.ndarray, ok: bool) -> None:
         """Anchor the frame's new colour tracks in the object frame at pose ``T`` (only if the frame was tracked:
-        ``ok``); forget the anchors of tracks that ended."""
-        if self.opts.sigma_colour <= 0:
+        ``ok``); forget the anchors of tracks that ended; re-anchor at ``T`` those that slipped past
+        ``colour_reanchor`` or are older than ``colour_max_age`` frames."""
+        o = self.opts
+        if o.sigma_colour <= 0:
             return
         ids = fr.info.get("colour_ids")
         P = fr.info.get("colour_points")
         if ids is None or P is None:
             self._anchors.clear()
+            self._anchor_frame.clear()
             return
         ids = np.asarray(ids).tolist()
         keep = {a: self._anchors[a] for a in ids if a in self._anchors}
         if ok and np.all(np.isfinite(T)):
+            P = np.asarray(P, np.float64)
             Ti = _inv(T)
-            Q = np.asarray(P, np.float64) @ Ti[:3, :3].T + Ti[:3, 3]
-            for a, q in zip(ids, Q, strict=True):
-                if a not in keep and np.all(np.isfinite(q)):
+            Q = P @ Ti[:3, :3].T + Ti[:3, 3]
+            renew = np.zeros(len(ids), bool)
+            if o.colour_max_age > 0:
+                renew |= np.array(
+                    [a in keep and self._frame_count - self._anchor_frame.get(a, 0) >= o.colour_max_age for a in ids],
+                    bool,
+                )
+            if o.colour_reanchor > 0 and keep:
+                has = np.array([a in keep for a in ids], bool)
+                Qa = np.array([keep[a] if a in keep else np.zeros(3) for a in ids])
+                e = Qa @ T[:3, :3].T + T[:3, 3] - P  # anchor minus observation, world
+                C = self._colour_centres(fr, P)
+                if o.colour_residual == "ray" and C is not None:
+                    d = P - C
+                    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+                    e = e - d * np.sum(d * e, axis=1, keepdims=True)
+                renew |= has & (np.linalg.norm(e, axis=1) > o.colour_reanchor)
+            for k, (a, q) in enumerate(zip(ids, Q, strict=True)):
+                if (a not in keep or renew[k]) and np.all(np.isfinite(q)):
                     keep[a] = q
+                    self._anchor_frame[a] = self._frame_count
         self._anchors = keep
+        self._anchor_frame = {a: self._anchor_frame.get(a, self._frame_count) for a in keep}
+
+    @staticmethod
+    def _colour_centres(fr: TrackingFrame, P: np.ndarray) -> np.ndarray | None:
+        """World camera centres (N, 3) of a frame's colour tracks (None when the frame names none)."""
+        C = fr.info.get("colour_origins")
+        if C is not None and len(C) == len(P):
+            return np.asarray(C, np.float64)
+        if fr.info.get("camera_origin") is not None:
+            return np.broadcast_to(np.asarray(fr.info["camera_origin"], np.float64), P.shape)
+        return None
 
     def _colour_projector(self, H: np.ndarray) -> np.ndarray | None:
         """Projector of a twist onto the eigen-directions of the data block ``H`` weaker than ``colour_ratio`` of
