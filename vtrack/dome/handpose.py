@@ -48,6 +48,10 @@ CHUNK = 3000
 IR_MIN_CORR = 0.5
 #: gate: predicted angles further than this (deg) outside the training range are flagged
 ANGLE_MARGIN_DEG = 10.0
+#: RGB gate: principal components of the training frames (2 x 2-binned, 32 x 32 x 3) that span "a frame of this
+#: sensor" (16 keep 96 % of the variance), and the factor on the training set's 99.9th percentile of each score
+RGB_GATE_K = 16
+RGB_GATE_MARGIN = 1.5
 
 
 @dataclass
@@ -299,6 +303,49 @@ def predict_deg(model: HandPoseNet, data: dict, batch: int = 128) -> np.ndarray:
     return np.concatenate(outs).astype(np.float64)
 
 
+def _rgb_gate_features(rgb: np.ndarray) -> np.ndarray:
+    """(n, S, S, 3) uint8 -> (n, 3 S^2 / 4) float64 in [0, 1], 2 x 2-binned (the pixel noise averages down)."""
+    x = np.asarray(rgb, np.float64) / 255.0
+    n, S = x.shape[0], x.shape[1]
+    return x.reshape(n, S // 2, 2, S // 2, 2, 3).mean((2, 4)).reshape(n, -1)
+
+
+def fit_rgb_gate(
+    rgb: np.ndarray, k: int = RGB_GATE_K, margin: float = RGB_GATE_MARGIN, n_fit: int = 2000
+) -> dict[str, torch.Tensor]:
+    """Plausibility model of this sensor's visible-light frames, learnt from training frames ``rgb``
+    ((n, S, S, 3) uint8): the mean frame and the ``k`` leading principal components. A frame is scored by its
+    distance from that subspace (``spe``: RMS residual per binned pixel, [0, 1] intensity units) and by its
+    position inside it (``t2``: Hotelling's T^2, sum of squared coefficients over the component variances). The
+    thresholds are ``margin`` x the 99.9th percentile of each score on the training frames. Every frame of the
+    dome shows the same shell, vignetting and room light with a hand blurred by the haze in front, so noise, a
+    checkerboard, a gradient or another camera's picture leave the subspace by far (see docs/dome.md). The
+    components come from ``n_fit`` evenly spaced frames (16 components are stable and the SVD stays a few
+    seconds); the thresholds from all frames."""
+    x = _rgb_gate_features(rgb[np.linspace(0, len(rgb) - 1, min(n_fit, len(rgb))).astype(int)])
+    mu = x.mean(0)
+    _, sv, vt = np.linalg.svd(x - mu, full_matrices=False)
+    gate = {
+        "mean": torch.from_numpy(mu.astype(np.float32)),
+        "components": torch.from_numpy(vt[:k].astype(np.float32)),
+        "var": torch.from_numpy((sv[:k] ** 2 / max(len(x) - 1, 1)).astype(np.float32)),
+    }
+    spe, t2 = rgb_gate_scores(gate, rgb)
+    gate["spe_max"] = torch.tensor(float(margin * np.quantile(spe, 0.999)))
+    gate["t2_max"] = torch.tensor(float(margin * np.quantile(t2, 0.999)))
+    return gate
+
+
+def rgb_gate_scores(gate: dict[str, torch.Tensor], rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(spe, t2) of (n, S, S, 3) uint8 frames under :func:`fit_rgb_gate`'s model (see there)."""
+    v = gate["components"].double().numpy()
+    d = _rgb_gate_features(rgb) - gate["mean"].double().numpy()
+    c = d @ v.T
+    spe = np.sqrt(np.mean((d - c @ v) ** 2, axis=1))
+    t2 = np.sum(c**2 / gate["var"].double().numpy(), axis=1)
+    return spe, t2
+
+
 def split_train_val(n: int, tc: HandPoseTrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """(train, val) indices: a fixed ``val_frac`` of the grasps (same split for every setting of a run)."""
     perm = np.random.default_rng(tc.seed).permutation(n)
@@ -442,9 +489,16 @@ def _dual_shared_keys(models: dict[str, HandPoseNet]) -> set[str]:
     return out
 
 
-def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainConfig, info: dict) -> None:
+def save_models(
+    path: Path,
+    models: dict[str, HandPoseNet],
+    tc: HandPoseTrainConfig,
+    info: dict,
+    rgb_gate: dict[str, torch.Tensor] | None = None,
+) -> None:
     """One weights file for all settings (float16 except normalisation and marker centres). The dual net's
-    frozen branches are stored once, in the single-modality nets (``dual_shared``), which halves the file."""
+    frozen branches are stored once, in the single-modality nets (``dual_shared``), which halves the file.
+    ``rgb_gate``: the RGB plausibility model of :func:`fit_rgb_gate` (float32, ~0.2 MB)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     shared = _dual_shared_keys(models)
     blob = {
@@ -455,6 +509,7 @@ def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainCon
         "rgb_size": RGB_SIZE,
         "train": asdict(tc),
         "info": info,
+        **({"rgb_gate": rgb_gate} if rgb_gate is not None else {}),
         "models": {
             m: {
                 k: v.half() if v.is_floating_point() and k not in ("mean", "std") and not k.endswith("centers") else v
@@ -867,6 +922,8 @@ class HandPosePredictor:
         torch.set_num_threads(1)
         self.models, blob = load_models(weights)
         self.info = blob.get("info", {})
+        #: RGB plausibility model (:func:`fit_rgb_gate`); files written before it have only the blank check
+        self.rgb_gate = blob.get("rgb_gate")
         lo, hi = self.info.get("angle_range_deg", (None, None))
         self.lo = np.asarray(lo, np.float64) if lo is not None else None
         self.hi = np.asarray(hi, np.float64) if hi is not None else None
@@ -899,6 +956,14 @@ class HandPosePredictor:
                 )
             if float(rgb.std()) < 2.0:
                 reasons.append("RGB frame is blank")
+            elif self.rgb_gate is not None:
+                spe, t2 = (float(v[0]) for v in rgb_gate_scores(self.rgb_gate, rgb[None]))
+                spe_max, t2_max = float(self.rgb_gate["spe_max"]), float(self.rgb_gate["t2_max"])
+                if not (spe <= spe_max and t2 <= t2_max):  # NaN-safe: a NaN score fails
+                    reasons.append(
+                        f"RGB frame does not look like this sensor's (off the frames' subspace {spe:.3f} / max "
+                        f"{spe_max:.3f}, inside it {t2:.0f} / max {t2_max:.0f})"
+                    )
             data["rgb"] = rgb[None].astype(np.uint8)
         if ir is not None:
             ir = np.asarray(ir)
@@ -980,5 +1045,8 @@ def train_all(
         }
         log(f"[handpose {m}] held-out: {info['test'][m]}")
     info["angle_range_deg"] = (tr["angles_deg"].min(0).tolist(), tr["angles_deg"].max(0).tolist())
-    save_models(path, {k: models[k] for k in MODALITIES if k in models}, tc, info)
+    gate = fit_rgb_gate(tr["rgb"])
+    spe, t2 = rgb_gate_scores(gate, te["rgb"])
+    info["rgb_gate_heldout_pass"] = float(np.mean((spe <= float(gate["spe_max"])) & (t2 <= float(gate["t2_max"]))))
+    save_models(path, {k: models[k] for k in MODALITIES if k in models}, tc, info, gate)
     return info
