@@ -96,6 +96,9 @@ class HandPoseTrainConfig:
     #: per-joint weights of the training loss (joint name -> weight, the others 1; normalised to mean 1), e.g. more
     #: weight on the thumb MCP / IP; validation and checkpointing stay on the unweighted S25-S27 loss
     joint_weights: dict[str, float] = field(default_factory=dict)
+    #: offset of the initialisation and batch-order seeds (another member of a seed ensemble on the same data and
+    #: split; ``seed`` picks the training grasps and the validation split)
+    model_seed: int = 0
 
 
 def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
@@ -356,7 +359,7 @@ def split_train_val(n: int, tc: HandPoseTrainConfig) -> tuple[np.ndarray, np.nda
 def _fit(model: nn.Module, params, loss_on, val_loss, n_steps: int, n_train: int, tc, log, tag: str) -> dict:
     """Fixed-budget AdamW + one-cycle loop: ``loss_on(idx)`` is the training loss of a batch of training
     positions, ``val_loss()`` the validation loss; keeps the best-validation state (the start included)."""
-    rng = np.random.default_rng(tc.seed + 1)
+    rng = np.random.default_rng(tc.seed + 1 + 1000 * tc.model_seed)
     opt = torch.optim.AdamW(params, lr=tc.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=n_steps, pct_start=0.15)
     model.eval()
@@ -401,7 +404,7 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     """Train one single-modality setting (``rgb`` | ``ir``) for ``tc.steps``; best-validation model + summary."""
     if modality not in ("rgb", "ir"):
         raise ValueError("train_handpose trains the single-modality nets; the dual net is fuse_dual")
-    torch.manual_seed(tc.seed)
+    torch.manual_seed(tc.seed + 1000 * tc.model_seed)
     tr_idx, val_idx = split_train_val(len(data["angles_deg"]), tc)
     y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
     mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
