@@ -143,6 +143,26 @@ def test_rgb_gate_passes_dome_frames_and_refuses_garbage() -> None:
         assert not r.valid and "does not look like this sensor" in r.reason, name
 
 
+def test_seed_ensemble_predicts_the_mean_of_its_members(tmp_path) -> None:
+    """The shipped varied-set file is a seed ensemble: each setting averages the angles of its members."""
+    import shutil
+
+    from vtrack.dome.handpose import HandPoseEnsemble, add_ensemble_members, load_models, predict_deg, weights_path
+
+    models, _ = load_models()
+    sim = HandDomeSimulator(grasp_set="varied")
+    s = sim.sample(np.random.default_rng(5))
+    data = {"rgb": s["rgb"][None], "ir": s["ir"][None], "ir_reference": sim.ir_reference()}
+    for m in ("rgb", "dual"):
+        assert isinstance(models[m], HandPoseEnsemble) and len(models[m].nets) >= 2
+        members = np.stack([predict_deg(n, data)[0] for n in models[m].nets])
+        assert np.ptp(members, axis=0).max() > 0.05  # independently seeded nets disagree a little
+        np.testing.assert_allclose(predict_deg(models[m], data)[0], members.mean(0), atol=1e-4)
+    shutil.copy(weights_path(), tmp_path / "w.pt")
+    with pytest.raises(ValueError, match="same recipe"):  # nets of another grasp set are no member
+        add_ensemble_members(tmp_path / "w.pt", [weights_path("mixed")])
+
+
 def test_handpose_cli_predict_and_refusal(tmp_path) -> None:
     """The default nets (varied set) on a varied grasp through the CLI; noise is refused."""
     import json

@@ -412,6 +412,7 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half, tc.ir_width)
     if tc.init:  # fine-tuning: architecture and angle normalisation of the starting weights
         model = load_models(Path(tc.init))[0][modality]
+        model = model.nets[0] if isinstance(model, HandPoseEnsemble) else model  # fine-tune the main net
         log(f"[handpose {modality}] fine-tuning from {tc.init} ({len(tr_idx)} training grasps)")
     val_in = model_inputs(modality, data, val_idx)
     w = joint_weight_vector(tc.joint_weights)
@@ -542,11 +543,58 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
         raise InputError(f"cannot read hand-pose weights: {e}", path=path) from None
     if not isinstance(blob, dict) or blob.get("version") != HANDPOSE_VERSION or "models" not in blob:
         raise InputError("not a hand-pose weights file", path=path, expected=f"version {HANDPOSE_VERSION}")
+    models = _build_nets(blob["models"], blob.get("dual_shared", []))
+    main = blob["models"]  # a member stores only the tensors that differ from the main nets' (e.g. not the IR net)
+    members = [
+        _build_nets({m: {**main[m], **sd} for m, sd in mb["models"].items()}, mb.get("dual_shared", []))
+        for mb in blob.get("members", [])
+    ]
+    if members:  # a seed ensemble: every setting predicts the mean of its members' angles
+        models = {m: HandPoseEnsemble([net, *(mb[m] for mb in members)]) for m, net in models.items()}
+    return models, blob
+
+
+class HandPoseEnsemble(nn.Module):
+    """Independently seeded nets of one setting (same data, split and recipe, ``--model-seed``); predicts the mean
+    of their angles (deg). ``nets[0]`` is the file's main net (the one partial retraining starts from)."""
+
+    def __init__(self, nets: list[HandPoseNet]) -> None:
+        super().__init__()
+        self.nets = nn.ModuleList(nets)
+        self.modality = nets[0].modality
+        self.mean, self.std = nets[0].mean, nets[0].std
+
+    def degrees(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.stack([n.degrees(inputs) for n in self.nets]).mean(0)
+
+
+def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
+    """Append the nets of other weights files (same training set and split, other ``--model-seed``) to the
+    hand-pose weights file ``path`` as ensemble members (their RGB gate and info are not used)."""
+    blob = torch.load(path, map_location="cpu", weights_only=False)
+    for mp in member_paths:
+        mb = torch.load(mp, map_location="cpu", weights_only=False)
+        same = [mb.get("train", {}).get(k) == blob["train"].get(k) for k in ("n_train", "seed", "grasp_set")]
+        if set(mb["models"]) != set(blob["models"]) or not all(same):
+            raise ValueError(f"{mp}: not a member of the same recipe as {path}")
+        main = blob["models"]
+        diff = {
+            m: {k: v for k, v in sd.items() if not (k in main[m] and torch.equal(main[m][k], v))}
+            for m, sd in mb["models"].items()
+        }
+        blob.setdefault("members", []).append({"models": diff, "dual_shared": mb.get("dual_shared", [])})
+    tmp = Path(path).with_suffix(".tmp")
+    torch.save(blob, tmp)
+    tmp.replace(path)
+
+
+def _build_nets(models_blob: dict, dual_shared: list[str]) -> dict[str, HandPoseNet]:
+    """The nets of one stored set of settings (see :func:`save_models`)."""
     models = {}
-    for m in sorted(blob["models"], key=lambda k: k == "dual"):  # singles first: the dual net may share their weights
-        sd = dict(blob["models"][m])
-        for k in blob.get("dual_shared", []) if m == "dual" else []:
-            sd[k] = blob["models"]["rgb" if k.split(".")[1] == "rgb" else "ir"][k]
+    for m in sorted(models_blob, key=lambda k: k == "dual"):  # singles first: the dual net may share their weights
+        sd = dict(models_blob[m])
+        for k in dual_shared if m == "dual" else []:
+            sd[k] = models_blob["rgb" if k.split(".")[1] == "rgb" else "ir"][k]
         centers = sd.get("enc.ir.centers")
         widths = {k: int(sd[f"enc.{k}.net.0.weight"].shape[0]) for k in ("rgb", "ir") if f"enc.{k}.net.0.weight" in sd}
         net = HandPoseNet(
@@ -562,7 +610,7 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
         net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
         net.eval()
         models[m] = net
-    return models, blob
+    return models
 
 
 def touching_joints(grasps: np.ndarray) -> np.ndarray:
@@ -1028,6 +1076,9 @@ def train_all(
     path = Path(out) if out else weights_path(tc.grasp_set)
     if set(modalities) != set(MODALITIES) and path.is_file():  # keep the settings not retrained in this run
         old, blob = load_models(path)
+        if "members" in blob:
+            log(f"[handpose] {path}: retraining keeps only the main net of each setting, not the ensemble members")
+        old = {k: v.nets[0] if isinstance(v, HandPoseEnsemble) else v for k, v in old.items()}
         models = {k: v for k, v in old.items() if k not in modalities}
         info = {**blob.get("info", {}), **info}
         info["train"] = {k: v for k, v in blob.get("info", {}).get("train", {}).items() if k not in modalities}
