@@ -114,6 +114,55 @@ def test_predictor_refuses_garbage() -> None:
         pred.predict()
 
 
+def test_rgb_gate_passes_dome_frames_and_refuses_garbage() -> None:
+    """The RGB plausibility model stored with the shipped nets (principal subspace of the training frames):
+    fresh simulated frames pass with margin; noise, a checkerboard, a colour gradient, an under-exposed frame and
+    a dome frame turned by 90 deg are flagged invalid (before this gate only a blank frame was)."""
+    from vtrack.dome.handpose import HandPosePredictor, rgb_gate_scores
+
+    pred = HandPosePredictor()
+    assert pred.rgb_gate is not None
+    sim, rng = HandDomeSimulator(grasp_set="varied"), np.random.default_rng(2024)
+    frames = np.stack([sim.sample(rng)["rgb"] for _ in range(6)])  # seeds unlike the training chunks' (0, 1, 2)
+    spe, t2 = rgb_gate_scores(pred.rgb_gate, frames)
+    assert spe.max() < 0.8 * float(pred.rgb_gate["spe_max"]) and t2.max() < float(pred.rgb_gate["t2_max"])
+    for f in frames:
+        r = pred.predict(rgb=f)
+        assert r.valid, r.reason
+    S = RGB_SIZE
+    yy, xx = np.mgrid[:S, :S]
+    garbage = {
+        "noise": rng.integers(0, 256, (S, S, 3), dtype=np.uint8),
+        "checkerboard": np.repeat((((yy // 8 + xx // 8) % 2) * 255).astype(np.uint8)[..., None], 3, 2),
+        "gradient": np.stack([xx * 4, yy * 4, np.full_like(xx, 128)], -1).astype(np.uint8),
+        "under-exposed": (frames[0] * 0.15).astype(np.uint8),
+        "rotated": np.ascontiguousarray(np.rot90(frames[0])),
+    }
+    for name, g in garbage.items():
+        r = pred.predict(rgb=g)
+        assert not r.valid and "does not look like this sensor" in r.reason, name
+
+
+def test_seed_ensemble_predicts_the_mean_of_its_members(tmp_path) -> None:
+    """The shipped varied-set file is a seed ensemble: each setting averages the angles of its members."""
+    import shutil
+
+    from vtrack.dome.handpose import HandPoseEnsemble, add_ensemble_members, load_models, predict_deg, weights_path
+
+    models, _ = load_models()
+    sim = HandDomeSimulator(grasp_set="varied")
+    s = sim.sample(np.random.default_rng(5))
+    data = {"rgb": s["rgb"][None], "ir": s["ir"][None], "ir_reference": sim.ir_reference()}
+    for m in ("rgb", "dual"):
+        assert isinstance(models[m], HandPoseEnsemble) and len(models[m].nets) >= 2
+        members = np.stack([predict_deg(n, data)[0] for n in models[m].nets])
+        assert np.ptp(members, axis=0).max() > 0.05  # independently seeded nets disagree a little
+        np.testing.assert_allclose(predict_deg(models[m], data)[0], members.mean(0), atol=1e-4)
+    shutil.copy(weights_path(), tmp_path / "w.pt")
+    with pytest.raises(ValueError, match="same recipe"):  # nets of another grasp set are no member
+        add_ensemble_members(tmp_path / "w.pt", [weights_path("mixed")])
+
+
 def test_handpose_cli_predict_and_refusal(tmp_path) -> None:
     """The default nets (varied set) on a varied grasp through the CLI; noise is refused."""
     import json
@@ -146,6 +195,9 @@ def test_handpose_cli_predict_and_refusal(tmp_path) -> None:
     from vtrack.errors import InputError
 
     assert isinstance(r.exception, InputError) and "markers" in str(r.exception) and "angles_deg" not in r.output
+    cv2.imwrite(str(tmp_path / "noise_rgb.png"), np.random.default_rng(2).integers(0, 256, (64, 64, 3), np.uint8))
+    r = CliRunner().invoke(app, ["dome", "handpose", "predict", "--rgb", str(tmp_path / "noise_rgb.png")])
+    assert isinstance(r.exception, InputError) and "RGB frame" in str(r.exception) and "angles_deg" not in r.output
 
 
 def test_marker_patch_encoder_reads_the_pins_at_their_rest_centres(sim) -> None:
@@ -337,7 +389,9 @@ def test_varied_eval_smoke_and_shipped_weights(tmp_path) -> None:
     models, blob = load_models(weights_path("varied"))
     assert set(models) == {"rgb", "ir", "dual"} and blob["dual_shared"]
     assert not any(k in blob["models"]["dual"] for k in blob["dual_shared"])
-    assert weights_path("varied").stat().st_size < 2_000_000
+    # a 3-seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
+    assert len(blob["members"]) == 2 and all(not mb["models"]["ir"] for mb in blob["members"])
+    assert weights_path("varied").stat().st_size < 3_500_000
 
 
 def test_varied_sensor_has_markers_over_the_whole_visible_cap() -> None:

@@ -48,6 +48,10 @@ CHUNK = 3000
 IR_MIN_CORR = 0.5
 #: gate: predicted angles further than this (deg) outside the training range are flagged
 ANGLE_MARGIN_DEG = 10.0
+#: RGB gate: principal components of the training frames (2 x 2-binned, 32 x 32 x 3) that span "a frame of this
+#: sensor" (16 keep 96 % of the variance), and the factor on the training set's 99.9th percentile of each score
+RGB_GATE_K = 16
+RGB_GATE_MARGIN = 1.5
 
 
 @dataclass
@@ -92,6 +96,9 @@ class HandPoseTrainConfig:
     #: per-joint weights of the training loss (joint name -> weight, the others 1; normalised to mean 1), e.g. more
     #: weight on the thumb MCP / IP; validation and checkpointing stay on the unweighted S25-S27 loss
     joint_weights: dict[str, float] = field(default_factory=dict)
+    #: offset of the initialisation and batch-order seeds (another member of a seed ensemble on the same data and
+    #: split; ``seed`` picks the training grasps and the validation split)
+    model_seed: int = 0
 
 
 def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
@@ -299,6 +306,49 @@ def predict_deg(model: HandPoseNet, data: dict, batch: int = 128) -> np.ndarray:
     return np.concatenate(outs).astype(np.float64)
 
 
+def _rgb_gate_features(rgb: np.ndarray) -> np.ndarray:
+    """(n, S, S, 3) uint8 -> (n, 3 S^2 / 4) float64 in [0, 1], 2 x 2-binned (the pixel noise averages down)."""
+    x = np.asarray(rgb, np.float64) / 255.0
+    n, S = x.shape[0], x.shape[1]
+    return x.reshape(n, S // 2, 2, S // 2, 2, 3).mean((2, 4)).reshape(n, -1)
+
+
+def fit_rgb_gate(
+    rgb: np.ndarray, k: int = RGB_GATE_K, margin: float = RGB_GATE_MARGIN, n_fit: int = 2000
+) -> dict[str, torch.Tensor]:
+    """Plausibility model of this sensor's visible-light frames, learnt from training frames ``rgb``
+    ((n, S, S, 3) uint8): the mean frame and the ``k`` leading principal components. A frame is scored by its
+    distance from that subspace (``spe``: RMS residual per binned pixel, [0, 1] intensity units) and by its
+    position inside it (``t2``: Hotelling's T^2, sum of squared coefficients over the component variances). The
+    thresholds are ``margin`` x the 99.9th percentile of each score on the training frames. Every frame of the
+    dome shows the same shell, vignetting and room light with a hand blurred by the haze in front, so noise, a
+    checkerboard, a gradient or another camera's picture leave the subspace by far (see docs/dome.md). The
+    components come from ``n_fit`` evenly spaced frames (16 components are stable and the SVD stays a few
+    seconds); the thresholds from all frames."""
+    x = _rgb_gate_features(rgb[np.linspace(0, len(rgb) - 1, min(n_fit, len(rgb))).astype(int)])
+    mu = x.mean(0)
+    _, sv, vt = np.linalg.svd(x - mu, full_matrices=False)
+    gate = {
+        "mean": torch.from_numpy(mu.astype(np.float32)),
+        "components": torch.from_numpy(vt[:k].astype(np.float32)),
+        "var": torch.from_numpy((sv[:k] ** 2 / max(len(x) - 1, 1)).astype(np.float32)),
+    }
+    spe, t2 = rgb_gate_scores(gate, rgb)
+    gate["spe_max"] = torch.tensor(float(margin * np.quantile(spe, 0.999)))
+    gate["t2_max"] = torch.tensor(float(margin * np.quantile(t2, 0.999)))
+    return gate
+
+
+def rgb_gate_scores(gate: dict[str, torch.Tensor], rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(spe, t2) of (n, S, S, 3) uint8 frames under :func:`fit_rgb_gate`'s model (see there)."""
+    v = gate["components"].double().numpy()
+    d = _rgb_gate_features(rgb) - gate["mean"].double().numpy()
+    c = d @ v.T
+    spe = np.sqrt(np.mean((d - c @ v) ** 2, axis=1))
+    t2 = np.sum(c**2 / gate["var"].double().numpy(), axis=1)
+    return spe, t2
+
+
 def split_train_val(n: int, tc: HandPoseTrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """(train, val) indices: a fixed ``val_frac`` of the grasps (same split for every setting of a run)."""
     perm = np.random.default_rng(tc.seed).permutation(n)
@@ -309,7 +359,7 @@ def split_train_val(n: int, tc: HandPoseTrainConfig) -> tuple[np.ndarray, np.nda
 def _fit(model: nn.Module, params, loss_on, val_loss, n_steps: int, n_train: int, tc, log, tag: str) -> dict:
     """Fixed-budget AdamW + one-cycle loop: ``loss_on(idx)`` is the training loss of a batch of training
     positions, ``val_loss()`` the validation loss; keeps the best-validation state (the start included)."""
-    rng = np.random.default_rng(tc.seed + 1)
+    rng = np.random.default_rng(tc.seed + 1 + 1000 * tc.model_seed)
     opt = torch.optim.AdamW(params, lr=tc.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=n_steps, pct_start=0.15)
     model.eval()
@@ -354,7 +404,7 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     """Train one single-modality setting (``rgb`` | ``ir``) for ``tc.steps``; best-validation model + summary."""
     if modality not in ("rgb", "ir"):
         raise ValueError("train_handpose trains the single-modality nets; the dual net is fuse_dual")
-    torch.manual_seed(tc.seed)
+    torch.manual_seed(tc.seed + 1000 * tc.model_seed)
     tr_idx, val_idx = split_train_val(len(data["angles_deg"]), tc)
     y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
     mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
@@ -362,6 +412,7 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half, tc.ir_width)
     if tc.init:  # fine-tuning: architecture and angle normalisation of the starting weights
         model = load_models(Path(tc.init))[0][modality]
+        model = model.nets[0] if isinstance(model, HandPoseEnsemble) else model  # fine-tune the main net
         log(f"[handpose {modality}] fine-tuning from {tc.init} ({len(tr_idx)} training grasps)")
     val_in = model_inputs(modality, data, val_idx)
     w = joint_weight_vector(tc.joint_weights)
@@ -442,9 +493,16 @@ def _dual_shared_keys(models: dict[str, HandPoseNet]) -> set[str]:
     return out
 
 
-def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainConfig, info: dict) -> None:
+def save_models(
+    path: Path,
+    models: dict[str, HandPoseNet],
+    tc: HandPoseTrainConfig,
+    info: dict,
+    rgb_gate: dict[str, torch.Tensor] | None = None,
+) -> None:
     """One weights file for all settings (float16 except normalisation and marker centres). The dual net's
-    frozen branches are stored once, in the single-modality nets (``dual_shared``), which halves the file."""
+    frozen branches are stored once, in the single-modality nets (``dual_shared``), which halves the file.
+    ``rgb_gate``: the RGB plausibility model of :func:`fit_rgb_gate` (float32, ~0.2 MB)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     shared = _dual_shared_keys(models)
     blob = {
@@ -455,6 +513,7 @@ def save_models(path: Path, models: dict[str, HandPoseNet], tc: HandPoseTrainCon
         "rgb_size": RGB_SIZE,
         "train": asdict(tc),
         "info": info,
+        **({"rgb_gate": rgb_gate} if rgb_gate is not None else {}),
         "models": {
             m: {
                 k: v.half() if v.is_floating_point() and k not in ("mean", "std") and not k.endswith("centers") else v
@@ -484,11 +543,58 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
         raise InputError(f"cannot read hand-pose weights: {e}", path=path) from None
     if not isinstance(blob, dict) or blob.get("version") != HANDPOSE_VERSION or "models" not in blob:
         raise InputError("not a hand-pose weights file", path=path, expected=f"version {HANDPOSE_VERSION}")
+    models = _build_nets(blob["models"], blob.get("dual_shared", []))
+    main = blob["models"]  # a member stores only the tensors that differ from the main nets' (e.g. not the IR net)
+    members = [
+        _build_nets({m: {**main[m], **sd} for m, sd in mb["models"].items()}, mb.get("dual_shared", []))
+        for mb in blob.get("members", [])
+    ]
+    if members:  # a seed ensemble: every setting predicts the mean of its members' angles
+        models = {m: HandPoseEnsemble([net, *(mb[m] for mb in members)]) for m, net in models.items()}
+    return models, blob
+
+
+class HandPoseEnsemble(nn.Module):
+    """Independently seeded nets of one setting (same data, split and recipe, ``--model-seed``); predicts the mean
+    of their angles (deg). ``nets[0]`` is the file's main net (the one partial retraining starts from)."""
+
+    def __init__(self, nets: list[HandPoseNet]) -> None:
+        super().__init__()
+        self.nets = nn.ModuleList(nets)
+        self.modality = nets[0].modality
+        self.mean, self.std = nets[0].mean, nets[0].std
+
+    def degrees(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.stack([n.degrees(inputs) for n in self.nets]).mean(0)
+
+
+def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
+    """Append the nets of other weights files (same training set and split, other ``--model-seed``) to the
+    hand-pose weights file ``path`` as ensemble members (their RGB gate and info are not used)."""
+    blob = torch.load(path, map_location="cpu", weights_only=False)
+    for mp in member_paths:
+        mb = torch.load(mp, map_location="cpu", weights_only=False)
+        same = [mb.get("train", {}).get(k) == blob["train"].get(k) for k in ("n_train", "seed", "grasp_set")]
+        if set(mb["models"]) != set(blob["models"]) or not all(same):
+            raise ValueError(f"{mp}: not a member of the same recipe as {path}")
+        main = blob["models"]
+        diff = {
+            m: {k: v for k, v in sd.items() if not (k in main[m] and torch.equal(main[m][k], v))}
+            for m, sd in mb["models"].items()
+        }
+        blob.setdefault("members", []).append({"models": diff, "dual_shared": mb.get("dual_shared", [])})
+    tmp = Path(path).with_suffix(".tmp")
+    torch.save(blob, tmp)
+    tmp.replace(path)
+
+
+def _build_nets(models_blob: dict, dual_shared: list[str]) -> dict[str, HandPoseNet]:
+    """The nets of one stored set of settings (see :func:`save_models`)."""
     models = {}
-    for m in sorted(blob["models"], key=lambda k: k == "dual"):  # singles first: the dual net may share their weights
-        sd = dict(blob["models"][m])
-        for k in blob.get("dual_shared", []) if m == "dual" else []:
-            sd[k] = blob["models"]["rgb" if k.split(".")[1] == "rgb" else "ir"][k]
+    for m in sorted(models_blob, key=lambda k: k == "dual"):  # singles first: the dual net may share their weights
+        sd = dict(models_blob[m])
+        for k in dual_shared if m == "dual" else []:
+            sd[k] = models_blob["rgb" if k.split(".")[1] == "rgb" else "ir"][k]
         centers = sd.get("enc.ir.centers")
         widths = {k: int(sd[f"enc.{k}.net.0.weight"].shape[0]) for k in ("rgb", "ir") if f"enc.{k}.net.0.weight" in sd}
         net = HandPoseNet(
@@ -504,7 +610,7 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
         net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
         net.eval()
         models[m] = net
-    return models, blob
+    return models
 
 
 def touching_joints(grasps: np.ndarray) -> np.ndarray:
@@ -867,6 +973,8 @@ class HandPosePredictor:
         torch.set_num_threads(1)
         self.models, blob = load_models(weights)
         self.info = blob.get("info", {})
+        #: RGB plausibility model (:func:`fit_rgb_gate`); files written before it have only the blank check
+        self.rgb_gate = blob.get("rgb_gate")
         lo, hi = self.info.get("angle_range_deg", (None, None))
         self.lo = np.asarray(lo, np.float64) if lo is not None else None
         self.hi = np.asarray(hi, np.float64) if hi is not None else None
@@ -899,6 +1007,14 @@ class HandPosePredictor:
                 )
             if float(rgb.std()) < 2.0:
                 reasons.append("RGB frame is blank")
+            elif self.rgb_gate is not None:
+                spe, t2 = (float(v[0]) for v in rgb_gate_scores(self.rgb_gate, rgb[None]))
+                spe_max, t2_max = float(self.rgb_gate["spe_max"]), float(self.rgb_gate["t2_max"])
+                if not (spe <= spe_max and t2 <= t2_max):  # NaN-safe: a NaN score fails
+                    reasons.append(
+                        f"RGB frame does not look like this sensor's (off the frames' subspace {spe:.3f} / max "
+                        f"{spe_max:.3f}, inside it {t2:.0f} / max {t2_max:.0f})"
+                    )
             data["rgb"] = rgb[None].astype(np.uint8)
         if ir is not None:
             ir = np.asarray(ir)
@@ -960,6 +1076,9 @@ def train_all(
     path = Path(out) if out else weights_path(tc.grasp_set)
     if set(modalities) != set(MODALITIES) and path.is_file():  # keep the settings not retrained in this run
         old, blob = load_models(path)
+        if "members" in blob:
+            log(f"[handpose] {path}: retraining keeps only the main net of each setting, not the ensemble members")
+        old = {k: v.nets[0] if isinstance(v, HandPoseEnsemble) else v for k, v in old.items()}
         models = {k: v for k, v in old.items() if k not in modalities}
         info = {**blob.get("info", {}), **info}
         info["train"] = {k: v for k, v in blob.get("info", {}).get("train", {}).items() if k not in modalities}
@@ -980,5 +1099,8 @@ def train_all(
         }
         log(f"[handpose {m}] held-out: {info['test'][m]}")
     info["angle_range_deg"] = (tr["angles_deg"].min(0).tolist(), tr["angles_deg"].max(0).tolist())
-    save_models(path, {k: models[k] for k in MODALITIES if k in models}, tc, info)
+    gate = fit_rgb_gate(tr["rgb"])
+    spe, t2 = rgb_gate_scores(gate, te["rgb"])
+    info["rgb_gate_heldout_pass"] = float(np.mean((spe <= float(gate["spe_max"])) & (t2 <= float(gate["t2_max"]))))
+    save_models(path, {k: models[k] for k in MODALITIES if k in models}, tc, info, gate)
     return info

@@ -320,6 +320,9 @@ def register(app: typer.Typer) -> None:
         ir_encoder: str = typer.Option("markers", "--ir-encoder", help="markers (marker-centred patches) or cnn"),
         modalities: str = typer.Option("rgb,ir,dual", "--modalities", help="comma list of rgb, ir, dual"),
         seed: int = typer.Option(0, "--seed"),
+        model_seed: int = typer.Option(
+            0, "--model-seed", min=0, help="init / batch-order seed offset (seed ensembles; data and split stay)"
+        ),
         n_contact: int = typer.Option(
             0, "--n-contact", min=0, help="extra training grasps with every fingertip on the shell (contact set)"
         ),
@@ -377,6 +380,7 @@ def register(app: typer.Typer) -> None:
             lr=lr,
             grasp_set=grasp_set,
             time_budget_s=60.0 * time_budget_min,
+            model_seed=model_seed,
         )
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
