@@ -436,15 +436,11 @@ class WindowTracker:
         if len(sel) < o.colour_min_tracks:
             return None
         rows = [k for k, _ in sel]
-        P = np.asarray(P, np.float64)[rows]
+        P = np.asarray(P, np.float64)
+        C = self._colour_centres(fr, P)  # None: no camera centre known, the point residual
+        P = P[rows]
+        C = None if C is None else C[rows]
         Q = np.array([self._anchors[a] for _, a in sel])
-        C = fr.info.get("colour_origins")
-        if C is not None and len(C) == len(ids):
-            C = np.asarray(C, np.float64)[rows]
-        elif fr.info.get("camera_origin") is not None:
-            C = np.broadcast_to(np.asarray(fr.info["camera_origin"], np.float64), P.shape)
-        else:
-            C = None  # no camera centre known: the point residual
         Ti = _inv(T_pred)
         ok = np.isfinite(P).all(1) & (np.linalg.norm(P @ Ti[:3, :3].T + Ti[:3, 3] - Q, axis=1) < o.colour_gate)
         if o.colour_residual == "ray" and C is not None:
