@@ -23,6 +23,7 @@ flat-gel guess scores about 25-40 deg on ball presses) is refused with the numbe
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from vtrack.errors import InputError
@@ -213,11 +214,11 @@ def calibrate_press_set(
         raise InputError(
             "unknown calibration method", field="method", expected=" | ".join(METHODS + ("auto",)), got=method
         )
-    run = _labelled_run(
+    # one press set, held-out split and label source for every run below; only the model changes
+    labelled_run = partial(
+        _labelled_run,
         root,
-        method="mlp" if method == "auto" else method,
         holdout=holdout,
-        opts=opts,
         labels=labels,
         edge_weights=edge_weights,
         meta_file=meta_file,
@@ -226,6 +227,7 @@ def calibrate_press_set(
         ball_radius_mm=ball_radius_mm,
         downsample=downsample,
     )
+    run = labelled_run(method="mlp" if method == "auto" else method, opts=opts)
     run.calib.info["model"] = run.calib.method
     if method != "auto":
         return run
@@ -237,19 +239,7 @@ def calibrate_press_set(
     )
     if (chosen, copts) != (run.calib.method, _with(opts, {})) and reselect_edge and run.edge_trials:
         cv = run.cv
-        run = _labelled_run(
-            root,
-            method=chosen,
-            holdout=holdout,
-            opts=copts,
-            labels=labels,
-            edge_weights=edge_weights,
-            meta_file=meta_file,
-            sensor=sensor,
-            mm_per_px=mm_per_px,
-            ball_radius_mm=ball_radius_mm,
-            downsample=downsample,
-        )
+        run = labelled_run(method=chosen, opts=copts)
         run.cv = cv
         for t in run.edge_trials:
             t["model"] = name
