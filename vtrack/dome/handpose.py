@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from vtrack.dome.handsim import HAND_DOME, JOINTS, RGB_SIZE, rgb_model, sensor_config
+from vtrack.io.jsonio import atomic_torch_save
 
 MODALITIES = ("rgb", "ir", "dual")
 HANDPOSE_VERSION = 2
@@ -523,9 +524,7 @@ def save_models(
             for m, net in models.items()
         },
     }
-    tmp = path.with_suffix(".tmp")
-    torch.save(blob, tmp)
-    tmp.replace(path)
+    atomic_torch_save(path, blob)
 
 
 def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]:
@@ -583,9 +582,7 @@ def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
             for m, sd in mb["models"].items()
         }
         blob.setdefault("members", []).append({"models": diff, "dual_shared": mb.get("dual_shared", [])})
-    tmp = Path(path).with_suffix(".tmp")
-    torch.save(blob, tmp)
-    tmp.replace(path)
+    atomic_torch_save(path, blob)
 
 
 def _build_nets(models_blob: dict, dual_shared: list[str]) -> dict[str, HandPoseNet]:

@@ -69,6 +69,22 @@ def atomic_savez(path: str | Path, **arrays: Any) -> Path:
     return path
 
 
+def atomic_torch_save(path: str | Path, obj: Any) -> Path:
+    """``torch.save(obj, path)`` via a uniquely named temporary file and rename (creates the parent folder): a
+    reader never sees a half-written weights file. torch is imported here, only when a file is written."""
+    import torch
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:6]}.tmp")
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
 def write_json(path: str | Path, data: Any, *, indent: int = 2, fsync: bool = False) -> Path:
     """Write ``data`` (through :func:`to_jsonable`) as JSON, atomically (see :func:`atomic_write_text`)."""
     return atomic_write_text(path, json.dumps(to_jsonable(data), indent=indent, allow_nan=False), fsync=fsync)

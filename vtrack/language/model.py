@@ -329,19 +329,15 @@ class TouchSteer:
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: str | Path) -> Path:
-        torch = _torch()
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        from vtrack.io.jsonio import atomic_torch_save
+
         state = {
             k: v.half() if v.is_floating_point() and k != "word_emb" else v for k, v in self.net.state_dict().items()
         }
         state.pop("word_emb")  # rebuilt from the GloVe wheel on load (the wheel is a dependency, not shipped)
-        tmp = path.with_suffix(".tmp")
         blob = {"version": MODEL_VERSION, "state": state, "vocab": self.vocab, "pooling": self.net.pooling}
         blob["arch"] = dict(getattr(self.net, "arch", {}))
-        torch.save(blob | {"steering": self.steering.__dict__, "meta": self.meta}, tmp)
-        tmp.replace(path)
-        return path
+        return atomic_torch_save(path, blob | {"steering": self.steering.__dict__, "meta": self.meta})
 
     @classmethod
     def load(cls, path: str | Path) -> TouchSteer:

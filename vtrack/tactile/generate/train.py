@@ -340,13 +340,10 @@ def train(
     meta["crop_px"], meta["crop_k"] = gd.CROP_PX, gd.CROP_K
     meta["delta_scale"] = gd.DELTA_SCALE
     state["meta"] = meta
+    from vtrack.io.jsonio import atomic_torch_save
     from vtrack.tactile.generate import default_weights_path
 
     path = Path(out) if out is not None else default_weights_path()
-    path.parent.mkdir(parents=True, exist_ok=True)
     # half precision halves the shipped file; the nets run in float32
     state = {k: ({n: t.half() for n, t in v.items()} if k != "meta" else v) for k, v in state.items()}
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)
-    return path
+    return atomic_torch_save(path, state)
