@@ -220,3 +220,6 @@ def test_contacts_leave_alone_what_vision_already_holds():
     P0 = _slam_tracker(touch_blind_ratio=0.02)._touch_projector(np.eye(4), side, Hv)
     np.testing.assert_allclose(P0, tr._touch_projector(np.eye(4), side), atol=1e-12)
     assert kept(P0, 0) > 0.9
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InputError, match="touch_vision_ratio"):
+            TrackerOptions.from_dict({"touch_vision_ratio": bad})

@@ -177,6 +177,10 @@ class TrackerOptions:
                 expected="> 0 m",
                 got=o.sigma_touch_weak,
             )
+        if not (o.touch_vision_ratio >= 0 and np.isfinite(o.touch_vision_ratio)):
+            raise InputError(
+                "touch_vision_ratio must be >= 0 (0: off)", field="touch_vision_ratio", got=o.touch_vision_ratio
+            )
         if o.colour_residual not in ("ray", "point"):
             raise InputError(
                 "unknown colour residual", field="colour_residual", expected="ray|point", got=o.colour_residual
