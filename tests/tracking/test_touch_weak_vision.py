@@ -182,3 +182,44 @@ def test_known_shape_with_vision_and_touch_uses_the_regime(tmp_path):
     )
     o = kept["tracker"].opts
     assert (o.touch_weak_vision, o.sigma_touch_weak) == KNOWN_TOUCH_WEAK_VISION
+
+
+def test_contacts_leave_alone_what_vision_already_holds():
+    """``touch_vision_ratio``: directions where the frame's vision information exceeds the contacts' by the ratio are
+    removed from the contacts' pull as well (generalised eigen-directions), so the contacts carry only what vision
+    leaves weak; without vision information, or with the ratio at 0, the projector is the normals-only one."""
+    tr = _slam_tracker(touch_blind_ratio=0.02, touch_vision_ratio=1.0)
+    L = tr.opts.object_radius
+    rng = np.random.default_rng(1)
+    a = rng.uniform(0, 2 * np.pi, 60)
+    n = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)
+    q = n * 0.03 + [[0, 0, 1]] * rng.uniform(-0.03, 0.03, (60, 1))
+    side = TrackingFrame(t=0.0, touch_points=q, touch_normals=n)
+    # the contacts' point-to-plane information (object-frame twist, unscaled) at sigma_touch_weak
+    J = np.concatenate([-n, np.cross(n, q)], axis=1)
+    Ht = J.T @ J / tr.opts.sigma_touch_weak**2
+    # vision: a patch facing +x holds x translation 100x more than the contacts; blind in y; weak tilts
+    Hv = np.diag([100 * Ht[0, 0], 1.0, 1.0, 1e-3 * Ht[3, 3], 1e-3 * Ht[4, 4], 1.0])
+
+    def kept(P, k):  # fraction of the contacts' information along unit direction k left after projecting
+        e = np.eye(6)[k]
+        return float(e @ P.T @ Ht @ P @ e / (e @ Ht @ e))
+
+    P = tr._touch_projector(np.eye(4), side, Hv)
+    assert kept(P, 0) < 0.05  # x: vision holds it, the contacts hardly pull there any more
+    assert kept(P, 1) > 0.9  # y: vision is blind, the contacts carry it
+    assert kept(P, 3) > 0.9 and kept(P, 4) > 0.9  # tilts: vision is weak there
+    spin, slide = np.eye(6)[5], np.eye(6)[2]
+    assert np.abs(P @ spin).max() < 1e-9 and np.abs(P @ slide).max() < 1e-9  # the normals leave these free
+    # the held basis: x (the direction vision dominates) when the contacts inform every direction
+    S = np.diag([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
+    held = tr._vision_held(S @ Ht @ S + np.eye(6), S @ Hv @ S)
+    assert np.abs(held[0]).max() > 0.95 and np.abs(held[1]).max() < 0.1
+    assert tr._vision_held(np.eye(6) * 1e9, np.eye(6)).shape == (6, 0)  # vision uniformly weaker: nothing held
+    # off (ratio 0) or no vision: the normals-only projector, which keeps x
+    P0 = _slam_tracker(touch_blind_ratio=0.02)._touch_projector(np.eye(4), side, Hv)
+    np.testing.assert_allclose(P0, tr._touch_projector(np.eye(4), side), atol=1e-12)
+    assert kept(P0, 0) > 0.9
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InputError, match="touch_vision_ratio"):
+            TrackerOptions.from_dict({"touch_vision_ratio": bad})

@@ -106,6 +106,13 @@ class TrackerOptions:
     #: nothing else would hold those directions)
     touch_blind_ratio: float = 0.0
     touch_blind_vision_s: float = 1.0  #: s
+    #: > 0 (with ``touch_blind_ratio``): in weak-vision frames that see some vision points the contacts also leave
+    #: alone the directions where the frame's vision already holds this many times more information than the
+    #: contacts' measured normals give (generalised eigen-directions of the two 6x6 information matrices, touch at
+    #: ``sigma_touch_weak``, vision at ``sigma_vision``, rotation scaled by ``object_radius``): there the contacts,
+    #: matched against a map they built themselves, add bias rather than information; they carry only what vision
+    #: leaves weak (0: off)
+    touch_vision_ratio: float = 0.0
     object_radius: float = 0.05  #: m, scales rotation for the spectrum test
     lm_lambda: float = 1e-4
     max_step_trans: float = 0.01
@@ -169,6 +176,10 @@ class TrackerOptions:
                 field="sigma_touch_weak",
                 expected="> 0 m",
                 got=o.sigma_touch_weak,
+            )
+        if not (o.touch_vision_ratio >= 0 and np.isfinite(o.touch_vision_ratio)):
+            raise InputError(
+                "touch_vision_ratio must be >= 0 (0: off)", field="touch_vision_ratio", got=o.touch_vision_ratio
             )
         if o.colour_residual not in ("ray", "point"):
             raise InputError(
@@ -772,10 +783,14 @@ class WindowTracker:
             proj = S @ (np.eye(6) - Uw @ Uw.T) @ Sinv
         return Sinv @ Rs @ Sinv, n_weak, proj
 
-    def _touch_projector(self, T: np.ndarray, fr: TrackingFrame) -> np.ndarray | None:
+    def _touch_projector(
+        self, T: np.ndarray, fr: TrackingFrame, H_vision: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """Projector of a twist onto the directions the frame's contacts constrain by their measured normals
         (point-to-plane information ``[-n, q x n]`` per contact, object frame, rotation scaled by the object
-        radius); None when every direction is constrained, ``touch_blind_ratio`` is 0 or there are no normals."""
+        radius); None when every direction is constrained, ``touch_blind_ratio`` is 0 or there are no normals.
+        ``H_vision``: the frame's vision information (6x6, object-frame twist); with ``touch_vision_ratio`` > 0 the
+        directions where it exceeds the contacts' by that factor are removed too."""
         o = self.opts
         if o.touch_blind_ratio <= 0 or fr.touch_points is None or fr.touch_normals is None or not fr.n_touch:
             return None
@@ -787,13 +802,36 @@ class WindowTracker:
         n = fr.touch_normals[ok] @ T[:3, :3]  # R^T n
         L = o.object_radius
         J = np.concatenate([-n, np.cross(n, q) / L], axis=1)  # scaled like _degeneracy's spectrum
-        lam, U = np.linalg.eigh(J.T @ J)
+        Ht = J.T @ J
+        lam, U = np.linalg.eigh(Ht)
         weak = lam < o.touch_blind_ratio * max(float(lam[-1]), 1e-12)
-        if not weak.any():
-            return None
         S = np.diag([1.0, 1.0, 1.0, 1.0 / L, 1.0 / L, 1.0 / L])
         Uw = U[:, weak]
+        if o.touch_vision_ratio > 0 and H_vision is not None:
+            Uv = self._vision_held(Ht / o.sigma_touch_weak**2, S @ H_vision @ S)
+            if Uv.shape[1]:
+                # union of the two removed subspaces, orthonormal (scaled twist space)
+                Q, sv, _ = np.linalg.svd(np.concatenate([Uw, Uv], axis=1), full_matrices=False)
+                Uw = Q[:, sv > 1e-6]
+        if not Uw.shape[1]:
+            return None
         return S @ (np.eye(6) - Uw @ Uw.T) @ np.diag([1.0, 1.0, 1.0, L, L, L])
+
+    def _vision_held(self, Ht: np.ndarray, Hv: np.ndarray) -> np.ndarray:
+        """Orthonormal basis (6, k) of the directions where vision information ``Hv`` exceeds touch information
+        ``Ht`` by ``touch_vision_ratio`` (both 6x6 in the same scaled twist space): generalised eigenvectors of
+        ``Ht u = mu Hv u`` with ``1 / mu`` above the ratio, found by whitening with ``Hv`` floored at one vision
+        point's information."""
+        o = self.opts
+        floor = 1.0 / o.sigma_vision**2
+        lv, Uv = np.linalg.eigh(0.5 * (Hv + Hv.T))
+        W = Uv / np.sqrt(np.maximum(lv, floor))  # Hv^(-1/2) in the eigenbasis: W^T Hv W ~ I
+        mu, Vm = np.linalg.eigh(0.5 * (W.T @ Ht @ W + (W.T @ Ht @ W).T))
+        held = mu * o.touch_vision_ratio < 1.0  # vision / touch > ratio along u = W v
+        if not held.any():
+            return np.zeros((6, 0))
+        Q, _ = np.linalg.qr(W @ Vm[:, held])
+        return Q
 
     def _slot_parts(self, s: _Slot, T: np.ndarray) -> list[tuple[np.ndarray, TrackingFrame, int]]:
         """The data-term evaluations ``(pose, frame, n_vision)`` of one slot at pose T: the whole frame, or, when the
@@ -887,7 +925,11 @@ class WindowTracker:
             if nv < o.touch_weak_vision and (nv > 0 or recent):
                 # not in a touch-only run: there nothing else holds the directions the contacts leave free, and the
                 # map's errors at least keep them near rest (touch-only SLAM, heavy sessions: 9.8 -> 33 mm with it)
-                s.proj_touch = self._touch_projector(s.T, s.frame)
+                Hv = None
+                if o.touch_vision_ratio > 0 and nv > 0 and s.frame.n_vision:
+                    fr = s.frame
+                    Hv = self._frame_terms(s.T, TrackingFrame(t=fr.t, vision_points=fr.vision_points), nv)[0]
+                s.proj_touch = self._touch_projector(s.T, s.frame, Hv)
             if i == n - 1:
                 dims = d
         if any(s.proj is not None or s.proj_touch is not None or s.proj_colour is not None for s in slots):
