@@ -38,16 +38,32 @@ for occ in occs:
         kept: dict = {}
         t0 = time.process_time()
         m, (times, est) = track_session(
-            path, "", shape="slam", write=False, return_poses=True, keep_frames=kept, keep_step=10**9,
-            refine=True, **extra, **opts
+            path,
+            "",
+            shape="slam",
+            write=False,
+            return_poses=True,
+            keep_frames=kept,
+            keep_step=10**9,
+            refine=True,
+            **extra,
+            **opts,
         )
         gt = SessionGroundTruth.load(path)
         np.savez(out / f"{o}_{occ}.npz", times=times, est=est, front=kept["poses_frontend"], gt=gt.poses_at(times))
         # the back end's input, so its options can be re-run offline (data_tools/slam5_backend.py)
         with open(out / f"{o}_{occ}.kf.pkl", "wb") as fh:
             pickle.dump({"kf_graph": kept["tracker"].kf_graph, "times": times, "front": kept["poses_frontend"]}, fh)
-        fe = m.get("frontend", {}).get("motion_err_mm", float("nan"))
-        summ[f"{o}|{occ}"] = {"refined": m["motion_err_mm"], "frontend": fe, "cpu_s": time.process_time() - t0,
-                              "loop_edges": m.get("loop_edges"), "keyframes": m.get("keyframes")}
+        # not refined (no keyframes: e.g. the object hidden) -> the output is the front end
+        fe = m.get("frontend", {}).get("motion_err_mm", m["motion_err_mm"])
+        summ[f"{o}|{occ}"] = {
+            "refined": m["motion_err_mm"],
+            "frontend": fe,
+            "cpu_s": time.process_time() - t0,
+            "loop_edges": m.get("loop_edges"),
+            "keyframes": m.get("keyframes"),
+        }
         print(o, occ, "front", round(fe, 3), "refined", round(m["motion_err_mm"], 3), flush=True)
-        (out / "summary.json").write_text(json.dumps({"secs": secs, "opts": opts, "fusion": fusion, "res": summ}, indent=1))
+        (out / "summary.json").write_text(
+            json.dumps({"secs": secs, "opts": opts, "fusion": fusion, "res": summ}, indent=1)
+        )
