@@ -200,30 +200,3 @@ def test_slipped_tracks_are_reanchored_at_the_committed_pose():
         tr._frame_count += 1
         tr._colour_anchor(TrackingFrame(t=1 / FPS, info=info), _pose(0.0), True)
         assert {k for k in range(3) if not np.array_equal(tr._anchors[k], a0[k])} == moved
-
-
-def test_reanchoring_in_observable_frames_keeps_anchors_where_colour_alone_sees_the_spin():
-    """``colour_reanchor_observable``: anchors are renewed only after frames whose geometry constrained every
-    direction; on the spinning cylinder (SLAM's ``project`` mode: the spin is projected out of the depth term in
-    every frame) they persist, so the poses are the very same as without the option; ``renew_all`` re-anchors
-    every track at the committed pose."""
-    frames = _frames(textured=True, n=20)
-    base = {"sigma_colour": 0.002, "object_radius": RADIUS, "degenerate_mode": "project", "project_ratio": 0.02}
-    runs = []
-    for extra in ({}, {"colour_reanchor_observable": True}):
-        tr = WindowTracker(_CylinderSDF(), _pose(0.0), {**base, **extra})
-        runs.append(np.array([tr.step(f) for f in frames]))
-    assert _spin_of(runs[0][-1]) > 0.5 * SPIN * frames[-1].t  # colour carried the spin
-    assert np.array_equal(runs[0], runs[1])
-    P0 = CENTRE + np.array([[0.01, 0.0, -0.03], [-0.01, 0.0, -0.03]])
-    info = {"colour_ids": np.array([0, 1]), "colour_points": P0, "camera_origin": np.zeros(3)}
-    tr = WindowTracker(_CylinderSDF(), _pose(0.0), base)
-    tr._colour_anchor(TrackingFrame(t=0.0, info=info), _pose(0.0), True)
-    a0 = {k: v.copy() for k, v in tr._anchors.items()}
-    T1 = _pose(0.5)  # a different committed pose: a renewed anchor moves, a kept one does not
-    tr._colour_anchor(TrackingFrame(t=1 / FPS, info=info), T1, True)
-    assert all(np.array_equal(tr._anchors[k], a0[k]) for k in (0, 1))
-    tr._colour_anchor(TrackingFrame(t=2 / FPS, info=info), T1, True, renew_all=True)
-    Ti = np.linalg.inv(T1)
-    assert np.allclose(tr._anchors[0], P0[0] @ Ti[:3, :3].T + Ti[:3, 3])
-    assert not np.allclose(tr._anchors[1], a0[1])

@@ -149,11 +149,6 @@ class TrackerOptions:
     #: > 0: tracks anchored this many frames ago are re-anchored at the committed pose (bounds the slip a track
     #: accumulates against its anchor; the term then observes the motion over at most this many frames)
     colour_max_age: int = 0
-    #: re-anchor every track at the committed pose after a frame whose depth / touch constrained every direction
-    #: (none projected out to the motion prior, see ``project_ratio``): there the geometry holds the pose and an old
-    #: anchor only carries the tracks' slip forward; anchors persist through the frames where colour alone sees a
-    #: direction (a mug's spin). Opt-in (docs/benchmarks/slam_5s.md)
-    colour_reanchor_observable: bool = False
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -420,8 +415,7 @@ class WindowTracker:
                         info.status = "recovered"
         self._bound(cur, T_pred)
         self._commit(slots, cur, dt)
-        renew = o.colour_reanchor_observable and info.status == "ok" and cur.proj is None
-        self._colour_anchor(fr, self.T, info.status not in ("lost", "no_data"), renew_all=renew)
+        self._colour_anchor(fr, self.T, info.status not in ("lost", "no_data"))
         info.ms = (time.perf_counter() - t_start) * 1e3
         self.history.append(info)
         return self.T.copy()
@@ -455,10 +449,10 @@ class WindowTracker:
             return None
         return P[ok], Q[ok], (None if C is None else np.array(C[ok]))
 
-    def _colour_anchor(self, fr: TrackingFrame, T: np.ndarray, ok: bool, renew_all: bool = False) -> None:
+    def _colour_anchor(self, fr: TrackingFrame, T: np.ndarray, ok: bool) -> None:
         """Anchor the frame's new colour tracks in the object frame at pose ``T`` (only if the frame was tracked:
         ``ok``); forget the anchors of tracks that ended; re-anchor at ``T`` those that slipped past
-        ``colour_reanchor`` or are older than ``colour_max_age`` frames (every one with ``renew_all``)."""
+        ``colour_reanchor`` or are older than ``colour_max_age`` frames."""
         o = self.opts
         if o.sigma_colour <= 0:
             return
@@ -474,7 +468,7 @@ class WindowTracker:
             P = np.asarray(P, np.float64)
             Ti = _inv(T)
             Q = P @ Ti[:3, :3].T + Ti[:3, 3]
-            renew = np.full(len(ids), bool(renew_all))
+            renew = np.zeros(len(ids), bool)
             if o.colour_max_age > 0:
                 renew |= np.array(
                     [a in keep and self._frame_count - self._anchor_frame.get(a, 0) >= o.colour_max_age for a in ids],
