@@ -152,7 +152,14 @@ def test_missing_gtsam_names_the_extra(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "opt", [{"sigma_odom_trans": 0.0}, {"sigma_point": float("nan")}, {"robust_k": -1.0}, {"kf_max": 1}]
+    "opt",
+    [
+        {"sigma_odom_trans": 0.0},
+        {"sigma_point": float("nan")},
+        {"robust_k": -1.0},
+        {"kf_max": 1},
+        {"loop_max_rot_rate": -0.1},
+    ],
 )
 def test_back_end_options_are_checked_by_name(opt):
     from vtrack.errors import InputError
@@ -162,6 +169,9 @@ def test_back_end_options_are_checked_by_name(opt):
         BackendOptions.from_dict(opt)
     assert next(iter(opt)) in str(e.value.field)
     BackendOptions.from_dict({})  # the defaults pass
+    from vtrack.tracking.slam import SLAM_BACKEND_SHORT, SLAMOptions
+
+    assert SLAMOptions.split({"refine": True, **SLAM_BACKEND_SHORT})[1].loop_max_rot_rate == 0.05  # the preset's keys
 
 
 def test_keyframes_stay_bounded_and_keep_covering_the_run(mustard_seq):
