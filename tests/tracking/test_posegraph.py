@@ -152,7 +152,14 @@ def test_missing_gtsam_names_the_extra(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "opt", [{"sigma_odom_trans": 0.0}, {"sigma_point": float("nan")}, {"robust_k": -1.0}, {"kf_max": 1}]
+    "opt",
+    [
+        {"sigma_odom_trans": 0.0},
+        {"sigma_point": float("nan")},
+        {"robust_k": -1.0},
+        {"kf_max": 1},
+        {"loop_max_rot_rate": -0.1},
+    ],
 )
 def test_back_end_options_are_checked_by_name(opt):
     from vtrack.errors import InputError
@@ -162,6 +169,9 @@ def test_back_end_options_are_checked_by_name(opt):
         BackendOptions.from_dict(opt)
     assert next(iter(opt)) in str(e.value.field)
     BackendOptions.from_dict({})  # the defaults pass
+    from vtrack.tracking.slam import SLAM_BACKEND_SHORT, SLAMOptions
+
+    assert SLAMOptions.split({"refine": True, **SLAM_BACKEND_SHORT})[1].loop_max_rot_rate == 0.05  # the preset's keys
 
 
 def test_keyframes_stay_bounded_and_keep_covering_the_run(mustard_seq):
@@ -174,3 +184,28 @@ def test_keyframes_stay_bounded_and_keep_covering_the_run(mustard_seq):
     assert len(tr.kf_graph) <= 4 and tr.kf_thinned > 0
     # the gauge (first keyframe) stays and the newest frames still become keyframes
     assert tr.kf_graph[0].t == frames[0].t and tr.kf_graph[-1].t >= frames[-3].t
+
+
+def test_loop_rotation_rate_bound_refuses_large_corrections_over_short_gaps(mustard_loop):
+    """``loop_max_rot_rate``: a loop may correct the relative rotation by at most rate x its time gap. On keyframes
+    whose spin lags by up to 46 deg the loops that would correct it are refused at 0.02 rad/s (and kept without
+    the bound), and every loop that stays corrects its pair by less than the bound."""
+    from vtrack.tracking.posegraph import BackendOptions, registration_edges
+    from vtrack.tracking.synth import drifting_keyframes
+    from vtrack.tracking.window import _log
+
+    seq, ax = mustard_loop
+    kfs = drifting_keyframes(seq, ax, lag_per_frame=0.05, lag_frames=16, n_points=300)
+    X = np.stack([k.T for k in kfs])
+    free, rep_free = registration_edges(kfs, X, BackendOptions(), loops=True)
+    rate = 0.02
+    held, rep_held = registration_edges(kfs, X, BackendOptions(loop_max_rot_rate=rate), loops=True)
+    assert rep_free["loop"] > 5
+    assert rep_held["loop"] < 0.5 * rep_free["loop"]
+    assert rep_held["loop_rejected"] > rep_free["loop_rejected"]
+    # registration edges (within loop_min_gap_s) are not affected by the bound
+    assert rep_held["registration"] == rep_free["registration"]
+    for e in held:
+        if e.kind == "loop":  # the correction of the current relative pose the loop asks for
+            turn = np.linalg.norm(_log(se3.invert(e.Z) @ se3.invert(X[e.i]) @ X[e.j])[3:])
+            assert turn <= rate * abs(kfs[e.i].t - kfs[e.j].t) + 1e-6

@@ -140,6 +140,17 @@ SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}
 SLAM_NO_COLOUR: dict[str, float] = {"sigma_colour": 0.0}
 
 
+#: Back-end preset for short sessions (opt-in: ``track_session(..., refine=True, **SLAM_BACKEND_SHORT)``): loop edges
+#: from 1 s apart (instead of 2 s) with object-frame view directions within 1.2 rad (instead of 0.8), i.e. long-baseline
+#: registrations that see the colour term's slow spin lag, and a loop's rotation correction bounded by 0.05 rad per
+#: second of its gap (false loops on a mug's body corrected its spin by 10-49 deg over 2 s). Blind YCB sessions,
+#: refined poses, mean object-motion error (docs/benchmarks/slam_5s.md): 5 s none / medium 1.73 / 3.20 -> 1.21 / 2.91 mm
+#: (front end 1.62 / 3.03); 2 s 0.88 / 1.35 -> 0.74 / 1.32 (front end 0.87 / 1.32). Not the default: the rate bound
+#: also refuses the large corrections a long session with a lost spin needs (a 46 deg synthetic drift over 12 s:
+#: 19.5 mm front end, 6.4 mm refined with the defaults, 19.1 mm with this preset).
+SLAM_BACKEND_SHORT: dict[str, float] = {"loop_min_gap_s": 1.0, "loop_view_angle": 1.2, "loop_max_rot_rate": 0.05}
+
+
 @dataclass
 class SLAMOptions:
     """Map of the SLAM tracker (metres, frames); defaults in one place. Tracker options
