@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from vtrack.tracking.colour import FeatureTracks, to_grey
-from vtrack.tracking.window import WindowTracker, _exp, _Slot
 from vtrack.tracking.frame import TrackingFrame
+from vtrack.tracking.window import WindowTracker, _exp, _Slot
 
 
 class _Plane:
@@ -58,6 +58,7 @@ def test_tracks_on_rgb_equal_tracks_on_the_whole_grey_frame():
     yy, xx = np.mgrid[0:h, 0:w]
     mask = (xx - 80) ** 2 + (yy - 60) ** 2 < 45**2
     a, b = FeatureTracks(), FeatureTracks()
+    first = np.zeros(0, np.int64)
     for i in range(8):
         # a coloured texture sliding right 1.5 px per frame, with sensor noise
         x = xx - 1.5 * i
@@ -66,5 +67,6 @@ def test_tracks_on_rgb_equal_tracks_on_the_whole_grey_frame():
         ids_a, uv_a = a.update(rgb, mask)
         ids_b, uv_b = b.update(to_grey(rgb), mask)
         assert np.array_equal(ids_a, ids_b) and np.array_equal(uv_a, uv_b)
-        first = ids_a if i == 0 else first
+        if i == 0:
+            first = ids_a
     assert len(first) >= 5 and len(np.intersect1d(first, ids_a)) >= 5 and len(ids_a) >= 10  # continued, refilled
