@@ -129,6 +129,18 @@ def upsample_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
     if mask.shape == tuple(shape):
         return mask
+    (H, W), (h, w) = shape, mask.shape
+    if h and w and H % h == 0 and W % w == 0:
+        # a whole stride (the usual case): nearest neighbour is a repeat, done on the mask's bounding box only
+        ky, kx = H // h, W // w
+        mask = mask if mask.dtype == bool else mask.astype(np.uint8) > 0  # the values the resize path sees
+        out = np.zeros((H, W), bool)
+        rows = np.flatnonzero(mask.any(1))
+        if len(rows):
+            cols = np.flatnonzero(mask.any(0))
+            r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+            out[r0 * ky : r1 * ky, c0 * kx : c1 * kx] = mask[r0:r1, c0:c1].repeat(ky, 0).repeat(kx, 1)
+        return out
     return cv2.resize(mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
 
 
