@@ -2,6 +2,7 @@
 
 - the window's colour residuals computed in one vectorised pass (``WindowTracker._window_colour_terms``) equal one
   ``_colour_terms`` call per slot, whatever the mix of slots (ray and point residuals, projected, without tracks);
+- the Huber weights and costs are the textbook ``where`` formulas bit for bit;
 - ``FeatureTracks.update`` on the RGB image (grey conversion of the object's box only) gives the very tracks it
   gives on the whole frame's grey image.
 """
@@ -70,3 +71,16 @@ def test_tracks_on_rgb_equal_tracks_on_the_whole_grey_frame():
         if i == 0:
             first = ids_a
     assert len(first) >= 5 and len(np.intersect1d(first, ids_a)) >= 5 and len(ids_a) >= 10  # continued, refilled
+
+
+def test_huber_weights_are_the_where_formulas_bit_for_bit():
+    from vtrack.tracking.window import _robust_weights
+
+    rng = np.random.default_rng(0)
+    special = [0.0, -0.0, np.inf, -np.inf, np.nan, 1e-300, 5e-324]
+    for k in (0.5, 1.5, 2.0, 1e9):
+        r = np.concatenate([rng.normal(0, 3, 20000), rng.normal(0, 1e-160, 200), special, [k, -k]])
+        a = np.abs(r)
+        w, rho = _robust_weights(r, "huber", k)
+        assert np.array_equal(w, np.where(a <= k, 1.0, k / np.maximum(a, 1e-12)), equal_nan=True)
+        assert np.array_equal(rho, np.where(a <= k, 0.5 * a * a, k * (a - 0.5 * k)), equal_nan=True)
