@@ -607,12 +607,15 @@ class WindowTracker:
         J -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J)[:, None, :]
         w, rho = _robust_weights(np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust, o.kernel_colour)
         w = w / o.sigma_colour**2
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        Hs = np.add.reduceat(np.einsum("n,nki,nkj->nij", w, J, J), starts, axis=0)
-        bs = np.add.reduceat(np.einsum("n,nki,nk->ni", w, J, r), starts, axis=0)
-        cs = np.add.reduceat(rho, starts)
-        for j, i in enumerate(batch):
-            out[i] = (Hs[j], bs[j], float(cs[j]))
+        # per slot, the normal equations as two BLAS products on its (3 n, 6) Jacobian (a third of the einsum's time)
+        Jw = (J * w[:, None, None]).reshape(-1, 6)
+        J = J.reshape(-1, 6)
+        r = r.reshape(-1)
+        a = 0
+        for i, n in zip(batch, counts, strict=True):
+            sl = slice(3 * a, 3 * (a + n))
+            out[i] = (Jw[sl].T @ J[sl], Jw[sl].T @ r[sl], float(rho[a : a + n].sum()))
+            a += n
         return out
 
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
