@@ -6,7 +6,6 @@ import cv2
 import numpy as np
 import pytest
 
-from vtrack.frames.segmentation import _cluster_members
 from vtrack.frames.session import upsample_mask
 
 
@@ -21,14 +20,3 @@ def test_upsample_mask_equals_a_nearest_resize(small, big):
         out = upsample_mask(mask, big)
         want = ref if mask.any() else np.zeros(big, bool)
         assert out.dtype == bool and out.shape == big and np.array_equal(out, want)
-
-
-def test_cluster_members_equal_one_pass_per_label():
-    rng = np.random.default_rng(2)
-    lab = rng.integers(0, 40, 5000)
-    lab[lab == 7] = 8  # an empty label in the middle
-    sizes = np.bincount(lab, minlength=41)  # and one past the end
-    labels = np.array([0, 3, 7, 8, 39, 40])
-    got = _cluster_members(lab, sizes, labels)
-    for b, m in zip(labels, got, strict=True):
-        assert np.array_equal(m, np.flatnonzero(lab == b))

@@ -608,7 +608,7 @@ class HandAwareSegmenter:
         order = np.argsort(score)
         primary = big[order[0]]
         chosen = {int(primary)}
-        members = _cluster_members(lab, sizes, big)
+        members = [np.flatnonzero(lab == b) for b in big]
         by_lab = {int(b): m for b, m in zip(big, members, strict=True)}
         cand = [int(big[i]) for i in order[1:] if not gate[i]]
         changed = True
@@ -625,14 +625,6 @@ class HandAwareSegmenter:
                     changed = True
         info["n_clusters_merged"] = len(chosen)
         return np.isin(lab, list(chosen))
-
-
-def _cluster_members(lab: np.ndarray, sizes: np.ndarray, labels: np.ndarray) -> list[np.ndarray]:
-    """Indices of the points of each label in ``labels``, ascending (= ``np.flatnonzero(lab == b)`` per label), from
-    one stable sort of ``lab`` instead of one pass over every point per label. ``sizes``: ``np.bincount(lab)``."""
-    by_label = np.argsort(lab, kind="stable")
-    ends = np.cumsum(sizes)
-    return [by_label[ends[b] - sizes[b] : ends[b]] for b in labels]
 
 
 def _points_or_none(p: np.ndarray | None, name: str) -> np.ndarray | None:
