@@ -129,6 +129,18 @@ def upsample_mask(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
     if mask.shape == tuple(shape):
         return mask
+    (H, W), (h, w) = shape, mask.shape
+    if h and w and H % h == 0 and W % w == 0:
+        # a whole stride (the usual case): nearest neighbour is a repeat, done on the mask's bounding box only
+        ky, kx = H // h, W // w
+        mask = mask if mask.dtype == bool else mask.astype(np.uint8) > 0  # the values the resize path sees
+        out = np.zeros((H, W), bool)
+        rows = np.flatnonzero(mask.any(1))
+        if len(rows):
+            cols = np.flatnonzero(mask.any(0))
+            r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+            out[r0 * ky : r1 * ky, c0 * kx : c1 * kx] = mask[r0:r1, c0:c1].repeat(ky, 0).repeat(kx, 1)
+        return out
     return cv2.resize(mask.astype(np.uint8), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) > 0
 
 
@@ -409,9 +421,8 @@ class SessionFrames:
                 vis.append(se3.transform_points(c.T_wc, pts))
             rgb = raw.get("rgb", {}).get(c.name)
             if c.tracks is not None and rgb is not None:
-                from vtrack.tracking.colour import to_grey
-
-                ids, P = self._colour_tracks(c, to_grey(rgb), z, mask, raw.get("depth_full", {}).get(c.name))
+                # RGB as it is: the tracks convert to grey only the object's box
+                ids, P = self._colour_tracks(c, rgb, z, mask, raw.get("depth_full", {}).get(c.name))
                 cids.append(ids)
                 cpts.append(P)
                 corg.append(np.repeat(c.T_wc[None, :3, 3], len(P), axis=0))
@@ -437,7 +448,7 @@ class SessionFrames:
         )
 
     def _colour_tracks(
-        self, c: CameraView, grey: np.ndarray, z: np.ndarray, mask: np.ndarray, depth_full: np.ndarray | None
+        self, c: CameraView, image: np.ndarray, z: np.ndarray, mask: np.ndarray, depth_full: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Camera ``c``'s feature tracks in this frame: ids (made unique across cameras) and world points of the
         tracks on the object mask with a valid depth (``z``, ``mask``: metres and mask at the depth stride; the depth
@@ -446,10 +457,11 @@ class SessionFrames:
         from vtrack.tracking.colour import backproject
 
         k = self.depth_stride
-        full = upsample_mask(mask, grey.shape) if mask.shape != grey.shape else mask
-        ids, uv = c.tracks.update(grey, full[: grey.shape[0], : grey.shape[1]])
+        hw = image.shape[:2]  # ``image``: the camera's RGB (H, W, 3) or grey (H, W) image
+        full = upsample_mask(mask, hw) if mask.shape != hw else mask
+        ids, uv = c.tracks.update(image, full[: hw[0], : hw[1]])
         X, ok = backproject(uv, np.where(mask, z, 0.0), k, c.cam.K)
-        if depth_full is not None and depth_full.shape == grey.shape:
+        if depth_full is not None and depth_full.shape == hw:
             scale = c.depth_scale if depth_full.dtype.kind in "ui" else 1.0
             Xf, okf = backproject(uv, depth_full, 1, c.cam.K, scale, patch=2)
             ok &= okf & (np.abs(Xf[:, 2] - X[:, 2]) < _COLOUR_DEPTH_AGREE_M)

@@ -85,9 +85,11 @@ def normalise_shading(grey: np.ndarray, mask: np.ndarray, blur_px: float) -> np.
 
     g = grey.astype(np.float32)
     m = mask.astype(np.float32)
-    num = cv2.GaussianBlur(g * m, (0, 0), blur_px)
-    den = cv2.GaussianBlur(m, (0, 0), blur_px)
-    mean = num / np.maximum(den, 1e-3)
+    # numerator and denominator as the two channels of one image: one filter call, the same values per channel
+    nd = cv2.GaussianBlur(np.dstack([g * m, m]), (0, 0), blur_px)
+    if nd.ndim == 2:  # a one-pixel-wide crop comes back without its channel axis
+        nd = nd.reshape(g.shape + (2,))
+    mean = nd[..., 0] / np.maximum(nd[..., 1], 1e-3)
     out = np.full(g.shape, 128.0, np.float32)
     ok = mask & (mean > 1.0)
     out[ok] = 128.0 * g[ok] / mean[ok]
@@ -133,12 +135,15 @@ class FeatureTracks:
 
     def update(self, grey: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Track the features into this frame and add new ones; returns ``(ids (N,), uv (N, 2) float px)`` of the
-        tracks seen in this frame (continuing ones keep their id). An empty / missing mask ends every track."""
+        tracks seen in this frame (continuing ones keep their id). An empty / missing mask ends every track.
+        ``grey``: the uint8 grey image (H, W), or the RGB image (H, W, 3), converted (:func:`to_grey`) only inside
+        the box the tracks are processed in (the same values, without converting the whole frame)."""
         import cv2
 
         o = self.opts
         mask = np.asarray(mask, bool)
-        if grey.shape != mask.shape:
+        grey = np.asarray(grey)
+        if grey.shape[:2] != mask.shape or grey.ndim not in (2, 3):
             raise InputError("colour image and mask differ in size", field="rgb", expected=mask.shape, got=grey.shape)
         box = _box(mask, o.roi_margin)
         if box is None or np.count_nonzero(mask) < 16:
@@ -149,7 +154,7 @@ class FeatureTracks:
             pb = self._prev_box
             box = (min(box[0], pb[0]), max(box[1], pb[1]), min(box[2], pb[2]), max(box[3], pb[3]))
         r0, r1, c0, c1 = box
-        norm = normalise_shading(grey[r0:r1, c0:c1], mask[r0:r1, c0:c1], o.blur_px)
+        norm = normalise_shading(to_grey(grey[r0:r1, c0:c1]), mask[r0:r1, c0:c1], o.blur_px)
         img = np.clip(norm, 0, 255).astype(np.uint8)
         ids = np.zeros(0, np.int64)
         uv = np.zeros((0, 2), np.float32)
