@@ -182,17 +182,20 @@ def _helper_process(
         c0 = time.thread_time()
         try:
             if msg[0] == "touch":  # ("touch", [(sensor, image or shared slot), ...]): a batch, oldest first
-                out: list[Any] = []
-                for sensor, image in msg[1]:
+                out: list[Any] = [None] * len(msg[1])  # None: lost, counted as a dropped frame by the touch stage
+                todo: list[tuple[int, str, np.ndarray]] = []
+                for j, (sensor, image) in enumerate(msg[1]):
                     if not isinstance(image, np.ndarray):  # a slot of the replay's shared ring: read in place
                         try:
                             image = image.read()  # a copy (the pipeline may keep it as its reference), checked
                         except FrameOverwritten:
-                            out.append(None)  # lost: counted as a dropped frame by the touch stage
                             continue
-                    c = sf.touch.contact(sensor, image)  # type: ignore[union-attr]
+                    todo.append((j, sensor, image))
+                # the batch's images through their sensors' pipelines together (same values as one by one)
+                got = sf.touch.contacts([(sensor, image) for _, sensor, image in todo])  # type: ignore[union-attr]
+                for (j, sensor, _), c in zip(todo, got, strict=True):
                     contacts[sensor] = c
-                    out.append((c.points, c.normals, c.penetration_mm, c.valid))
+                    out[j] = (c.points, c.normals, c.penetration_mm, c.valid)
                 conn.send((out, time.thread_time() - c0))
             else:
                 _, stream, t, depth, q, touch = msg
@@ -307,17 +310,18 @@ class TouchConsumer(Consumer):
 
         names = [ev.stream.split("/", 1)[1] for ev in events]
         if self.mode != "process":
-            ok = []
-            for s, ev in zip(names, events, strict=True):
+            todo = []
+            for j, (s, ev) in enumerate(zip(names, events, strict=True)):
                 try:
-                    image = ev.read("image")  # own copy: the pipeline may keep it as its reference
+                    todo.append((j, s, ev.read("image")))  # own copy: the pipeline may keep it as its reference
                 except FrameOverwritten:
-                    ok.append(False)
-                    continue
-                self.owner.images[s] = self.owner.sf.touch.contact(s, image)  # type: ignore[union-attr]
+                    pass
+            got = self.owner.sf.touch.contacts([(s, image) for _, s, image in todo])  # type: ignore[union-attr]
+            for (_, s, _), c in zip(todo, got, strict=True):
+                self.owner.images[s] = c
                 self.owner.touch_steps += 1
-                ok.append(True)
-            return ok
+            done = {j for j, _, _ in todo}
+            return [j in done for j in range(len(events))]
         # a frame in the replay's shared ring goes by reference (the helper maps the ring), else pickled
         msg = [(s, ev.shared["image"] if ev.shared and "image" in ev.shared else ev.data["image"]) for s, ev in
                zip(names, events, strict=True)]  # fmt: skip
