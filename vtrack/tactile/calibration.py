@@ -291,15 +291,16 @@ class Calibration:
         if self.method == "lut_raw":
             nx, ny = self.normals_from_change(None, image, mask)
         else:
+            # zero normals have zero slopes: only the masked pixels go through the model and the conversion
             rows, cols = np.nonzero(mask)
-            nx = np.zeros((H, W), np.float32)
-            ny = np.zeros((H, W), np.float32)
+            gx = np.zeros((H, W), np.float32)
+            gy = np.zeros((H, W), np.float32)
             if len(rows):
                 im = image[rows, cols]
                 d = im.astype(np.float32) - background[rows, cols]
-                out = self._predict_pixels(d, im, rows, cols, (H, W))
-                nx[rows, cols] = out[:, 0]
-                ny[rows, cols] = out[:, 1]
+                out = self._predict_pixels(d, im, rows, cols, (H, W)).astype(np.float32, copy=False)
+                gx[rows, cols], gy[rows, cols] = normals_to_slopes(out[:, 0], out[:, 1])
+            return gx, gy
         gx, gy = normals_to_slopes(nx, ny)
         return gx.astype(np.float32, copy=False), gy.astype(np.float32, copy=False)
 
