@@ -539,7 +539,8 @@ def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
     base = tmp_path / "w.pt"
     shutil.copy(weights_path(), base)
     blob = torch.load(base, map_location="cpu", weights_only=False)
-    tc = HandPoseTrainConfig(**{k: v for k, v in blob["train"].items() if k in HandPoseTrainConfig.__dataclass_fields__})
+    fields = HandPoseTrainConfig.__dataclass_fields__
+    tc = HandPoseTrainConfig(**{k: v for k, v in blob["train"].items() if k in fields})
     torch.manual_seed(1)
     spec = HandPoseNet("rgb", np.full(12, 40.0), np.full(12, 5.0), feat=16, width=4, rgb_crop=(26, 0, 32, 2))
     save_models(tmp_path / "s.pt", {"rgb": spec}, tc, {})
