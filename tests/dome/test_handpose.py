@@ -583,3 +583,31 @@ def test_cramer_rao_bound_sees_what_each_camera_can_see() -> None:
     assert o["sigma_dual"][[2, 3]].max() < 0.5  # the thumb's MCP / IP split
     hover = [i for i, d in enumerate(DIGITS) if i > 0 and not touch[i]][0]
     assert np.all(o["sigma_ir"][list(DIGITS[hover].joints)] > 100.0)
+
+
+def test_rgb_rotation_augmentation_is_the_hand_yawed() -> None:
+    """The sensor is symmetric about the dome axis: a 90 deg turn of the noise-free frame is the render of the hand
+    yawed by 90 deg (exactly), and the augmentation's bilinear turn by -10 deg is the render of the hand yawed by
+    +10 deg up to the interpolation (well under the change the yaw itself makes)."""
+    from vtrack.dome.handpose import rotate_frames
+    from vtrack.dome.handsim import HandPlace
+
+    sim = HandDomeSimulator(grasp_set="varied")
+    q, place, _ = sim.hand.sample_varied(np.random.default_rng(2))
+    pa = place.to_array()
+
+    def render(yaw: float) -> np.ndarray:
+        p = pa.copy()
+        p[0] += yaw
+        return sim.rgb_float(sim.hand.capsules(q, place=HandPlace.from_array(p))).astype(np.float64)
+
+    a, a90, a10 = render(0.0), render(90.0), render(10.0)
+    np.testing.assert_allclose(np.rot90(a, -1), a90, atol=1e-4)
+    x = torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1)[None] - 0.5)).float()
+    r = rotate_frames(x, 0.0, torch.Generator(), noise=0.0, angles_deg=torch.tensor([-10.0]))[0].numpy()
+    r = r.transpose(1, 2, 0) + 0.5
+    sigma = 0.015  # the RGB pixel noise
+    assert np.sqrt(((r - a10) ** 2).mean()) < 2.0 * sigma < 0.5 * np.sqrt(((a - a10) ** 2).mean())
+    g = torch.Generator().manual_seed(0)
+    out = rotate_frames(x.repeat(4, 1, 1, 1), 20.0, g)
+    assert out.shape == (4, 3, RGB_SIZE, RGB_SIZE) and torch.isfinite(out).all()

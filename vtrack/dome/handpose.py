@@ -106,6 +106,11 @@ class HandPoseTrainConfig:
     #: RGB net reads only this window of the frame, magnified: "row,col,side,upsampling" ("" = the whole frame),
     #: e.g. "26,0,32,2" = the thumb's region (rows / cols 26-57 / 0-31 of the 64 px frame) at 2x
     rgb_crop: str = ""
+    #: training augmentation of the RGB net: each frame turned about the image centre by an angle drawn in +-
+    #: this (deg; 0 = off) plus fresh pixel noise. Exact for this sensor: the fisheye, shell, light and haze are
+    #: symmetric about the dome axis, so a turned frame is the same grasp with the hand yawed (a nuisance) and
+    #: the joint angles are unchanged
+    rotate_deg: float = 0.0
 
 
 def parse_rgb_crop(text: str) -> tuple[int, int, int, int] | None:
@@ -282,6 +287,24 @@ def prep_ir(ir: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.stack([x / 255.0 - 0.3, 4.0 * (x - r[None]) / 255.0], 1))
 
 
+def rotate_frames(
+    x: torch.Tensor, max_deg: float, gen: torch.Generator, noise: float = 0.01, angles_deg: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Training augmentation: (n, C, S, S) prepared frames each turned about the image centre by an angle drawn
+    uniformly in +-``max_deg`` (or by ``angles_deg``; bilinear; the corners outside the shell's disc repeat the
+    border, which lies outside it too), plus Gaussian noise of ``noise`` (full scale 1) to restore the pixel noise
+    the interpolation smooths. A turn by -a matches the hand yawed by +a (:class:`HandPlace`) to the interpolation
+    error (docs/dome.md)."""
+    n = x.shape[0]
+    a = (torch.rand(n, generator=gen) * 2 - 1) * max_deg if angles_deg is None else angles_deg.float()
+    a = torch.deg2rad(a)
+    c, s = torch.cos(a), torch.sin(a)
+    theta = torch.stack([torch.stack([c, -s, torch.zeros(n)], 1), torch.stack([s, c, torch.zeros(n)], 1)], 1)
+    grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
+    out = nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    return out + noise * torch.randn(out.shape, generator=gen)
+
+
 def model_inputs(modality: str, data: dict, idx: np.ndarray | slice) -> dict[str, torch.Tensor]:
     out = {}
     if modality in ("rgb", "dual"):
@@ -449,9 +472,14 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     val_in = model_inputs(modality, data, val_idx)
     w = joint_weight_vector(tc.joint_weights)
 
+    gen = torch.Generator().manual_seed(tc.seed + 7 + 1000 * tc.model_seed)
+
     def loss_on(pos: np.ndarray) -> torch.Tensor:
         idx = np.sort(tr_idx[pos])
-        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse, w)
+        inputs = model_inputs(modality, data, idx)
+        if tc.rotate_deg > 0 and "rgb" in inputs:
+            inputs["rgb"] = rotate_frames(inputs["rgb"], tc.rotate_deg, gen)
+        return pose_loss(model.degrees(inputs), y[idx], tc.lambda_mae, tc.lambda_rmse, w)
 
     wv = w if tc.select_weighted else None
 

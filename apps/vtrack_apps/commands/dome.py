@@ -341,6 +341,9 @@ def register(app: typer.Typer) -> None:
         rgb_crop: str = typer.Option(
             "", "--rgb-crop", help="RGB net reads only row,col,side,upsampling of the frame (e.g. thumb: 26,0,32,2)"
         ),
+        rotate_deg: float = typer.Option(
+            0.0, "--rotate-deg", min=0.0, max=180.0, help="augment RGB frames: turn about the centre by +- this (deg)"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
@@ -387,6 +390,7 @@ def register(app: typer.Typer) -> None:
             raise InputError(str(e), field="--rgb-crop", got=rgb_crop) from None
         tc = HandPoseTrainConfig(
             rgb_crop=rgb_crop,
+            rotate_deg=rotate_deg,
             joint_weights=jw,
             n_train=n_train,
             steps=steps,
