@@ -568,8 +568,8 @@ def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
 
 
 def test_cramer_rao_bound_sees_what_each_camera_can_see() -> None:
-    """The CRB of one grasp: with every digit pressing, all 12 joints are pinned far below 5 deg by the two frames
-    together (thumb MCP / IP included, the placement and gains free); a digit that hovers leaves its joints
+    """The CRB of one grasp (thumb pressing, one finger hovering): all 12 joints are pinned far below 5 deg by the
+    two frames together (thumb MCP / IP included, the placement and gains free); the hovering finger's joints are
     unbounded in the IR frame alone (no contact, no marker moves) but not in the RGB frame."""
     from vtrack.dome.handpose import grasp_crb
 
