@@ -278,6 +278,8 @@ def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
         (["--joint-weights", "thumb_tip=2"], "--joint-weights"),
         (["--joint-weights", "thumb_ip=-1"], "--joint-weights"),
         (["--joint-weights", "thumb_ip"], "--joint-weights"),
+        (["--rgb-crop", "50,0,32,2"], "--rgb-crop"),
+        (["--rgb-crop", "thumb"], "--rgb-crop"),
     )
     for extra, field in bad:
         r = CliRunner().invoke(app, [*base, *extra])
@@ -392,7 +394,8 @@ def test_varied_eval_smoke_and_shipped_weights(tmp_path) -> None:
     assert not any(k in blob["models"]["dual"] for k in blob["dual_shared"])
     # a 3-seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
     assert len(blob["members"]) == 2 and all(not mb["models"]["ir"] for mb in blob["members"])
-    assert weights_path("varied").stat().st_size < 3_500_000
+    assert blob["specialists"]["joints"] == ["thumb_mcp", "thumb_ip"] and len(blob["specialists"]["nets"]) == 2
+    assert weights_path("varied").stat().st_size < 5_000_000
 
 
 def test_varied_sensor_has_markers_over_the_whole_visible_cap() -> None:
@@ -525,8 +528,6 @@ def test_rgb_crop_reads_only_its_window_magnified() -> None:
 def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
     """Specialists stored in a weights file give their joints (mix 1) or a blend (mix 0.5) in the RGB and dual
     settings; the other joints and the IR setting are the file's own; a net of another training set is refused."""
-    import shutil
-
     from vtrack.dome.handpose import (
         HandPoseNet,
         HandPoseTrainConfig,
@@ -538,8 +539,9 @@ def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
     )
 
     base = tmp_path / "w.pt"
-    shutil.copy(weights_path(), base)
-    blob = torch.load(base, map_location="cpu", weights_only=False)
+    blob = torch.load(weights_path(), map_location="cpu", weights_only=False)
+    blob.pop("specialists", None)  # the shipped file's own thumb specialists: start from the ensemble alone
+    torch.save(blob, base)
     fields = HandPoseTrainConfig.__dataclass_fields__
     tc = HandPoseTrainConfig(**{k: v for k, v in blob["train"].items() if k in fields})
     torch.manual_seed(1)
