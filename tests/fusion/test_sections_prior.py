@@ -74,5 +74,8 @@ def test_no_sections_for_box_ball_or_few_points():
     N = rng.normal(size=(4000, 3))
     N /= np.linalg.norm(N, axis=1, keepdims=True)
     assert fit_sections(0.037 * N[N[:, 0] > -0.3]) is None
+    # a tube seen all round is closed by the hull already: no section prior (an imperfect fit would only bulge)
+    closed, _ = _bent_tube(6000, rng, visible=lambda ang: np.ones(len(ang), bool))
+    assert fit_sections(closed) is None
     assert fit_sections(np.zeros((10, 3))) is None
     assert fit_sections(np.full((500, 3), np.nan)) is None

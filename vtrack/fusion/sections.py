@@ -36,6 +36,9 @@ import numpy as np
 from vtrack.errors import InputError
 
 
+_DEBUG = False
+
+
 @dataclass
 class Sections:
     """Fitted elliptic sections along an axis (object frame, metres).
@@ -194,6 +197,8 @@ def fit_sections(
     max_grow: float = 1.6,
     min_share: float = 0.6,
     min_points: int = 30,
+    min_gap: float = np.pi / 2,
+    min_slabs: int = 3,
 ) -> Sections | None:
     """Fit elliptic sections to an elongated observed cloud (N, 3) m; None when they do not explain it.
 
@@ -220,6 +225,7 @@ def fit_sections(
     centres = np.arange(s.min() + 0.5 * slab, s.max() - 0.5 * slab + 1e-9, step)
     kept_s, kept_e = [], []
     covered = np.zeros(len(P), bool)
+    open_ = np.zeros(len(P), bool)  # points in slabs whose section is open (seen over less than the full turn)
     for sc_ in centres:
         m = np.abs(s - sc_) <= 0.5 * slab
         if m.sum() < min_points:
@@ -244,12 +250,21 @@ def fit_sections(
         span = np.ptp(xy, axis=0)
         c, sn = np.abs(np.cos(ell[4])), np.abs(np.sin(ell[4]))
         box = 2 * np.array([ell[2] * c + ell[3] * sn, ell[2] * sn + ell[3] * c])  # bounding box (any n)
+        # largest angular gap of the points around the section: a section seen all round is closed by the hull
+        # already (an imperfect superellipse would only bulge past it), only an open one needs completing
+        srt = np.sort(ang)
+        gap = float(np.max(np.diff(np.r_[srt, srt[0] + 2 * np.pi]))) if len(srt) else 2 * np.pi
+        if _DEBUG:
+            print(f"slab {sc_:.3f} n {m.sum()} rms {rms * 1e3:.2f} arc {arc:.2f} gap {np.degrees(gap):.0f}")
+        if gap < min_gap:
+            continue
+        open_ |= m
         if rms <= tol and arc >= min_arc and np.all(box <= max_grow * np.maximum(span, 1e-3)):
             kept_s.append(sc_)
             kept_e.append(ell)
             covered |= m
-    share = float(covered.mean())
-    if not kept_s or share < min_share:
+    share = float(covered.sum() / max(1, open_.sum()))
+    if len(kept_s) < min_slabs or share < min_share:
         return None
     out = Sections(c0, Vt, np.asarray(kept_s), np.asarray(kept_e), np.array([s.min(), s.max()]), share)
     out._step, out._half = step, 0.5 * slab
