@@ -36,9 +36,6 @@ import numpy as np
 from vtrack.errors import InputError
 
 
-_DEBUG = False
-
-
 @dataclass
 class Sections:
     """Fitted elliptic sections along an axis (object frame, metres).
@@ -254,8 +251,6 @@ def fit_sections(
         # already (an imperfect superellipse would only bulge past it), only an open one needs completing
         srt = np.sort(ang)
         gap = float(np.max(np.diff(np.r_[srt, srt[0] + 2 * np.pi]))) if len(srt) else 2 * np.pi
-        if _DEBUG:
-            print(f"slab {sc_:.3f} n {m.sum()} rms {rms * 1e3:.2f} arc {arc:.2f} gap {np.degrees(gap):.0f}")
         if gap < min_gap:
             continue
         open_ |= m
