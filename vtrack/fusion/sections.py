@@ -6,25 +6,29 @@ observation, and every reconstructed sample more than 5 mm off lies INSIDE the o
 (docs/benchmarks/fusion_recon2.md). Their cross-sections across the long axis are close to ellipses, and the
 camera sees about two thirds of each section's perimeter (the front and both sides), which fixes the ellipse.
 
-Method (object frame, metres; numpy only):
+Method (object frame, metres; numpy + scipy):
 
 1. Points thinned to 2 mm cells, stray clusters dropped (as for the hull prior); principal axes ``a`` (longest),
    ``u``, ``v`` about the centroid.
 2. Slabs ``slab`` wide along ``a`` every ``step``; in each, the points' ``(u, v)`` coordinates get a direct
-   least-squares ellipse fit (Fitzgibbon et al. 1999), then a few Gauss-Newton-free reweighting rounds that
-   down-weight points farther than 2 ``tol`` (a finger's contact, a cap).
-3. A slab is accepted when the trimmed RMS of the points' distance to the ellipse is at most ``tol``, its points
-   cover at least ``min_arc`` of the ellipse's angle and the ellipse stays within ``max_grow`` times the points'
-   own extent (no wild extrapolation from a flat arc: a box's flat face gives a huge ellipse and is rejected).
-4. The prior is accepted when the accepted slabs hold at least ``min_share`` of the points; a box (potted meat
-   can) or a cup with its handle is rejected and keeps the hull.
-5. SDF: between two accepted slab centres the signed distances to their ellipses are blended linearly in the
-   slab coordinate; outside every accepted slab (and beyond the points' ends along ``a``) the section prior does
-   not exist (+inf). The neural SDF unites it with the hull (minimum), so it can only add volume where the hull
-   cut the unseen side.
+   least-squares ellipse fit (Fitzgibbon et al. 1999; three reweighting rounds down-weight points farther than
+   2 ``tol``: a finger's contact, a cap), refined into a superellipse ``|x/A|^n + |y/B|^n = 1`` (n in [2, 8]) by
+   robust geometric least squares (the algebraic fit of a partial arc is biased small; a bottle's section is a
+   rounded rectangle).
+3. Only OPEN sections count: the largest angular gap of the seen points around the fitted centre must reach
+   ``min_gap`` (a section seen all round is closed by the hull already). An open slab is accepted when the
+   trimmed RMS distance of its points to the curve is at most ``tol``, they cover at least ``min_arc`` of the turn
+   and the curve stays within ``max_grow`` times the points' own extent (no wild extrapolation from a flat arc: a
+   box's flat face gives a huge ellipse and is rejected).
+4. The prior is accepted with at least ``min_slabs`` accepted slabs holding at least ``min_share`` of the open
+   slabs' points; a box (potted meat can), a cup with its handle or a cloud seen all round keeps the hull.
+5. SDF: between two accepted slab centres the signed distances to their curves are blended linearly in the slab
+   coordinate; outside every accepted slab (and beyond the points' ends along ``a``) the section prior does not
+   exist (+inf). The neural SDF unites it with the hull (minimum), so it can only add volume where the hull cut
+   the unseen side.
 
-The 2-D ellipse distance is the first-order estimate ``(k - 1) / |grad k|`` with ``k`` the ellipse's normalised
-radius, exact on the ellipse and good to a few per cent within the few millimetres that matter.
+The 2-D distance is the first-order estimate ``(k - 1) / |grad k|`` with ``k`` the superellipse's normalised
+radius, exact on the curve and good to a few per cent within the few millimetres that matter.
 """
 
 from __future__ import annotations
@@ -199,8 +203,8 @@ def fit_sections(
 ) -> Sections | None:
     """Fit elliptic sections to an elongated observed cloud (N, 3) m; None when they do not explain it.
 
-    Args: see the module docstring (``slab``, ``step``, ``tol``, ``min_arc`` (share of 2 pi), ``max_grow``,
-    ``min_share`` as there; ``min_points`` per slab after thinning).
+    Args: see the module docstring (``slab``, ``step``, ``tol`` (m), ``min_arc`` (share of 2 pi), ``max_grow``,
+    ``min_gap`` (rad), ``min_slabs``, ``min_share`` as there; ``min_points`` per slab after thinning).
     """
     from vtrack.fusion.neural_sdf import largest_cluster
 
