@@ -87,3 +87,27 @@ def test_neural_sdf_path_never_imports_open3d():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def test_narrow_band_grid_matches_full_grid(fitted):
+    """The narrow-band grid (exact queries only near the zero level set) has the full grid's sign everywhere and
+    its exact values in the band, with a fraction of the network queries; the meshes agree."""
+    from vtrack.fusion.neural_sdf import marching_cubes
+
+    r, V, F = fitted
+    full, o1, h1 = r.sdf_grid(cell_mm=2.0, band=False)
+    calls = []
+    q = r.query
+    r.query = lambda p, **kw: (calls.append(len(p)), q(p, **kw))[1]
+    try:
+        band, o2, h2 = r.sdf_grid(cell_mm=2.0, band=True)
+    finally:
+        del r.query
+    assert h1 == h2 and np.allclose(o1, o2) and band.shape == full.shape
+    assert np.array_equal(band > 0, full > 0)
+    near = np.abs(full) < 0.004
+    assert np.allclose(band[near], full[near], atol=1e-6)
+    assert sum(calls) < 0.7 * full.size  # a small box: the band is most of it (a banana box: ~10 %)
+    (v1, f1), (v2, f2) = marching_cubes(full, o1, h1), marching_cubes(band, o2, h2)
+    assert len(f1) > 100 and np.array_equal(f1, f2)
+    assert np.allclose(v1, v2, atol=1e-9)  # the same mesh

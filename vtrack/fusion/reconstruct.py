@@ -294,7 +294,7 @@ def reconstruct_session(
         }
     if "pose_refine" in res:
         metrics["pose_refine"] = {"rounds": res["pose_refine"], "seconds": res["pose_seconds"]}
-    for k in ("iterations", "ms_per_frame_p95", "cpu_ms_per_frame"):
+    for k in ("iterations", "ms_per_frame_p95", "cpu_ms_per_frame", "mesh_seconds"):
         if k in res:
             metrics[k] = res[k]
     if gt_data is not None and gt_data.mesh_path is not None:
