@@ -189,7 +189,7 @@ def calibrate_press_set(
     ball_radius_mm: float | None = None,
     downsample: int | str = "auto",
     candidates: tuple[tuple[str, str, dict[str, Any]], ...] = AUTO_CANDIDATES,
-    reselect_edge: bool = False,
+    reselect_edge: bool | str = False,
 ) -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
 
@@ -210,6 +210,10 @@ def calibrate_press_set(
     """
     from vtrack.tactile.calibration import METHODS
 
+    if reselect_edge not in (False, True, "cv"):
+        raise InputError(
+            "unknown edge re-selection", field="reselect_edge", expected="False | True | cv", got=reselect_edge
+        )
     if method != "auto" and method not in METHODS:
         raise InputError(
             "unknown calibration method", field="method", expected=" | ".join(METHODS + ("auto",)), got=method
@@ -237,17 +241,21 @@ def calibrate_press_set(
     name, chosen, copts, run.cv = choose_model(
         run.press_set, run.train, opts, candidates=candidates, downsample=downsample
     )
-    if (chosen, copts) != (run.calib.method, _with(opts, {})) and reselect_edge and run.edge_trials:
+    by_cv = reselect_edge == "cv"
+    changed = (chosen, copts) != (run.calib.method, _with(opts, {}))
+    if (changed or by_cv) and reselect_edge and run.edge_trials:
         cv = run.cv
-        run = labelled_run(method=chosen, opts=copts)
+        run = labelled_run(method=chosen, opts=copts, edge_cv=by_cv)
         run.cv = cv
         for t in run.edge_trials:
             t["model"] = name
+            if t.get("chosen") and "cv" in t:  # what to expect on new presses: the chosen placement's CV
+                run.calib.info["cv_expected"] = t["cv"]
         if run.test:  # as below: the held-out check on the chosen placement's own circles
             from vtrack.tactile.evaluation import evaluate_calibration
 
             run.held_out = evaluate_calibration(run.press_set, run.calib, run.test, downsample=downsample)["summary"]
-    elif (chosen, copts) != (run.calib.method, _with(opts, {})):
+    elif changed:
         from vtrack.tactile.calibration import calibrate
         from vtrack.tactile.evaluation import evaluate_calibration
 
@@ -262,10 +270,67 @@ def calibrate_press_set(
     return run
 
 
+def edge_cross_validate(
+    ref_ps,
+    ps_w,
+    train: list,
+    exclude: set[str],
+    method: str,
+    opts=None,
+    *,
+    folds: int = CV_FOLDS,
+    downsample: int | str = "auto",
+) -> dict[str, Any]:
+    """Cross-validated ball-radius check of one edge placement: errors a model trained on ``ps_w``'s circles
+    can be expected to make on new presses of this sensor.
+
+    ``train`` are the training presses of ``ref_ps`` (the middle placement's auto circles); press i of it is in
+    fold i % k. Each fold is reconstructed by a model trained on ``ps_w``'s circles of every other press
+    (except ``exclude``, the held-out files, which stay unseen) and scored on ``ref_ps``'s circles, so every
+    placement is judged on the same presses and discs. The radius error is the sphere fitted to each
+    reconstruction against the ball the user pressed (no label can fake it); the normal error is against
+    that press's circle. Pooled medians over all predicted presses (as :func:`cross_validate`).
+    """
+    import numpy as np
+
+    from vtrack.tactile.calibration import calibrate
+    from vtrack.tactile.evaluation import evaluate_calibration
+
+    k = min(folds, len(train))
+    if k < 2:
+        raise InputError("too few presses to cross-validate", field="presses", expected=">= 2", got=len(train))
+    rows = []
+    for f in range(k):
+        fold = train[f::k]
+        skip = exclude | {p.file for p in fold}
+        calib = calibrate(ps_w, method, [p for p in ps_w.presses if p.file not in skip], opts)
+        rows += evaluate_calibration(ref_ps, calib, fold, downsample=downsample)["presses"]
+    return {
+        "folds": k,
+        "n_presses": len(rows),
+        "radius_abs_err_pct_median": float(np.median([abs(r["radius_err_pct"]) for r in rows])),
+        "radius_err_pct_median": float(np.median([r["radius_err_pct"] for r in rows])),
+        "normal_err_deg_median": float(np.median([r["normal_err_deg_median"] for r in rows])),
+    }
+
+
 def _labelled_run(
-    root, *, method, holdout, opts, labels, edge_weights, meta_file, sensor, mm_per_px, ball_radius_mm, downsample
+    root,
+    *,
+    method,
+    holdout,
+    opts,
+    labels,
+    edge_weights,
+    meta_file,
+    sensor,
+    mm_per_px,
+    ball_radius_mm,
+    downsample,
+    edge_cv: bool = False,
 ) -> CalibrationRun:
-    """:func:`calibrate_press_set` for one fixed method (edge placement chosen for auto labels)."""
+    """:func:`calibrate_press_set` for one fixed method (edge placement chosen for auto labels; ``edge_cv``:
+    by the cross-validated ball-radius check over the training presses instead of the held-out one)."""
     from vtrack.tactile.autolabel import AutoLabelOptions
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import evaluate_calibration
@@ -308,20 +373,26 @@ def _labelled_run(
         calib = calibrate(ps_w, method, train_w, opts)
         calib.info["autolabel_edge_weight"] = w
         summ = held_out(ps, calib, test)
-        trials.append(
-            {
-                "edge_weight": w,
-                "n_presses": len(ps_w.presses),
-                "radius_abs_err_pct_median": summ["radius_abs_err_pct_median"],
-                "normal_err_deg_median": summ["normal_err_deg_median"],
-            }
-        )
+        trial = {
+            "edge_weight": w,
+            "n_presses": len(ps_w.presses),
+            "radius_abs_err_pct_median": summ["radius_abs_err_pct_median"],
+            "normal_err_deg_median": summ["normal_err_deg_median"],
+        }
+        if edge_cv:
+            trial["cv"] = edge_cross_validate(ps, ps_w, train, test_files, method, opts, downsample=downsample)
+        trials.append(trial)
         runs.append(CalibrationRun(calib, ps_w, train_w, test, summ))
     # a placement that drops many presses (e.g. rims put beyond the ball radius) trains on fewer, easier
     # presses: only placements keeping >= 80 % of the best-kept count compete
     n_max = max(len(r.press_set.presses) for r in runs)
-    pool = [r for r in runs if len(r.press_set.presses) >= 0.8 * n_max]
-    best = min(pool, key=lambda r: r.held_out["radius_abs_err_pct_median"])
+    pool = [(r, t) for r, t in zip(runs, trials, strict=True) if len(r.press_set.presses) >= 0.8 * n_max]
+
+    # the ball-radius check: on the held-out presses, or (edge_cv) cross-validated over the training presses
+    def radius_check(rt) -> float:
+        return (rt[1]["cv"] if edge_cv else rt[0].held_out)["radius_abs_err_pct_median"]
+
+    best = min(pool, key=radius_check)[0]
     for t in trials:
         t["chosen"] = t["edge_weight"] == best.calib.info["autolabel_edge_weight"]
     best.edge_trials = trials
