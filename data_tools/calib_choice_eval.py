@@ -65,7 +65,7 @@ def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, res
     out["chosen"] = name
     if reselect == "cv" and run.edge_trials:  # as calibrate_press_set(reselect_edge="cv")
         rerun = _labelled_run(root, method=method, opts=opts, edge_cv=True, **kw)
-        out["edge_trials_chosen_model"] = rerun.edge_trials
+        out["edge_trials_chosen_model"] = [{"model": name, **t} for t in rerun.edge_trials]
         chosen_trial = next(t for t in rerun.edge_trials if t["chosen"])
         out["cv_expected"] = chosen_trial["cv"]  # training presses, cross-validated
         out["held_out"] = {
