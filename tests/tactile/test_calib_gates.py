@@ -192,3 +192,10 @@ def test_label_noise_tool_exact_detector_against_a_hand_like_reference():
     A = T.copy()
     A[:, 2] *= 1.06  # every radius 6 % off: no press within 5 %, whatever the centres
     assert mod.noisy_reference_shares(A, T, 0.0, 0.0, False, 1, rng)["both_mean"] == 0.0
+
+
+def test_unknown_edge_choice_is_one_clear_error(tmp_path):
+    """``--edge-choice`` takes off | heldout | cv; anything else stops before any work, exit 2 with one line."""
+    code, _, err = _cli(["calibrate", tmp_path, "--out", tmp_path / "c.npz", "--edge-choice", "sometimes"])
+    assert code == 2 and "unknown edge choice" in err and "off | heldout | cv" in err
+    assert not (tmp_path / "c.npz").exists()

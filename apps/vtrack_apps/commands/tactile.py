@@ -55,6 +55,12 @@ def register(app: typer.Typer) -> None:
             "hand_or_auto", "--labels", help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"
         ),
         review: Path = typer.Option(None, "--review", help="auto labels: draw every detected circle into this PNG"),
+        edge_choice: str = typer.Option(
+            "off",
+            "--edge-choice",
+            help="auto labels + --method auto: choose the edge placement again with the chosen model: off | "
+            "heldout (on the held-out presses) | cv (cross-validated over the training presses)",
+        ),
     ) -> None:
         """Learn colour(+position) -> surface normal from ball presses; report held-out errors.
 
@@ -73,6 +79,11 @@ def register(app: typer.Typer) -> None:
                 "unknown calibration method", field="--method", expected=" | ".join(METHODS + ("auto",)), got=method
             )
         # defaults live in TrainOptions only (the CLI used to train a 32-wide MLP while the library's is 64)
+        reselect = {"off": False, "heldout": True, "cv": "cv"}
+        if edge_choice not in reselect:
+            raise InputError(
+                "unknown edge choice", field="--edge-choice", expected=" | ".join(reselect), got=edge_choice
+            )
         given = {"lut_bins": lut_bins, "mlp_hidden": mlp_hidden, "mlp_epochs": mlp_epochs}
         opts = TrainOptions(**{k: v for k, v in given.items() if v is not None})
         run = calibrate_press_set(
@@ -86,6 +97,7 @@ def register(app: typer.Typer) -> None:
             mm_per_px=mm_per_px,
             ball_radius_mm=ball_radius_mm,
             downsample=downsample,
+            reselect_edge=reselect[edge_choice],
         )
         ps, train, test = run.press_set, run.train, run.test
         from vtrack.tactile.sensors import orientation_warning, press_count_warning
@@ -134,9 +146,16 @@ def register(app: typer.Typer) -> None:
                 "radius_abs_err_pct_median": best["radius_abs_err_pct_median"],
                 "normal_err_deg_median": best["normal_err_deg_median"],
             }
+            edge_cv = run.calib.info.get("cv_expected")
+            if edge_cv:  # the chosen model at the chosen placement, cross-validated (--edge-choice cv)
+                expected.update(
+                    folds=edge_cv["folds"],
+                    radius_abs_err_pct_median=edge_cv["radius_abs_err_pct_median"],
+                    normal_err_deg_median=edge_cv["normal_err_deg_median"],
+                )
             typer.echo(
                 f"chosen: {best['model']}; expected on new presses of this sensor (cross-validated): radius "
-                f"{best['radius_abs_err_pct_median']:.2f} %, normals {best['normal_err_deg_median']:.2f} deg"
+                f"{expected['radius_abs_err_pct_median']:.2f} %, normals {expected['normal_err_deg_median']:.2f} deg"
             )
         method = run.calib.method
         results = []
