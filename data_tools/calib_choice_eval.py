@@ -25,9 +25,16 @@ import time
 from pathlib import Path
 
 
-def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, reselect: bool | str = False) -> dict:
-    """The comparison for one press set (see the module docstring)."""
-    from vtrack.tactile.calibrate_set import _labelled_run, choose_model
+def evaluate(
+    root: str | Path,
+    labels: str,
+    fresh: str | Path | None = None,
+    reselect: bool | str = False,
+    candidates: tuple[str, ...] | None = None,
+) -> dict:
+    """The comparison for one press set (see the module docstring). ``candidates``: names of
+    ``AUTO_CANDIDATES`` to cross-validate (default all)."""
+    from vtrack.tactile.calibrate_set import AUTO_CANDIDATES, _labelled_run, choose_model
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import evaluate_calibration
     from vtrack.tactile.pressset import load_press_set
@@ -60,7 +67,8 @@ def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, res
 
     out: dict = {"set": str(root), "labels": labels, "eval": where, "edge_trials": run.edge_trials}
     out["default_mlp"] = score(run.calib)
-    name, method, opts, rows = choose_model(run.press_set, run.train)
+    cands = AUTO_CANDIDATES if not candidates else tuple(c for c in AUTO_CANDIDATES if c[0] in candidates)
+    name, method, opts, rows = choose_model(run.press_set, run.train, candidates=cands)
     out["cv"] = rows
     out["chosen"] = name
     if reselect == "cv" and run.edge_trials:  # as calibrate_press_set(reselect_edge="cv")
@@ -102,11 +110,21 @@ def main() -> None:
         help="choose the edge placement again with the chosen model, on the held-out presses or (cv) by "
         "cross-validation over the training presses",
     )
+    ap.add_argument(
+        "--candidates",
+        default=None,
+        help="comma-separated model names to cross-validate (default: all of AUTO_CANDIDATES; fewer to "
+        "re-measure a set faster where the others are known to lose by > 0.25 deg)",
+    )
     a = ap.parse_args()
     from vtrack.threads import limit_threads
 
     limit_threads(1)
-    res = evaluate(a.set, a.labels, a.fresh, reselect={None: False, "heldout": True}.get(a.reselect, a.reselect))
+    cands = tuple(a.candidates.split(",")) if a.candidates else None
+    res = evaluate(
+        a.set, a.labels, a.fresh, reselect={None: False, "heldout": True}.get(a.reselect, a.reselect), candidates=cands
+    )
+    res["candidates"] = list(cands) if cands else "all"
     print(json.dumps(res))
     if a.json:
         from vtrack.io.jsonio import write_json
