@@ -241,3 +241,25 @@ def test_method_auto_chooses_the_edge_placement_by_cross_validation_when_asked(m
     assert len({t["cv"]["n_presses"] for t in trials}) == 1 and chosen["cv"]["folds"] == 3
     assert {p.file for p in run.test}.isdisjoint(run.calib.info["train_files"])
     assert 1.0 < chosen["cv"]["normal_err_deg_median"] < 20.0
+
+
+def test_refit_all_trains_the_returned_calibration_on_every_press_after_the_held_out_check(mini_set):
+    """``refit_all``: same held-out check (of the model trained without the held-out presses), then the
+    calibration returned is trained on every press; it says so and which presses the checked model used."""
+    import numpy as np
+
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+    from vtrack.tactile.pressset import load_press_set
+
+    base = calibrate_press_set(mini_set, method="lut")
+    full = calibrate_press_set(mini_set, method="lut", refit_all=True)
+    files = {p.file for p in load_press_set(mini_set).presses}
+    keys = ("n_presses", "radius_err_pct_median", "radius_abs_err_pct_median", "normal_err_deg_median")
+    assert [full.held_out[k] for k in keys] == [base.held_out[k] for k in keys] and len(full.test) == 4
+    assert set(full.calib.info["train_files"]) == files and full.calib.info["refit_all"] is True
+    assert full.calib.info["held_out_model_train_files"] == base.calib.info["train_files"]
+    assert "refit_all" not in base.calib.info and {p.file for p in base.test}.isdisjoint(base.calib.info["train_files"])
+    # a different model: the held-out presses' colours now shape the table
+    ps = load_press_set(mini_set)
+    img = ps.image(base.test[0])
+    assert np.abs(full.calib.slopes(img)[0] - base.calib.slopes(img)[0]).max() > 1e-3

@@ -190,8 +190,14 @@ def calibrate_press_set(
     downsample: int | str = "auto",
     candidates: tuple[tuple[str, str, dict[str, Any]], ...] = AUTO_CANDIDATES,
     reselect_edge: bool | str = False,
+    refit_all: bool = False,
 ) -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
+
+    ``refit_all``: once every choice is made (labels, placement, model) and the held-out presses have checked
+    it, train the calibration that is returned again on every usable press, held-out ones included (more
+    presses, lower error; the held-out errors then describe the model trained without them, and
+    ``calib.info["refit_all"]`` says so). Off by default.
 
     ``method="auto"``: the model is chosen among ``candidates`` by :func:`choose_model` (cross-validation
     on the training presses only); the rows are :attr:`CalibrationRun.cv`, the winner's name is
@@ -208,6 +214,51 @@ def calibrate_press_set(
     to train on; the plausibility of the result is :attr:`CalibrationRun.plausible`.
     ``downsample``: working-resolution factor of the held-out evaluation (``auto``: the pipeline's default).
     """
+    run = _calibrate_press_set(
+        root,
+        method=method,
+        holdout=holdout,
+        opts=opts,
+        labels=labels,
+        edge_weights=edge_weights,
+        meta_file=meta_file,
+        sensor=sensor,
+        mm_per_px=mm_per_px,
+        ball_radius_mm=ball_radius_mm,
+        downsample=downsample,
+        candidates=candidates,
+        reselect_edge=reselect_edge,
+    )
+    if refit_all and run.test:
+        from vtrack.tactile.calibration import TrainOptions, calibrate
+
+        info = run.calib.info
+        calib = calibrate(run.press_set, run.calib.method, run.press_set.presses, TrainOptions(**info["options"]))
+        keep = ("autolabel_edge_weight", "model", "method_choice", "cv", "cv_expected")
+        calib.info.update({k: info[k] for k in keep if k in info})
+        calib.info["refit_all"] = True
+        calib.info["held_out_model_train_files"] = info["train_files"]
+        run.calib = calib
+    return run
+
+
+def _calibrate_press_set(
+    root,
+    *,
+    method,
+    holdout,
+    opts,
+    labels,
+    edge_weights,
+    meta_file,
+    sensor,
+    mm_per_px,
+    ball_radius_mm,
+    downsample,
+    candidates,
+    reselect_edge,
+) -> CalibrationRun:
+    """:func:`calibrate_press_set` without the final refit."""
     from vtrack.tactile.calibration import METHODS
 
     if reselect_edge not in (False, True, "cv"):

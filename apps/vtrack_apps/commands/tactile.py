@@ -61,6 +61,11 @@ def register(app: typer.Typer) -> None:
             help="auto labels + --method auto: choose the edge placement again with the chosen model: off | "
             "heldout (on the held-out presses) | cv (cross-validated over the training presses)",
         ),
+        refit_all: bool = typer.Option(
+            False,
+            "--refit-all",
+            help="after the held-out check, train the written calibration on every usable press (held-out too)",
+        ),
     ) -> None:
         """Learn colour(+position) -> surface normal from ball presses; report held-out errors.
 
@@ -98,6 +103,7 @@ def register(app: typer.Typer) -> None:
             ball_radius_mm=ball_radius_mm,
             downsample=downsample,
             reselect_edge=reselect[edge_choice],
+            refit_all=refit_all,
         )
         ps, train, test = run.press_set, run.train, run.test
         from vtrack.tactile.sensors import orientation_warning, press_count_warning
@@ -207,6 +213,11 @@ def register(app: typer.Typer) -> None:
             )
         if not test:
             typer.echo("warning: nothing held out (--holdout none): the calibration's accuracy is unchecked")
+        if run.calib.info.get("refit_all"):
+            typer.echo(
+                f"refitted on all {len(ps.presses)} presses (the held-out errors above are of the model trained "
+                f"on the {len(train)} training presses)"
+            )
         run.calib.save(out)  # its info (holdout, labels) was set in the results loop above
         typer.echo(f"wrote {out}")
 
