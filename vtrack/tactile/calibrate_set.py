@@ -189,7 +189,7 @@ def calibrate_press_set(
     ball_radius_mm: float | None = None,
     downsample: int | str = "auto",
     candidates: tuple[tuple[str, str, dict[str, Any]], ...] = AUTO_CANDIDATES,
-    reselect_edge: bool | str = False,
+    reselect_edge: bool | str = "cv",
     refit_all: bool = False,
 ) -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
@@ -201,12 +201,17 @@ def calibrate_press_set(
 
     ``method="auto"``: the model is chosen among ``candidates`` by :func:`choose_model` (cross-validation
     on the training presses only); the rows are :attr:`CalibrationRun.cv`, the winner's name is
-    ``calib.info["model"]``. With automatic labels and ``reselect_edge``, the edge placement is then chosen
-    again with the chosen model (same held-out presses and rule; :attr:`CalibrationRun.edge_trials` are that
-    trial's rows, each naming its ``model``). Off by default: measured on seven simulated sets it fixed one
-    (a 100-press DIGIT set, radius 6.95 -> 3.46 %) and broke another (Taxim-style GelSight, 1.99 -> 5.94 %),
-    because the chosen model's held-out radius over ~10 presses is noisier than the default MLP's
-    (docs/benchmarks/calib_digit_seeds.md).
+    ``calib.info["model"]``. With automatic labels, ``reselect_edge`` then chooses the edge placement again
+    with the chosen model (:attr:`CalibrationRun.edge_trials` are that trial's rows, each naming its ``model``):
+    - ``"cv"`` (default): by the ball-radius check cross-validated over the training presses
+      (:func:`edge_cross_validate`; every placement on the same presses and middle-placement circles; also when
+      the chosen model is the default ``mlp``). The chosen placement's cross-validated errors are
+      ``calib.info["cv_expected"]``: what to expect on new presses. Over the eight simulated and real sets of
+      docs/benchmarks/calib_edge_cv.md it fixes the one the ``mlp`` trial got wrong (100-press DIGIT unit 3,
+      radius 6.95 -> 3.46 %) and changes no other result;
+    - ``True``: the same choice on the held-out presses (fixed that set too but broke the Taxim-style one,
+      1.99 -> 5.94 %: ~10 held-out presses are too few; docs/benchmarks/calib_digit_seeds.md);
+    - ``False``: keep the ``mlp`` trial's placement.
 
     With automatic labels, each of ``edge_weights`` is tried and the one whose held-out reconstructions best
     match the ball radius (median |fitted radius - ball radius| on the middle placement's held-out circles,

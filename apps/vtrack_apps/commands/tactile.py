@@ -56,7 +56,7 @@ def register(app: typer.Typer) -> None:
         ),
         review: Path = typer.Option(None, "--review", help="auto labels: draw every detected circle into this PNG"),
         edge_choice: str = typer.Option(
-            "off",
+            "cv",
             "--edge-choice",
             help="auto labels + --method auto: choose the edge placement again with the chosen model: off | "
             "heldout (on the held-out presses) | cv (cross-validated over the training presses)",
