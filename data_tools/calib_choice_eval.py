@@ -1,11 +1,13 @@
 """Measure ``vtrack calibrate``'s model choice (issue #21): the fixed default ``mlp`` vs ``--method auto``.
 
-    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json] [--reselect]
+    python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json] [--reselect [cv]]
 
 ``SET`` is calibrated as ``vtrack calibrate`` does (auto labels: edge placement chosen on common circles;
 hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses; with
 ``--reselect`` and auto labels the edge placement is then chosen again with the chosen model (the opt-in
-``reselect_edge`` of ``calibrate_press_set``). Both the default ``mlp`` and the chosen model are scored:
+``reselect_edge`` of ``calibrate_press_set``; ``--reselect cv``: by the ball-radius check cross-validated over the
+training presses, also when the chosen model is the default, and the chosen placement's cross-validated errors
+are reported as ``cv_expected`` beside the held-out ones). Both the default ``mlp`` and the chosen model are scored:
 - on ``FRESH_SET`` (e.g. 60 more presses of the same simulated unit, rendered with
   ``render_press_set(type, DIR, n=60, seed=S2, model=OpticalModel.for_sensor(type, S1))``), against its true
   circles;
@@ -23,9 +25,16 @@ import time
 from pathlib import Path
 
 
-def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, reselect: bool = False) -> dict:
-    """The comparison for one press set (see the module docstring)."""
-    from vtrack.tactile.calibrate_set import _labelled_run, choose_model
+def evaluate(
+    root: str | Path,
+    labels: str,
+    fresh: str | Path | None = None,
+    reselect: bool | str = False,
+    candidates: tuple[str, ...] | None = None,
+) -> dict:
+    """The comparison for one press set (see the module docstring). ``candidates``: names of
+    ``AUTO_CANDIDATES`` to cross-validate (default all)."""
+    from vtrack.tactile.calibrate_set import AUTO_CANDIDATES, _labelled_run, choose_model
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import evaluate_calibration
     from vtrack.tactile.pressset import load_press_set
@@ -58,10 +67,22 @@ def evaluate(root: str | Path, labels: str, fresh: str | Path | None = None, res
 
     out: dict = {"set": str(root), "labels": labels, "eval": where, "edge_trials": run.edge_trials}
     out["default_mlp"] = score(run.calib)
-    name, method, opts, rows = choose_model(run.press_set, run.train)
+    cands = AUTO_CANDIDATES if not candidates else tuple(c for c in AUTO_CANDIDATES if c[0] in candidates)
+    name, method, opts, rows = choose_model(run.press_set, run.train, candidates=cands)
     out["cv"] = rows
     out["chosen"] = name
-    if name == "mlp":
+    if reselect == "cv" and run.edge_trials:  # as calibrate_press_set(reselect_edge="cv")
+        rerun = _labelled_run(root, method=method, opts=opts, edge_cv=True, **kw)
+        out["edge_trials_chosen_model"] = [{"model": name, **t} for t in rerun.edge_trials]
+        chosen_trial = next(t for t in rerun.edge_trials if t["chosen"])
+        out["cv_expected"] = chosen_trial["cv"]  # training presses, cross-validated
+        out["held_out"] = {
+            k: round(rerun.held_out[k], 2) for k in ("radius_abs_err_pct_median", "normal_err_deg_median")
+        }
+        out["auto"] = score(rerun.calib)
+        if fresh:  # the same choices, the model refitted on every usable press (held-out ones too)
+            out["auto_refit_all"] = score(calibrate(rerun.press_set, method, rerun.press_set.presses, opts))
+    elif name == "mlp":
         out["auto"] = out["default_mlp"]
     elif reselect and run.edge_trials:  # as calibrate_press_set(reselect_edge=True)
         rerun = _labelled_run(root, method=method, opts=opts, **kw)
@@ -80,12 +101,30 @@ def main() -> None:
     ap.add_argument("labels", choices=("auto", "hand"))
     ap.add_argument("--fresh", type=Path, default=None, help="fresh presses of the same unit (true circles)")
     ap.add_argument("--json", type=Path, default=None)
-    ap.add_argument("--reselect", action="store_true", help="choose the edge placement again with the chosen model")
+    ap.add_argument(
+        "--reselect",
+        nargs="?",
+        const="heldout",
+        default=None,
+        choices=("heldout", "cv"),
+        help="choose the edge placement again with the chosen model, on the held-out presses or (cv) by "
+        "cross-validation over the training presses",
+    )
+    ap.add_argument(
+        "--candidates",
+        default=None,
+        help="comma-separated model names to cross-validate (default: all of AUTO_CANDIDATES; fewer to "
+        "re-measure a set faster where the others are known to lose by > 0.25 deg)",
+    )
     a = ap.parse_args()
     from vtrack.threads import limit_threads
 
     limit_threads(1)
-    res = evaluate(a.set, a.labels, a.fresh, reselect=a.reselect)
+    cands = tuple(a.candidates.split(",")) if a.candidates else None
+    res = evaluate(
+        a.set, a.labels, a.fresh, reselect={None: False, "heldout": True}.get(a.reselect, a.reselect), candidates=cands
+    )
+    res["candidates"] = list(cands) if cands else "all"
     print(json.dumps(res))
     if a.json:
         from vtrack.io.jsonio import write_json

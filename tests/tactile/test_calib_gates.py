@@ -192,3 +192,38 @@ def test_label_noise_tool_exact_detector_against_a_hand_like_reference():
     A = T.copy()
     A[:, 2] *= 1.06  # every radius 6 % off: no press within 5 %, whatever the centres
     assert mod.noisy_reference_shares(A, T, 0.0, 0.0, False, 1, rng)["both_mean"] == 0.0
+
+
+def test_unknown_edge_choice_is_one_clear_error(tmp_path):
+    """``--edge-choice`` takes off | heldout | cv; anything else stops before any work, exit 2 with one line."""
+    code, _, err = _cli(["calibrate", tmp_path, "--out", tmp_path / "c.npz", "--edge-choice", "sometimes"])
+    assert code == 2 and "unknown edge choice" in err and "off | heldout | cv" in err
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_cli_prints_the_chosen_placements_cross_validated_errors_as_expected(tmp_path, monkeypatch):
+    """Unlabelled presses, ``--method auto`` (default ``--edge-choice cv``): the expectation printed and written
+    (``cv_expected``) is the chosen placement's cross-validation, and the calibration carries it. (Fast
+    candidates and a one-epoch MLP trial keep the test short.)"""
+    import shutil
+
+    import vtrack.tactile.calibrate_set as cs
+    from vtrack.sim.presses import render_press_set
+    from vtrack.tactile.calibration import Calibration
+
+    root = render_press_set("gelsight_mini", tmp_path / "set", n=16, seed=4)
+    (Path(root) / "labels.csv").unlink()
+    fast = (("lut", "lut", {}), ("ps", "ps", {}))
+    monkeypatch.setattr(cs, "calibrate_press_set", functools.partial(cs.calibrate_press_set, candidates=fast))
+    out, rep = tmp_path / "c.npz", tmp_path / "r.json"
+    args = ["calibrate", root, "--out", out, "--json", rep, "--mlp-epochs", "1", "--mlp-hidden", "8"]
+    code, stdout, err = _cli(args)
+    assert code == 0, (stdout[-600:], err)
+    report = json.loads(rep.read_text())
+    (chosen,) = [t for t in report["edge_trials"] if t["chosen"]]
+    exp = report["cv_expected"]
+    assert exp["radius_abs_err_pct_median"] == chosen["cv"]["radius_abs_err_pct_median"]
+    assert exp["normal_err_deg_median"] == chosen["cv"]["normal_err_deg_median"]
+    assert f"normals {exp['normal_err_deg_median']:.2f} deg" in stdout
+    assert Calibration.load(out).info["cv_expected"]["normal_err_deg_median"] == exp["normal_err_deg_median"]
+    shutil.rmtree(tmp_path / "set")

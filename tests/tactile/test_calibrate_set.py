@@ -128,7 +128,8 @@ def test_mlp_on_colour_relative_to_the_background_round_trips_and_older_files_lo
 def test_method_auto_can_choose_the_edge_placement_again_with_the_chosen_model(mini_set, tmp_path):
     """With auto labels, ``method="auto"`` re-runs the placement trial with the model cross-validation chose
     (here a LUT or photometric stereo instead of the MLP the first trial used) when asked (``reselect_edge``):
-    same held-out presses, same rule, rows naming the model; by default the MLP's placement is kept."""
+    same held-out presses, same rule, rows naming the model; with ``reselect_edge=False`` the MLP's placement is
+    kept."""
     import shutil
 
     from vtrack.tactile.calibrate_set import calibrate_press_set
@@ -143,7 +144,7 @@ def test_method_auto_can_choose_the_edge_placement_again_with_the_chosen_model(m
         candidates=(("lut", "lut", {}), ("ps", "ps", {})),
     )
     new = calibrate_press_set(root, reselect_edge=True, **kw)
-    old = calibrate_press_set(root, **kw)
+    old = calibrate_press_set(root, reselect_edge=False, **kw)
     name = new.calib.info["model"]
     assert name in ("lut", "ps") and new.calib.method == name == old.calib.method
     assert [t["edge_weight"] for t in new.edge_trials] == [0.5, 0.75, 1.0]
@@ -159,3 +160,107 @@ def test_method_auto_can_choose_the_edge_placement_again_with_the_chosen_model(m
     assert [[r[k] for k in keys] for r in new.cv] == [[r[k] for k in keys] for r in old.cv]
     assert sum(r["chosen"] for r in new.cv) == 1
     assert {p.file for p in new.test}.isdisjoint(new.calib.info["train_files"])
+
+
+def test_edge_cross_validation_trains_without_each_fold_and_the_held_out_and_scores_on_the_reference(
+    mini_set, monkeypatch
+):
+    """``edge_cross_validate`` (the placement choice of ``reselect_edge="cv"``): press i of the training list is
+    in fold i % k; each fold's model never sees that fold nor the excluded (held-out) files, and every fold is
+    scored on the REFERENCE set's circles, whatever set the model was trained on."""
+    import vtrack.tactile.calibration as cal
+    import vtrack.tactile.evaluation as ev
+    from vtrack.tactile.calibrate_set import edge_cross_validate
+    from vtrack.tactile.pressset import load_press_set
+
+    ref = load_press_set(mini_set)
+    other = load_press_set(mini_set)  # stands in for another placement's circles
+    held = {p.file for p in ref.presses[:4]}
+    train = [p for p in ref.presses if p.file not in held]
+    trained, scored = [], []
+    real_cal, real_eval = cal.calibrate, ev.evaluate_calibration
+
+    def spy_cal(ps_, method, presses, opts=None):
+        assert ps_ is other
+        trained.append({p.file for p in presses})
+        return real_cal(ps_, method, presses, opts)
+
+    def spy_eval(ps_, calib, presses, **kw):
+        assert ps_ is ref
+        scored.append({p.file for p in presses})
+        return real_eval(ps_, calib, presses, **kw)
+
+    monkeypatch.setattr(cal, "calibrate", spy_cal)
+    monkeypatch.setattr(ev, "evaluate_calibration", spy_eval)
+    row = edge_cross_validate(ref, other, train, held, "lut", folds=3)
+    assert row["folds"] == 3 and row["n_presses"] == 12 and len(trained) == len(scored) == 3
+    for f, (tr, te) in enumerate(zip(trained, scored, strict=True)):
+        assert te == {p.file for p in train[f::3]}
+        assert not tr & te and not tr & held and len(tr) == 12 - len(te)
+    # real errors: a LUT from 8 presses is neither perfect nor a flat-gel guess; the signed radius is reported too
+    assert 2.0 < row["normal_err_deg_median"] < 15.0, row
+    assert row["radius_abs_err_pct_median"] >= abs(row["radius_err_pct_median"]) - 1e-9
+    with pytest.raises(InputError, match="too few presses"):
+        edge_cross_validate(ref, other, train[:1], held, "lut")
+
+
+def test_unknown_edge_reselection_is_a_clear_error(mini_set):
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+
+    with pytest.raises(InputError, match="unknown edge re-selection"):
+        calibrate_press_set(mini_set, method="auto", reselect_edge="sometimes")
+
+
+@pytest.mark.slow
+def test_method_auto_chooses_the_edge_placement_by_cross_validation_when_asked(mini_set, tmp_path):
+    """``reselect_edge="cv"``: the placement is chosen again with the chosen model, by the ball-radius check
+    cross-validated over the training presses (not on the held-out ones, which stay unseen); the chosen
+    placement's cross-validated errors are what the calibration reports to expect."""
+    import shutil
+
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+    from vtrack.tactile.calibration import TrainOptions
+
+    root = tmp_path / "unlabelled"
+    shutil.copytree(mini_set, root)
+    (root / "labels.csv").unlink()
+    run = calibrate_press_set(
+        root,
+        method="auto",
+        opts=TrainOptions(mlp_hidden=8, mlp_epochs=1, inside_per_press=300, flat_per_press=300),
+        candidates=(("lut", "lut", {}), ("ps", "ps", {})),
+        reselect_edge="cv",
+    )
+    trials = run.edge_trials
+    assert [t["edge_weight"] for t in trials] == [0.5, 0.75, 1.0] and all("cv" in t for t in trials)
+    pool = [t for t in trials if t["n_presses"] >= 0.8 * max(u["n_presses"] for u in trials)]
+    (chosen,) = [t for t in trials if t["chosen"]]
+    assert chosen["cv"]["radius_abs_err_pct_median"] == min(t["cv"]["radius_abs_err_pct_median"] for t in pool)
+    assert run.calib.info["autolabel_edge_weight"] == chosen["edge_weight"]
+    assert run.calib.info["cv_expected"] == chosen["cv"]
+    # every placement is cross-validated over the same training presses (the middle placement's), each once
+    assert len({t["cv"]["n_presses"] for t in trials}) == 1 and chosen["cv"]["folds"] == 3
+    assert {p.file for p in run.test}.isdisjoint(run.calib.info["train_files"])
+    assert 1.0 < chosen["cv"]["normal_err_deg_median"] < 20.0
+
+
+def test_refit_all_trains_the_returned_calibration_on_every_press_after_the_held_out_check(mini_set):
+    """``refit_all``: same held-out check (of the model trained without the held-out presses), then the
+    calibration returned is trained on every press; it says so and which presses the checked model used."""
+    import numpy as np
+
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+    from vtrack.tactile.pressset import load_press_set
+
+    base = calibrate_press_set(mini_set, method="lut")
+    full = calibrate_press_set(mini_set, method="lut", refit_all=True)
+    files = {p.file for p in load_press_set(mini_set).presses}
+    keys = ("n_presses", "radius_err_pct_median", "radius_abs_err_pct_median", "normal_err_deg_median")
+    assert [full.held_out[k] for k in keys] == [base.held_out[k] for k in keys] and len(full.test) == 4
+    assert set(full.calib.info["train_files"]) == files and full.calib.info["refit_all"] is True
+    assert full.calib.info["held_out_model_train_files"] == base.calib.info["train_files"]
+    assert "refit_all" not in base.calib.info and {p.file for p in base.test}.isdisjoint(base.calib.info["train_files"])
+    # a different model: the held-out presses' colours now shape the table
+    ps = load_press_set(mini_set)
+    img = ps.image(base.test[0])
+    assert np.abs(full.calib.slopes(img)[0] - base.calib.slopes(img)[0]).max() > 1e-3

@@ -55,6 +55,17 @@ def register(app: typer.Typer) -> None:
             "hand_or_auto", "--labels", help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"
         ),
         review: Path = typer.Option(None, "--review", help="auto labels: draw every detected circle into this PNG"),
+        edge_choice: str = typer.Option(
+            "cv",
+            "--edge-choice",
+            help="auto labels + --method auto: choose the edge placement again with the chosen model: off | "
+            "heldout (on the held-out presses) | cv (cross-validated over the training presses)",
+        ),
+        refit_all: bool = typer.Option(
+            False,
+            "--refit-all",
+            help="after the held-out check, train the written calibration on every usable press (held-out too)",
+        ),
     ) -> None:
         """Learn colour(+position) -> surface normal from ball presses; report held-out errors.
 
@@ -73,6 +84,11 @@ def register(app: typer.Typer) -> None:
                 "unknown calibration method", field="--method", expected=" | ".join(METHODS + ("auto",)), got=method
             )
         # defaults live in TrainOptions only (the CLI used to train a 32-wide MLP while the library's is 64)
+        reselect = {"off": False, "heldout": True, "cv": "cv"}
+        if edge_choice not in reselect:
+            raise InputError(
+                "unknown edge choice", field="--edge-choice", expected=" | ".join(reselect), got=edge_choice
+            )
         given = {"lut_bins": lut_bins, "mlp_hidden": mlp_hidden, "mlp_epochs": mlp_epochs}
         opts = TrainOptions(**{k: v for k, v in given.items() if v is not None})
         run = calibrate_press_set(
@@ -86,6 +102,8 @@ def register(app: typer.Typer) -> None:
             mm_per_px=mm_per_px,
             ball_radius_mm=ball_radius_mm,
             downsample=downsample,
+            reselect_edge=reselect[edge_choice],
+            refit_all=refit_all,
         )
         ps, train, test = run.press_set, run.train, run.test
         from vtrack.tactile.sensors import orientation_warning, press_count_warning
@@ -134,9 +152,16 @@ def register(app: typer.Typer) -> None:
                 "radius_abs_err_pct_median": best["radius_abs_err_pct_median"],
                 "normal_err_deg_median": best["normal_err_deg_median"],
             }
+            edge_cv = run.calib.info.get("cv_expected")
+            if edge_cv:  # the chosen model at the chosen placement, cross-validated (--edge-choice cv)
+                expected.update(
+                    folds=edge_cv["folds"],
+                    radius_abs_err_pct_median=edge_cv["radius_abs_err_pct_median"],
+                    normal_err_deg_median=edge_cv["normal_err_deg_median"],
+                )
             typer.echo(
                 f"chosen: {best['model']}; expected on new presses of this sensor (cross-validated): radius "
-                f"{best['radius_abs_err_pct_median']:.2f} %, normals {best['normal_err_deg_median']:.2f} deg"
+                f"{expected['radius_abs_err_pct_median']:.2f} %, normals {expected['normal_err_deg_median']:.2f} deg"
             )
         method = run.calib.method
         results = []
@@ -188,6 +213,11 @@ def register(app: typer.Typer) -> None:
             )
         if not test:
             typer.echo("warning: nothing held out (--holdout none): the calibration's accuracy is unchecked")
+        if run.calib.info.get("refit_all"):
+            typer.echo(
+                f"refitted on all {len(ps.presses)} presses (the held-out errors above are of the model trained "
+                f"on the {len(train)} training presses)"
+            )
         run.calib.save(out)  # its info (holdout, labels) was set in the results loop above
         typer.echo(f"wrote {out}")
 
