@@ -157,7 +157,8 @@ def test_seed_ensemble_predicts_the_mean_of_its_members(tmp_path) -> None:
         assert isinstance(models[m], HandPoseEnsemble) and len(models[m].nets) >= 2
         members = np.stack([predict_deg(n, data)[0] for n in models[m].nets])
         assert np.ptp(members, axis=0).max() > 0.05  # independently seeded nets disagree a little
-        np.testing.assert_allclose(predict_deg(models[m], data)[0], members.mean(0), atol=1e-4)
+        own = [j for j in range(len(JOINTS)) if j not in models[m].joints]  # joint specialists give the others
+        np.testing.assert_allclose(predict_deg(models[m], data)[0][own], members.mean(0)[own], atol=1e-4)
     shutil.copy(weights_path(), tmp_path / "w.pt")
     with pytest.raises(ValueError, match="same recipe"):  # nets of another grasp set are no member
         add_ensemble_members(tmp_path / "w.pt", [weights_path("mixed")])
@@ -277,6 +278,8 @@ def test_handpose_train_cli_refuses_bad_options(tmp_path) -> None:
         (["--joint-weights", "thumb_tip=2"], "--joint-weights"),
         (["--joint-weights", "thumb_ip=-1"], "--joint-weights"),
         (["--joint-weights", "thumb_ip"], "--joint-weights"),
+        (["--rgb-crop", "50,0,32,2"], "--rgb-crop"),
+        (["--rgb-crop", "thumb"], "--rgb-crop"),
     )
     for extra, field in bad:
         r = CliRunner().invoke(app, [*base, *extra])
@@ -391,7 +394,8 @@ def test_varied_eval_smoke_and_shipped_weights(tmp_path) -> None:
     assert not any(k in blob["models"]["dual"] for k in blob["dual_shared"])
     # a 3-seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
     assert len(blob["members"]) == 2 and all(not mb["models"]["ir"] for mb in blob["members"])
-    assert weights_path("varied").stat().st_size < 3_500_000
+    assert blob["specialists"]["joints"] == ["thumb_mcp", "thumb_ip"] and len(blob["specialists"]["nets"]) == 2
+    assert weights_path("varied").stat().st_size < 5_000_000
 
 
 def test_varied_sensor_has_markers_over_the_whole_visible_cap() -> None:
@@ -497,3 +501,116 @@ def test_per_joint_loss_weights() -> None:
     )
     with pytest.raises(ValueError):
         joint_weight_vector({"thumb_tip": 2.0})
+
+
+def test_rgb_crop_reads_only_its_window_magnified() -> None:
+    """A thumb-crop RGB net sees only its window: a change outside it leaves the output alone, one inside moves it;
+    bad crops are refused."""
+    from vtrack.dome.handpose import HandPoseNet, parse_rgb_crop
+
+    torch.manual_seed(0)
+    crop = parse_rgb_crop("26,0,32,2")
+    assert crop == (26, 0, 32, 2) and parse_rgb_crop("") is None
+    for bad in ("26,0,32", "40,40,32,2", "0,0,4,2", "0,0,32,9", "a,b,c,d"):
+        with pytest.raises(ValueError):
+            parse_rgb_crop(bad)
+    net = HandPoseNet("rgb", np.zeros(12), np.ones(12), feat=16, width=4, rgb_crop=crop).eval()
+    x = torch.rand(1, 3, RGB_SIZE, RGB_SIZE)
+    assert net._crop(x).shape == (1, 3, 64, 64)  # 32 px window at 2x
+    y0 = net.degrees({"rgb": x})
+    out_side, in_side = x.clone(), x.clone()
+    out_side[:, :, :20, 40:] = 1.0  # upper right: outside rows 26-57 / cols 0-31
+    in_side[:, :, 30:50, 5:25] = 1.0
+    assert torch.equal(net.degrees({"rgb": out_side}), y0)
+    assert (net.degrees({"rgb": in_side}) - y0).abs().max() > 1e-4
+
+
+def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
+    """Specialists stored in a weights file give their joints (mix 1) or a blend (mix 0.5) in the RGB and dual
+    settings; the other joints and the IR setting are the file's own; a net of another training set is refused."""
+    from vtrack.dome.handpose import (
+        HandPoseNet,
+        HandPoseTrainConfig,
+        add_joint_specialists,
+        load_models,
+        predict_deg,
+        save_models,
+        weights_path,
+    )
+
+    base = tmp_path / "w.pt"
+    blob = torch.load(weights_path(), map_location="cpu", weights_only=False)
+    blob.pop("specialists", None)  # the shipped file's own thumb specialists: start from the ensemble alone
+    torch.save(blob, base)
+    fields = HandPoseTrainConfig.__dataclass_fields__
+    tc = HandPoseTrainConfig(**{k: v for k, v in blob["train"].items() if k in fields})
+    torch.manual_seed(1)
+    spec = HandPoseNet("rgb", np.full(12, 40.0), np.full(12, 5.0), feat=16, width=4, rgb_crop=(26, 0, 32, 2))
+    save_models(tmp_path / "s.pt", {"rgb": spec}, tc, {})
+    sim = HandDomeSimulator(grasp_set="varied")
+    s = sim.sample(np.random.default_rng(5))
+    data = {"rgb": s["rgb"][None], "ir": s["ir"][None], "ir_reference": sim.ir_reference()}
+    before = {m: predict_deg(n, data)[0] for m, n in load_models(base)[0].items()}
+    ys = predict_deg(load_models(tmp_path / "s.pt")[0]["rgb"], data)[0]
+    thumb = [JOINTS.index("thumb_mcp"), JOINTS.index("thumb_ip")]
+    others = [j for j in range(12) if j not in thumb]
+    for mix in (1.0, 0.5):
+        add_joint_specialists(base, [tmp_path / "s.pt"], ["thumb_mcp", "thumb_ip"], mix)
+        after = {m: predict_deg(n, data)[0] for m, n in load_models(base)[0].items()}
+        for m in ("rgb", "dual"):
+            np.testing.assert_allclose(after[m][others], before[m][others], atol=1e-4)
+            np.testing.assert_allclose(after[m][thumb], (1 - mix) * before[m][thumb] + mix * ys[thumb], atol=1e-3)
+        np.testing.assert_allclose(after["ir"], before["ir"], atol=1e-4)
+    tc_other = HandPoseTrainConfig(grasp_set="mixed", n_train=tc.n_train)
+    save_models(tmp_path / "o.pt", {"rgb": spec}, tc_other, {})
+    with pytest.raises(ValueError, match="same training set"):
+        add_joint_specialists(base, [tmp_path / "o.pt"], ["thumb_ip"])
+    with pytest.raises(ValueError, match="must name joints"):
+        add_joint_specialists(base, [tmp_path / "s.pt"], ["thumb_tip"])
+
+
+def test_cramer_rao_bound_sees_what_each_camera_can_see() -> None:
+    """The CRB of one grasp (thumb pressing, one finger hovering): all 12 joints are pinned far below 5 deg by the
+    two frames together (thumb MCP / IP included, the placement and gains free); the hovering finger's joints are
+    unbounded in the IR frame alone (no contact, no marker moves) but not in the RGB frame."""
+    from vtrack.dome.handpose import grasp_crb
+
+    sim = HandDomeSimulator(grasp_set="varied")
+    rng = np.random.default_rng(3)
+    while True:  # a grasp with one hovering finger (not the thumb)
+        q, place, touch = sim.hand.sample_varied(rng)
+        if not touch[1:].all() and touch[0]:
+            break
+    o = grasp_crb(sim, q, place)
+    assert np.all(o["sigma_dual"] < 1.0) and np.all(o["sigma_rgb"] < 2.0)
+    assert o["sigma_dual"][[2, 3]].max() < 0.5  # the thumb's MCP / IP split
+    hover = [i for i, d in enumerate(DIGITS) if i > 0 and not touch[i]][0]
+    assert np.all(o["sigma_ir"][list(DIGITS[hover].joints)] > 100.0)
+
+
+def test_rgb_rotation_augmentation_is_the_hand_yawed() -> None:
+    """The sensor is symmetric about the dome axis: a 90 deg turn of the noise-free frame is the render of the hand
+    yawed by 90 deg (exactly), and the augmentation's bilinear turn by -10 deg is the render of the hand yawed by
+    +10 deg up to the interpolation (well under the change the yaw itself makes)."""
+    from vtrack.dome.handpose import rotate_frames
+    from vtrack.dome.handsim import HandPlace
+
+    sim = HandDomeSimulator(grasp_set="varied")
+    q, place, _ = sim.hand.sample_varied(np.random.default_rng(2))
+    pa = place.to_array()
+
+    def render(yaw: float) -> np.ndarray:
+        p = pa.copy()
+        p[0] += yaw
+        return sim.rgb_float(sim.hand.capsules(q, place=HandPlace.from_array(p))).astype(np.float64)
+
+    a, a90, a10 = render(0.0), render(90.0), render(10.0)
+    np.testing.assert_allclose(np.rot90(a, -1), a90, atol=1e-4)
+    x = torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1)[None] - 0.5)).float()
+    r = rotate_frames(x, 0.0, torch.Generator(), noise=0.0, angles_deg=torch.tensor([-10.0]))[0].numpy()
+    r = r.transpose(1, 2, 0) + 0.5
+    sigma = 0.015  # the RGB pixel noise
+    assert np.sqrt(((r - a10) ** 2).mean()) < 2.0 * sigma < 0.5 * np.sqrt(((a - a10) ** 2).mean())
+    g = torch.Generator().manual_seed(0)
+    out = rotate_frames(x.repeat(4, 1, 1, 1), 20.0, g)
+    assert out.shape == (4, 3, RGB_SIZE, RGB_SIZE) and torch.isfinite(out).all()

@@ -107,6 +107,13 @@ def test_touch_helper_reads_a_shared_slot_in_place(tiny_session):
         ring.write(f"tactile/{s}", {"image": img})  # the slot of `seq` reused
         with pytest.raises(FrameOverwritten):
             touch.process(FrameEvent(f"tactile/{s}", 0.0, i, {"image": slots["image"].view()}, shared=slots))
+        # a batch (the stage's pending images): one round trip; the lost frame is reported, the others processed
+        tc.images.clear()
+        evs = [FrameEvent(f"tactile/{s}", 0.0, i, {"image": slots["image"].view()}, shared=slots)]
+        evs += [FrameEvent(f"tactile/{o}", 0.0, i, {"image": im}) for o, im in raw["touch"]]
+        assert touch.process_batch(evs) == [False] + [True] * len(raw["touch"])
+        for o, im in raw["touch"]:
+            np.testing.assert_array_equal(tc.images[o].points, sf.touch.contact(o, im).points)
     finally:
         for p in tc.parts():
             p.finish()
@@ -153,6 +160,21 @@ def test_track_consumer_with_a_camera_stride_tracks_every_other_frame(tiny_sessi
     res = tc.finish()
     assert res["steps"] == 6 and res["camera_skipped"] == 6 and res["stride_hist"] == {"2": 6}
     assert [round(t / (sf.times[1] - sf.times[0])) for t, _ in tc.poses] == [0, 2, 4, 6, 8, 10]
+
+
+def test_replay_emits_a_camera_frame_after_the_other_frames_of_its_time(live_session):
+    """At equal times the camera frame comes last (sorted stream names would put it first): the tracker's step
+    then has the joint state of the frame's own time, not the one a period older."""
+    streams = sorted(["camera/cam0", "joints", "tactile/digit_index", "tactile/digit_thumb"])
+    src = SessionReplaySource(live_session, streams=streams)
+    names = [src.streams[int(k)] for _, k, _ in src.schedule]
+    t = src.schedule[:, 0]
+    cams = [j for j, n in enumerate(names) if n == "camera/cam0"]
+    assert len(cams) >= 14
+    for j in cams:
+        same = np.flatnonzero(t == t[j])
+        assert len(same) >= 3 and j == same.max()  # joints and tactile images of that time before it
+    assert np.all(np.diff(t) >= 0)
 
 
 def test_replay_without_room_for_the_ring_falls_back_to_the_pipe(live_session, monkeypatch):

@@ -100,6 +100,30 @@ class HandPoseTrainConfig:
     #: offset of the initialisation and batch-order seeds (another member of a seed ensemble on the same data and
     #: split; ``seed`` picks the training grasps and the validation split)
     model_seed: int = 0
+    #: checkpoint on the ``joint_weights``-weighted validation loss instead of the unweighted S25-S27 one (a joint
+    #: specialist, e.g. a net trained for the thumb MCP / IP only, is selected on the joints it is trained for)
+    select_weighted: bool = False
+    #: RGB net reads only this window of the frame, magnified: "row,col,side,upsampling" ("" = the whole frame),
+    #: e.g. "26,0,32,2" = the thumb's region (rows / cols 26-57 / 0-31 of the 64 px frame) at 2x
+    rgb_crop: str = ""
+    #: training augmentation of the RGB net: each frame turned about the image centre by an angle drawn in +-
+    #: this (deg; 0 = off) plus fresh pixel noise. Exact for this sensor: the fisheye, shell, light and haze are
+    #: symmetric about the dome axis, so a turned frame is the same grasp with the hand yawed (a nuisance) and
+    #: the joint angles are unchanged
+    rotate_deg: float = 0.0
+
+
+def parse_rgb_crop(text: str) -> tuple[int, int, int, int] | None:
+    """``"row,col,side,up"`` -> a window of the RGB frame (px) and its magnification; ``""`` -> None."""
+    if not text:
+        return None
+    try:
+        r, c, side, up = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"RGB crop must be row,col,side,upsampling (integers), got {text!r}") from None
+    if r < 0 or c < 0 or side < 8 or r + side > RGB_SIZE or c + side > RGB_SIZE or not 1 <= up <= 4:
+        raise ValueError(f"RGB crop {text!r} must be a window of at least 8 px inside the {RGB_SIZE} px frame, 1-4x")
+    return r, c, side, up
 
 
 def weights_path(grasp_set: str = DEFAULT_GRASP_SET) -> Path:
@@ -192,11 +216,15 @@ class HandPoseNet(nn.Module):
         ir_centers: np.ndarray | None = None,
         patch_half: int = 3,
         ir_width: int | None = None,
+        rgb_crop: tuple[int, int, int, int] | None = None,
     ) -> None:
         super().__init__()
         if modality not in MODALITIES:
             raise ValueError(f"modality must be one of {MODALITIES}, got {modality}")
         self.modality = modality
+        # (row, col, side, upsampling) of a square window of the RGB frame read instead of the whole frame, e.g. the
+        # thumb's region magnified 2x (a joint specialist); stored in the state so a weights file rebuilds it
+        self.register_buffer("rgb_crop", torch.tensor(rgb_crop or (0, 0, 0, 1), dtype=torch.int64))
         self.enc = nn.ModuleDict()
         if modality in ("rgb", "dual"):
             self.enc["rgb"] = ImageEncoder(3, feat, width)
@@ -219,7 +247,14 @@ class HandPoseNet(nn.Module):
         self.register_buffer("std", torch.as_tensor(np.asarray(std, np.float32)))
 
     def features(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return {k: e(inputs[k]) for k, e in self.enc.items()}
+        return {k: e(self._crop(inputs[k]) if k == "rgb" else inputs[k]) for k, e in self.enc.items()}
+
+    def _crop(self, x: torch.Tensor) -> torch.Tensor:
+        r, c, side, up = (int(v) for v in self.rgb_crop)
+        if side <= 0:
+            return x
+        x = x[:, :, r : r + side, c : c + side]
+        return nn.functional.interpolate(x, scale_factor=up, mode="bilinear", align_corners=False) if up > 1 else x
 
     def fuse(self, feats: dict[str, torch.Tensor]) -> torch.Tensor:
         y = {k: self.heads[k](f) for k, f in feats.items()}
@@ -250,6 +285,24 @@ def prep_ir(ir: np.ndarray, ref: np.ndarray) -> np.ndarray:
     gain = r.mean() / np.maximum(x.mean(axis=(1, 2), keepdims=True), 1e-3)
     x = x * gain
     return np.ascontiguousarray(np.stack([x / 255.0 - 0.3, 4.0 * (x - r[None]) / 255.0], 1))
+
+
+def rotate_frames(
+    x: torch.Tensor, max_deg: float, gen: torch.Generator, noise: float = 0.01, angles_deg: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Training augmentation: (n, C, S, S) prepared frames each turned about the image centre by an angle drawn
+    uniformly in +-``max_deg`` (or by ``angles_deg``; bilinear; the corners outside the shell's disc repeat the
+    border, which lies outside it too), plus Gaussian noise of ``noise`` (full scale 1) to restore the pixel noise
+    the interpolation smooths. A turn by -a matches the hand yawed by +a (:class:`HandPlace`) to the interpolation
+    error (docs/dome.md)."""
+    n = x.shape[0]
+    a = (torch.rand(n, generator=gen) * 2 - 1) * max_deg if angles_deg is None else angles_deg.float()
+    a = torch.deg2rad(a)
+    c, s = torch.cos(a), torch.sin(a)
+    theta = torch.stack([torch.stack([c, -s, torch.zeros(n)], 1), torch.stack([s, c, torch.zeros(n)], 1)], 1)
+    grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
+    out = nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+    return out + noise * torch.randn(out.shape, generator=gen)
 
 
 def model_inputs(modality: str, data: dict, idx: np.ndarray | slice) -> dict[str, torch.Tensor]:
@@ -410,7 +463,8 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     y = torch.from_numpy(np.asarray(data["angles_deg"], np.float32))
     mean, std = y[tr_idx].mean(0).numpy(), y[tr_idx].std(0).clamp_min(1e-3).numpy()
     centers = ir_reference_centers(data["ir_reference"]) if modality == "ir" and tc.ir_encoder == "markers" else None
-    model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half, tc.ir_width)
+    crop = parse_rgb_crop(tc.rgb_crop) if modality == "rgb" else None
+    model = HandPoseNet(modality, mean, std, tc.feat, tc.width, centers, tc.patch_half, tc.ir_width, crop)
     if tc.init:  # fine-tuning: architecture and angle normalisation of the starting weights
         model = load_models(Path(tc.init))[0][modality]
         model = model.nets[0] if isinstance(model, HandPoseEnsemble) else model  # fine-tune the main net
@@ -418,13 +472,20 @@ def train_handpose(modality: str, data: dict, tc: HandPoseTrainConfig, log=print
     val_in = model_inputs(modality, data, val_idx)
     w = joint_weight_vector(tc.joint_weights)
 
+    gen = torch.Generator().manual_seed(tc.seed + 7 + 1000 * tc.model_seed)
+
     def loss_on(pos: np.ndarray) -> torch.Tensor:
         idx = np.sort(tr_idx[pos])
-        return pose_loss(model.degrees(model_inputs(modality, data, idx)), y[idx], tc.lambda_mae, tc.lambda_rmse, w)
+        inputs = model_inputs(modality, data, idx)
+        if tc.rotate_deg > 0 and "rgb" in inputs:
+            inputs["rgb"] = rotate_frames(inputs["rgb"], tc.rotate_deg, gen)
+        return pose_loss(model.degrees(inputs), y[idx], tc.lambda_mae, tc.lambda_rmse, w)
+
+    wv = w if tc.select_weighted else None
 
     @torch.no_grad()
     def val_loss() -> float:
-        return float(pose_loss(model.degrees(val_in), y[val_idx], tc.lambda_mae, tc.lambda_rmse))
+        return float(pose_loss(model.degrees(val_in), y[val_idx], tc.lambda_mae, tc.lambda_rmse, wv))
 
     summ = _fit(model, model.parameters(), loss_on, val_loss, tc.steps, len(tr_idx), tc, log, modality)
     return model, summ
@@ -453,6 +514,7 @@ def fuse_dual(
     ir_width = None if centers is not None else ir.enc["ir"].net[0].out_channels
     feat = rgb.heads["rgb"][0].in_features
     model = HandPoseNet("dual", rgb.mean.numpy(), rgb.std.numpy(), feat, width, centers, half, ir_width)
+    model.rgb_crop.copy_(rgb.rgb_crop)
     for k, src in (("rgb", rgb), ("ir", ir)):
         model.enc[k].load_state_dict(src.enc[k].state_dict())
         model.heads[k].load_state_dict(src.heads[k].state_dict())
@@ -550,21 +612,46 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
     ]
     if members:  # a seed ensemble: every setting predicts the mean of its members' angles
         models = {m: HandPoseEnsemble([net, *(mb[m] for mb in members)]) for m, net in models.items()}
+    sp = blob.get("specialists")
+    if sp:  # joint specialists (RGB nets): they give their joints in every setting that sees the RGB frame
+        spec = [_build_nets({"rgb": sd}, [])["rgb"] for sd in sp["nets"]]
+        idx = [JOINTS.index(j) for j in sp["joints"]]
+        for m in [m for m in models if m in ("rgb", "dual")]:
+            base = models[m] if isinstance(models[m], HandPoseEnsemble) else HandPoseEnsemble([models[m]])
+            models[m] = HandPoseEnsemble(list(base.nets), spec, idx, float(sp.get("mix", 1.0)))
     return models, blob
 
 
 class HandPoseEnsemble(nn.Module):
     """Independently seeded nets of one setting (same data, split and recipe, ``--model-seed``); predicts the mean
-    of their angles (deg). ``nets[0]`` is the file's main net (the one partial retraining starts from)."""
+    of their angles (deg). ``nets[0]`` is the file's main net (the one partial retraining starts from).
 
-    def __init__(self, nets: list[HandPoseNet]) -> None:
+    ``specialists``: RGB nets trained for a few joints (``joints``, indices into :data:`JOINTS`; e.g. the thumb
+    MCP / IP, :func:`add_joint_specialists`). Those joints become ``(1 - mix) x`` the members' mean ``+ mix x``
+    the specialists' mean; the other joints stay the members' mean."""
+
+    def __init__(
+        self,
+        nets: list[HandPoseNet],
+        specialists: list[HandPoseNet] | None = None,
+        joints: list[int] | None = None,
+        mix: float = 1.0,
+    ) -> None:
         super().__init__()
         self.nets = nn.ModuleList(nets)
+        self.specialists = nn.ModuleList(specialists or [])
+        self.joints = list(joints or [])
+        self.mix = float(mix)
         self.modality = nets[0].modality
         self.mean, self.std = nets[0].mean, nets[0].std
 
     def degrees(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
-        return torch.stack([n.degrees(inputs) for n in self.nets]).mean(0)
+        y = torch.stack([n.degrees(inputs) for n in self.nets]).mean(0)
+        if len(self.specialists) and self.joints:
+            ys = torch.stack([n.degrees({"rgb": inputs["rgb"]}) for n in self.specialists]).mean(0)
+            y = y.clone()
+            y[:, self.joints] = (1.0 - self.mix) * y[:, self.joints] + self.mix * ys[:, self.joints]
+        return y
 
 
 def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
@@ -582,6 +669,26 @@ def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
             for m, sd in mb["models"].items()
         }
         blob.setdefault("members", []).append({"models": diff, "dual_shared": mb.get("dual_shared", [])})
+    atomic_torch_save(path, blob)
+
+
+def add_joint_specialists(path: Path, specialist_paths: list[Path], joints: list[str], mix: float = 1.0) -> None:
+    """Store the RGB nets of ``specialist_paths`` (trained on the same grasps and split, e.g. with the thumb MCP /
+    IP weighted, ``--select-weighted``, maybe ``--rgb-crop``) in the hand-pose weights file ``path`` as joint
+    specialists: in the ``rgb`` and ``dual`` settings the listed ``joints`` become ``(1 - mix) x`` the setting's
+    prediction ``+ mix x`` the specialists' mean (:class:`HandPoseEnsemble`). Replaces earlier specialists."""
+    blob = torch.load(path, map_location="cpu", weights_only=False)
+    bad = [j for j in joints if j not in JOINTS]
+    if bad or not joints or not 0.0 <= mix <= 1.0:
+        raise ValueError(f"specialist joints must name joints of {JOINTS} and mix lie in [0, 1], got {joints}, {mix}")
+    nets = []
+    for sp in specialist_paths:
+        sb = torch.load(sp, map_location="cpu", weights_only=False)
+        same = [sb.get("train", {}).get(k) == blob["train"].get(k) for k in ("n_train", "seed", "grasp_set")]
+        if "rgb" not in sb.get("models", {}) or not all(same):
+            raise ValueError(f"{sp}: not an RGB net of the same training set as {path}")
+        nets.append(sb["models"]["rgb"])
+    blob["specialists"] = {"joints": list(joints), "mix": float(mix), "nets": nets}
     atomic_torch_save(path, blob)
 
 
@@ -603,7 +710,9 @@ def _build_nets(models_blob: dict, dual_shared: list[str]) -> dict[str, HandPose
             None if centers is None else centers.float().numpy(),
             int(round((np.sqrt(sd["enc.ir.local.0.weight"].shape[1] / 2) - 1) / 2)) if centers is not None else 3,
             widths.get("ir"),
+            tuple(int(v) for v in sd["rgb_crop"]) if "rgb_crop" in sd else None,
         )
+        sd.setdefault("rgb_crop", net.rgb_crop)  # files from before the crop option read the whole frame
         net.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
         net.eval()
         models[m] = net
@@ -788,6 +897,103 @@ def thumb_redundancy_snr(n_grasps: int = 60, seed: int = TEST_SEED, scale: float
         "median_snr_rgb_per_deg": float(np.median(np.asarray(snr_rgb) / np.asarray(dq))),
         "median_snr_ir": float(np.median(snr_ir)),
     }
+
+
+#: nuisance parameters of :func:`pose_crb` besides the 12 joints: the hand placement (:class:`HandPlace`: yaw, tilts,
+#: knuckle lift, four finger abductions), the RGB camera's room-light and skin gains and the IR camera's gain
+CRB_NUISANCE = (
+    "yaw",
+    "tilt_x",
+    "tilt_y",
+    "lift",
+    "abd_index",
+    "abd_middle",
+    "abd_ring",
+    "abd_little",
+    "rgb_bg_gain",
+    "rgb_skin_gain",
+    "ir_gain",
+)
+
+
+def _ir_float(sim, caps: list, gain: float = 0.9) -> np.ndarray:
+    """(S, S) float64 noise-free IR frame (full scale 1, no 8-bit quantisation) of the hand-pose sensor: the
+    renderer of :meth:`DomeSimulator.render` with ``noise=0`` (gain 0.9, no background jitter) before rounding."""
+    import cv2
+
+    rng = np.random.default_rng(0)  # the presses' drag jitter: the same draw for every render of a grasp
+    disp = np.zeros_like(sim.sim.geo.marker_rest)
+    for pr in sim.presses(caps, rng):
+        disp += sim.sim.deform(pr)["disp_markers"]
+    img, _ = sim.sim.draw_markers(sim.sim.geo.marker_rest + disp)
+    S = img.shape[0]
+    img = cv2.GaussianBlur(img, (0, 0), 0.7).astype(np.float64) * gain
+    yy, xx = np.mgrid[0:S, 0:S]
+    vign = 1.0 - 0.35 * (np.hypot(xx - (S - 1) / 2, yy - (S - 1) / 2) / (S / 2)) ** 2
+    return img * vign + 0.08 * vign
+
+
+def pose_crb(n_grasps: int = 100, seed: int = TEST_SEED, step_deg: float = 1.0) -> dict:
+    """Evaluation-only (reads the simulated hand state of held-out ``varied`` grasps): the Cramer-Rao bound of the
+    12 joint angles given one noisy RGB and / or IR frame, with every other unknown of a frame free.
+
+    Per grasp, the Jacobian of the noise-free images (RGB :meth:`HandDomeSimulator.rgb_float`, IR
+    :func:`_ir_float`, both before 8-bit rounding) with respect to the 12 joints and the :data:`CRB_NUISANCE`
+    parameters is taken by central differences (``step_deg`` deg / 0.25 mm / 0.02 gain). The Fisher information
+    is ``J^T J / sigma^2`` with the simulator's pixel noise (RGB 0.015, IR 0.02 of full scale); its inverse bounds
+    the covariance of any unbiased estimator. The thumb's redundant degree of freedom (IP / MCP ratio at a fixed
+    tip) is not removed by hand: it is one direction of the joint space, and the bound of the thumb MCP / IP
+    says how well the images pin it down once the placement and the gains may absorb what they can.
+
+    Returns per grasp and joint ``sigma_rgb``, ``sigma_ir``, ``sigma_dual`` (deg, (n, 12)) and ``p5_dual``: the
+    probability that an unbiased Gaussian estimator at the bound lands within 5 deg (so its mean over joints and
+    grasps is an Acc@5 an efficient estimator would reach, locally). The prior (r drawn in 0.5-1.5, the joint
+    ranges) is not used: a net that knows it can do better where the images are weak."""
+    from math import erf, sqrt
+
+    from vtrack.dome.handsim import HandDomeSimulator, HandPlace, make_handpose_dataset
+
+    te = make_handpose_dataset(TEST_N, seed, grasp_set="varied")
+    sim = HandDomeSimulator(grasp_set="varied")
+    out = {k: np.zeros((n_grasps, len(JOINTS))) for k in ("sigma_rgb", "sigma_ir", "sigma_dual")}
+    for i in range(n_grasps):
+        one = grasp_crb(sim, te["angles_deg"][i], HandPlace.from_array(te["place"][i]), step_deg)
+        for k, v in one.items():
+            out[k][i] = v
+    out["p5_dual"] = np.vectorize(lambda s: erf(5.0 / (sqrt(2.0) * max(s, 1e-9))))(out["sigma_dual"])
+    return out
+
+
+def grasp_crb(sim, q: np.ndarray, place, step_deg: float = 1.0) -> dict[str, np.ndarray]:
+    """Cramer-Rao bound (deg, (12,) per camera: ``sigma_rgb``, ``sigma_ir``, ``sigma_dual``) of the joints of one
+    grasp (joints ``q`` deg, :class:`HandPlace` ``place``) rendered by ``sim``; see :func:`pose_crb`."""
+    nj, nn_ = len(JOINTS), len(CRB_NUISANCE)
+    steps = np.r_[np.full(nj, step_deg), step_deg, step_deg, step_deg, 0.25, np.full(4, step_deg), 0.02, 0.02, 0.02]
+    s_rgb, s_ir = 0.015, 0.02
+
+    def render(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from vtrack.dome.handsim import HandPlace
+
+        qq, pl, g = theta[:nj], theta[nj : nj + 8], theta[nj + 8 :]
+        caps = sim.hand.capsules(qq, place=HandPlace.from_array(pl))
+        return sim.rgb_float(caps, g[0], g[1]).astype(np.float64).ravel(), _ir_float(sim, caps, g[2]).ravel()
+
+    theta0 = np.r_[np.asarray(q, np.float64), place.to_array().astype(np.float64), 1.0, 1.0, 0.9]
+    cols_rgb, cols_ir = [], []
+    for k in range(nj + nn_):
+        tp, tm = theta0.copy(), theta0.copy()
+        tp[k] += steps[k]
+        tm[k] -= steps[k]
+        (rp, ip), (rm, im) = render(tp), render(tm)
+        cols_rgb.append((rp - rm) / (2 * steps[k]) / s_rgb)
+        cols_ir.append((ip - im) / (2 * steps[k]) / s_ir)
+    j_rgb, j_ir = np.stack(cols_rgb, 1), np.stack(cols_ir, 1)
+    f_rgb, f_ir = j_rgb.T @ j_rgb, j_ir.T @ j_ir
+    out = {}
+    for key, f in (("sigma_rgb", f_rgb), ("sigma_ir", f_ir), ("sigma_dual", f_rgb + f_ir)):
+        cov = np.linalg.inv(f + 1e-6 * np.eye(len(f)))  # an unseen direction gets sigma ~1000 deg, not 0
+        out[key] = np.sqrt(np.clip(np.diag(cov)[:nj], 0.0, None))
+    return out
 
 
 def ir_content_ablation(steps: int = 3000, n_train: int = 6000, seed: int = 0) -> dict:

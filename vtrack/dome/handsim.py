@@ -604,10 +604,20 @@ class HandDomeSimulator:
         """(S, S, 3) uint8 visible-light image of the hand through the translucent shell, by the simulator's
         image model (:data:`RGB_MODELS`). Both models draw the same random numbers (background and skin gains,
         pixel noise), so the IR frames drawn after them are the same whichever model renders the RGB image."""
+        g_bg = rng.uniform(0.85, 1.1) if noise > 0 else 1.0
+        g_skin = rng.uniform(0.85, 1.1) if noise > 0 else 1.0
+        img = self.rgb_float(caps, g_bg, g_skin)
+        if noise > 0:
+            img = img + rng.normal(0.0, 0.015 * noise, img.shape)
+        return np.clip(img * 255, 0, 255).astype(np.uint8)
+
+    def rgb_float(self, caps: list, bg_gain: float = 1.0, skin_gain: float = 1.0) -> np.ndarray:
+        """(S, S, 3) float32 noise-free visible-light image (full scale 1, before pixel noise and 8-bit
+        quantisation) with the given room-light and skin gains (:meth:`render_rgb` draws them in 0.85-1.1)."""
         import cv2
 
-        bg = np.array([0.70, 0.74, 0.78]) * (rng.uniform(0.85, 1.1) if noise > 0 else 1.0)
-        skin = np.array([0.78, 0.52, 0.42]) * (rng.uniform(0.85, 1.1) if noise > 0 else 1.0) * 0.6
+        bg = np.array([0.70, 0.74, 0.78]) * bg_gain
+        skin = np.array([0.78, 0.52, 0.42]) * skin_gain * 0.6
         S = self.rgb_size
         if self.rgb_model == "haze":
             img = self._haze_image(caps, bg, skin)
@@ -621,10 +631,7 @@ class HandDomeSimulator:
             img = clear[:, None] * bg + alpha[:, None] * skin
         img = img * self._vign[:, None]
         img[~self._inside] = 0.02
-        img = cv2.GaussianBlur(img.reshape(S, S, 3).astype(np.float32), (0, 0), 0.8)
-        if noise > 0:
-            img = img + rng.normal(0.0, 0.015 * noise, img.shape)
-        return np.clip(img * 255, 0, 255).astype(np.uint8)
+        return cv2.GaussianBlur(img.reshape(S, S, 3).astype(np.float32), (0, 0), 0.8)
 
     def _haze_image(self, caps: list, bg: np.ndarray, skin: np.ndarray) -> np.ndarray:
         """(S * S, 3) radiance on the shell of the ``haze`` model (before vignetting, lens blur and noise).

@@ -138,14 +138,34 @@ class TouchSource:
             P, N = TactilePipeline.contact_points(h, m, mmpp, self.point_stride)
         else:
             P, N, quality = self.pipelines[sensor].contact_only(raw)  # points only: no maps, no statistics
-            if quality != "ok":
-                return _empty(valid=False)
-            if len(P) < 3:
-                return _empty()
-        ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)
-        P, N = P[ok], N[ok]
-        # the gel surface is z = -h (tactile_frame): penetration is -z, in mm
-        return Contact(P, N, np.clip(-P[:, 2] * 1e3, 0.0, None), True)
+            return _pipeline_contact(P, N, quality)
+        return _finite_contact(P, N)
+
+    def contacts(self, frames: list[tuple[str, Any]]) -> list[Contact]:
+        """``[contact(sensor, raw) for sensor, raw in frames]``, the same values; with the tactile pipeline the
+        frames go through it together (:func:`vtrack.tactile.pipeline.contact_only_many`: the four sensors of a
+        time step cost about a third less CPU than one by one)."""
+        if self.source != "pipeline" or len(frames) < 2:
+            return [self.contact(s, raw) for s, raw in frames]
+        from vtrack.tactile.pipeline import contact_only_many
+
+        got = contact_only_many([self.pipelines[s] for s, _ in frames], [raw for _, raw in frames])
+        return [_pipeline_contact(P, N, quality) for P, N, quality in got]
+
+
+def _pipeline_contact(P: np.ndarray, N: np.ndarray, quality: str) -> Contact:
+    if quality != "ok":
+        return _empty(valid=False)
+    if len(P) < 3:
+        return _empty()
+    return _finite_contact(P, N)
+
+
+def _finite_contact(P: np.ndarray, N: np.ndarray) -> Contact:
+    ok = np.isfinite(P).all(1) & np.isfinite(N).all(1)
+    P, N = P[ok], N[ok]
+    # the gel surface is z = -h (tactile_frame): penetration is -z, in mm
+    return Contact(P, N, np.clip(-P[:, 2] * 1e3, 0.0, None), True)
 
 
 def gel_free_points(width: int, height: int, mm_per_px: float, n_rows: int = 5, n_cols: int = 4) -> np.ndarray:

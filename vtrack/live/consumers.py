@@ -181,17 +181,22 @@ def _helper_process(
             return
         c0 = time.thread_time()
         try:
-            if msg[0] == "touch":
-                _, sensor, image = msg
-                if not isinstance(image, np.ndarray):  # a slot of the replay's shared ring: read in place
-                    try:
-                        image = image.read()  # a copy (the pipeline may keep it as its reference), checked
-                    except FrameOverwritten:
-                        conn.send(("overwritten",))
-                        continue
-                c = sf.touch.contact(sensor, image)  # type: ignore[union-attr]
-                contacts[sensor] = c
-                conn.send((c.points, c.normals, c.penetration_mm, c.valid, time.thread_time() - c0))
+            if msg[0] == "touch":  # ("touch", [(sensor, image or shared slot), ...]): a batch, oldest first
+                out: list[Any] = [None] * len(msg[1])  # None: lost, counted as a dropped frame by the touch stage
+                todo: list[tuple[int, str, np.ndarray]] = []
+                for j, (sensor, image) in enumerate(msg[1]):
+                    if not isinstance(image, np.ndarray):  # a slot of the replay's shared ring: read in place
+                        try:
+                            image = image.read()  # a copy (the pipeline may keep it as its reference), checked
+                        except FrameOverwritten:
+                            continue
+                    todo.append((j, sensor, image))
+                # the batch's images through their sensors' pipelines together (same values as one by one)
+                got = sf.touch.contacts([(sensor, image) for _, sensor, image in todo])  # type: ignore[union-attr]
+                for (j, sensor, _), c in zip(todo, got, strict=True):
+                    contacts[sensor] = c
+                    out[j] = (c.points, c.normals, c.penetration_mm, c.valid)
+                conn.send((out, time.thread_time() - c0))
             else:
                 _, stream, t, depth, q, touch = msg
                 raw = {
@@ -279,6 +284,11 @@ class TouchConsumer(Consumer):
     child's CPU time per image is added to this worker's (``offload_cpu_s``)."""
 
     name = "track.touch"
+    #: a burst (the other core taken by a tracker step and the reader) queues up to 4 images per sensor
+    #: (67 ms at 60 Hz; the shared ring keeps >= 64 frames per stream) instead of losing them ...
+    max_pending = 4
+    #: ... and every pending image goes to the helper in one round trip (the 4 sensors of a time step)
+    batch = True
 
     def __init__(self, owner: TrackConsumer, mode: str = "thread") -> None:
         self.owner = owner
@@ -290,22 +300,39 @@ class TouchConsumer(Consumer):
         return stream in self.owner.touch_streams
 
     def process(self, ev: FrameEvent) -> None:
+        if not self.process_batch([ev])[0]:
+            raise FrameOverwritten(f"{ev.stream} frame {ev.index}")
+
+    def process_batch(self, events: list[FrameEvent]) -> list[bool]:
+        """The tactile images (oldest first) through their sensors' pipelines; the newest contact per sensor
+        is kept for the camera step. An image whose shared slot was reused before it was read is lost (False)."""
         from vtrack.frames.touch import Contact
 
-        s = ev.stream.split("/", 1)[1]
+        names = [ev.stream.split("/", 1)[1] for ev in events]
         if self.mode != "process":
-            c = self.owner.sf.touch.contact(s, ev.read("image"))  # type: ignore[union-attr]  (own copy: kept as ref)
-        else:
-            # a frame in the replay's shared ring goes by reference (the helper maps the ring), else pickled
-            image = ev.shared["image"] if ev.shared and "image" in ev.shared else ev.data["image"]
-            got = _Helper.call(self.owner.touch_helper.touch_conn, ("touch", s, image))  # type: ignore[union-attr]
-            if len(got) == 1:
-                raise FrameOverwritten(f"{ev.stream} frame {ev.index}")
-            P, N, pen, valid, cpu = got
-            c = Contact(P, N, pen, valid)
-            self.offload_cpu_s = cpu
-        self.owner.images[s] = c  # one dict item assignment: atomic for the camera step reading it
-        self.owner.touch_steps += 1
+            todo = []
+            for j, (s, ev) in enumerate(zip(names, events, strict=True)):
+                try:
+                    todo.append((j, s, ev.read("image")))  # own copy: the pipeline may keep it as its reference
+                except FrameOverwritten:
+                    pass
+            got = self.owner.sf.touch.contacts([(s, image) for _, s, image in todo])  # type: ignore[union-attr]
+            for (_, s, _), c in zip(todo, got, strict=True):
+                self.owner.images[s] = c
+                self.owner.touch_steps += 1
+            done = {j for j, _, _ in todo}
+            return [j in done for j in range(len(events))]
+        # a frame in the replay's shared ring goes by reference (the helper maps the ring), else pickled
+        msg = [(s, ev.shared["image"] if ev.shared and "image" in ev.shared else ev.data["image"]) for s, ev in
+               zip(names, events, strict=True)]  # fmt: skip
+        got, cpu = _Helper.call(self.owner.touch_helper.touch_conn, ("touch", msg))  # type: ignore[union-attr]
+        self.offload_cpu_s = cpu
+        for s, g in zip(names, got, strict=True):
+            if g is not None:
+                # one dict item assignment: atomic for the camera step reading it
+                self.owner.images[s] = Contact(*g)
+                self.owner.touch_steps += 1
+        return [g is not None for g in got]
 
     def finish(self) -> dict[str, Any]:
         if self.owner.touch_helper is not None:

@@ -5,12 +5,19 @@ an unprocessed one of the same stream (counted as dropped), so a slow consumer a
 newest data and its latency stays bounded by one processing step, whatever the input rate.
 The worker takes the pending frame with the oldest timestamp first (so joints that precede a
 camera frame are applied before it).
+
+A consumer may keep up to ``max_pending`` frames of a stream (a short queue that absorbs a burst,
+e.g. the tactile stage while the other core is taken by a tracker step; beyond it the oldest is
+replaced, counted as dropped), and with ``batch = True`` it is handed every pending frame at once
+(:meth:`Consumer.process_batch`: one round trip to a helper process for the four tactile images of
+a time step instead of four).
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,12 +47,28 @@ class Consumer:
 
     name = "consumer"
     forward: Callable[[FrameEvent], None] | None = None
+    #: unprocessed frames of one stream the mailbox keeps; a newer one then replaces the oldest (counted dropped)
+    max_pending: int = 1
+    #: hand the worker's pending frames to :meth:`process_batch` all at once (else one by one, oldest first)
+    batch: bool = False
 
     def wants(self, stream: str) -> bool:
         return True
 
     def process(self, event: FrameEvent) -> None:
         raise NotImplementedError
+
+    def process_batch(self, events: list[FrameEvent]) -> list[bool]:
+        """Handle several frames (``batch = True``: every pending frame, oldest first). Returns per frame
+        whether it was processed (False: lost, e.g. its shared-memory slot was overwritten: counted dropped)."""
+        out = []
+        for ev in events:
+            try:
+                self.process(ev)
+                out.append(True)
+            except FrameOverwritten:
+                out.append(False)
+        return out
 
     def finish(self) -> dict[str, Any]:
         return {}
@@ -104,7 +127,8 @@ class _Worker(threading.Thread):
     def __init__(self, consumer: Consumer) -> None:
         super().__init__(daemon=True, name=f"live-{consumer.name}")
         self.consumer = consumer
-        self.slots: dict[str, FrameEvent] = {}
+        self.slots: dict[str, deque[FrameEvent]] = {}  # per stream, pending frames oldest first
+        self.max_pending = max(1, int(getattr(consumer, "max_pending", 1)))
         self.cv = threading.Condition()
         self.closed = False
         self.stats = ConsumerStats()
@@ -114,15 +138,30 @@ class _Worker(threading.Thread):
         with self.cv:
             st = self.stats
             st.received[ev.stream] = st.received.get(ev.stream, 0) + 1
-            if ev.stream in self.slots:
+            q = self.slots.setdefault(ev.stream, deque())
+            if len(q) >= self.max_pending:  # full: the oldest unprocessed frame is replaced, never processed
+                q.popleft()
                 st.dropped[ev.stream] = st.dropped.get(ev.stream, 0) + 1
-            self.slots[ev.stream] = ev
+            q.append(ev)
             self.cv.notify()
 
     def close(self) -> None:
         with self.cv:
             self.closed = True
             self.cv.notify()
+
+    def _take(self) -> list[FrameEvent]:
+        """The next frames to process (under the lock): the oldest pending one, or all of them (batch)."""
+        if self.consumer.batch:
+            evs = sorted((ev for q in self.slots.values() for ev in q), key=lambda e: e.t)
+            self.slots.clear()
+            return evs
+        key = min((k for k, q in self.slots.items() if q), key=lambda k: self.slots[k][0].t)
+        q = self.slots[key]
+        ev = q.popleft()
+        if not q:
+            del self.slots[key]
+        return [ev]
 
     def run(self) -> None:
         while True:
@@ -131,32 +170,42 @@ class _Worker(threading.Thread):
                     self.cv.wait(0.1)
                 if not self.slots and self.closed:
                     return
-                key = min(self.slots, key=lambda k: self.slots[k].t)
-                ev = self.slots.pop(key)
+                evs = self._take()
             t0, c0 = time.perf_counter(), time.thread_time()
             try:
-                self.consumer.process(ev)
+                if len(evs) == 1 and not self.consumer.batch:
+                    self.consumer.process(evs[0])
+                    ok = [True]
+                else:
+                    ok = self.consumer.process_batch(evs)
             except FrameOverwritten:  # its shared slot was reused before it was read: a dropped frame
-                with self.cv:
-                    self.stats.dropped[ev.stream] = self.stats.dropped.get(ev.stream, 0) + 1
-                continue
+                ok = [False] * len(evs)
             except Exception as e:  # keep the pipeline alive; the first error is reported
                 self.stats.errors += 1
                 if self.error is None:
                     self.error = e
+                ok = [True] * len(evs)  # processed (with an error), as before batching
             t1 = time.perf_counter()
             st = self.stats
-            st.busy_s += t1 - t0
-            st.busy_by_stream[ev.stream] = st.busy_by_stream.get(ev.stream, 0.0) + (t1 - t0)
-            # + CPU the consumer spent in a helper process for this frame (its own thread only waited); read once:
-            # a frame handled here (joints) must not count the previous frame's offloaded CPU again
+            # + CPU the consumer spent in a helper process for these frames (its own thread only waited); read
+            # once: a frame handled next (joints) must not count the previous frame's offloaded CPU again
             cpu = time.thread_time() - c0 + float(getattr(self.consumer, "offload_cpu_s", 0.0))
             if hasattr(self.consumer, "offload_cpu_s"):
                 self.consumer.offload_cpu_s = 0.0
-            st.cpu_by_stream[ev.stream] = st.cpu_by_stream.get(ev.stream, 0.0) + cpu
-            st.latency_ms.append((t1 - ev.wall) * 1e3)
-            st.latency_by_stream.setdefault(ev.stream, []).append((t1 - ev.wall) * 1e3)
-            st.processed[ev.stream] = st.processed.get(ev.stream, 0) + 1
+            n = max(sum(ok), 1)  # a batch's time and CPU are shared by the frames it processed
+            with self.cv:
+                for ev, done in zip(evs, ok, strict=True):
+                    if not done:
+                        st.dropped[ev.stream] = st.dropped.get(ev.stream, 0) + 1
+            for ev, done in zip(evs, ok, strict=True):
+                if not done:
+                    continue
+                st.busy_s += (t1 - t0) / n
+                st.busy_by_stream[ev.stream] = st.busy_by_stream.get(ev.stream, 0.0) + (t1 - t0) / n
+                st.cpu_by_stream[ev.stream] = st.cpu_by_stream.get(ev.stream, 0.0) + cpu / n
+                st.latency_ms.append((t1 - ev.wall) * 1e3)
+                st.latency_by_stream.setdefault(ev.stream, []).append((t1 - ev.wall) * 1e3)
+                st.processed[ev.stream] = st.processed.get(ev.stream, 0) + 1
 
 
 class LivePipeline:

@@ -158,13 +158,25 @@ def _reader_process(
 
         ring = FrameRing(layout)
 
+    # the frames due at the same time (4 tactile images, a joint state, a camera frame) go through the queue as
+    # one message: a fifth of the queue's pickling, pipe writes and wake-ups here and in the emitter
+    last_of_group = {it for n, it in enumerate(items) if n + 1 == len(items) or items[n + 1][:2] != it[:2]}
+    group: list = []
+
     def put(x: Any) -> None:
         if x is None:
+            if group:
+                q.put(list(group))
             q.put(("__cpu__", time.process_time() - c0))
-        elif ring is not None and x[1] is not None and streams[x[0][2]] in layout.fields:
+            q.put(None)
+            return
+        if ring is not None and x[1] is not None and streams[x[0][2]] in layout.fields:
             seq, rest = ring.write(streams[x[0][2]], x[1])
             x = (x[0], ("__ring__", seq, rest))
-        q.put(x)
+        group.append(x)
+        if x[0] in last_of_group:
+            q.put(list(group))
+            group.clear()
 
     _decode_loop(reader, streams, items, put, lambda: wall0_v.value, cfg, stop, fields, block_bytes)
 
@@ -245,7 +257,10 @@ class SessionReplaySource:
                 t = t[t <= t0 + seconds]
             sched.append(np.stack([t - t0, np.full(len(t), k), np.arange(len(t))], 1))
         one = np.concatenate(sched)
-        one = one[np.lexsort((one[:, 1], one[:, 0]))]
+        # at equal times the camera frame comes last: its step then sees the joint state (and, when the touch stage
+        # is quick enough, the contacts) of its own time, as offline tracking does, not those one period older
+        cam_last = np.array([n.startswith("camera/") for n in names])[one[:, 1].astype(int)]
+        one = one[np.lexsort((one[:, 1], cam_last, one[:, 0]))]
         self.period = float(one[-1, 0]) + 1e-3 if len(one) else 0.0
         self.schedule = one
         self.loop = max(1, int(loop))
@@ -346,29 +361,31 @@ class SessionReplaySource:
                 if got[0] == "__cpu__":  # the reader process's CPU time, sent just before its end marker
                     st.reader_cpu_s = float(got[1])
                     continue
-                (rep, rel, k, i), data = got
-                name = self.streams[k]
-                shared = None
-                if isinstance(data, tuple):  # ("__ring__", seq, small fields): large fields in the ring
-                    shared = self.ring.slots(name, data[1])
-                    data = {**data[2], **{f: v.view() for f, v in shared.items()}}
-                due = wall0 + (rel + rep * self.period) / self.speed
-                now = time.monotonic()
-                if data is not None and due > now:
-                    time.sleep(due - now)
+                for (rep, rel, k, i), data in got if isinstance(got, list) else [got]:  # a group of equal time
+                    name = self.streams[k]
+                    shared = None
+                    if isinstance(data, tuple):  # ("__ring__", seq, small fields): large fields in the ring
+                        shared = self.ring.slots(name, data[1])
+                        data = {**data[2], **{f: v.view() for f, v in shared.items()}}
+                    due = wall0 + (rel + rep * self.period) / self.speed
                     now = time.monotonic()
-                lag = now - due
-                if data is None or lag > self.max_lag_s:
-                    st.skipped_late[name] = st.skipped_late.get(name, 0) + 1
-                    continue
-                st.max_lag_s = max(st.max_lag_s, lag)
-                t = float(self.reader[name].t[i]) + rep * self.period
-                wall = time.perf_counter()
-                emit(FrameEvent(name, t, i, data, wall, shared))
-                st.emitted[name] = st.emitted.get(name, 0) + 1
-                if st.first_wall is None:
-                    st.first_wall = wall
-                st.last_wall = wall
+                    if data is not None and due > now:
+                        time.sleep(due - now)
+                        now = time.monotonic()
+                    lag = now - due
+                    if data is None or lag > self.max_lag_s:
+                        st.skipped_late[name] = st.skipped_late.get(name, 0) + 1
+                        continue
+                    st.max_lag_s = max(st.max_lag_s, lag)
+                    t = float(self.reader[name].t[i]) + rep * self.period
+                    wall = time.perf_counter()
+                    emit(FrameEvent(name, t, i, data, wall, shared))
+                    st.emitted[name] = st.emitted.get(name, 0) + 1
+                    if st.first_wall is None:
+                        st.first_wall = wall
+                    st.last_wall = wall
+                    if self._stop.is_set():
+                        break
                 if self._stop.is_set():
                     break
         finally:

@@ -23,12 +23,13 @@ from vtrack.geometry.tactile_frame import height_to_points
 from vtrack.tactile.calibration import (
     Calibration,
     drift_offset,
+    drift_offsets,
     gate_mask_images,
     lambertian_calibration,
     shift_background,
 )
 from vtrack.tactile.contact import ContactStats, contact_mask, contact_stats
-from vtrack.tactile.poisson import poisson_dct, poisson_fft, poisson_masked_lsq
+from vtrack.tactile.poisson import poisson_dct, poisson_dct_stack, poisson_fft, poisson_masked_lsq
 
 
 @dataclass
@@ -313,15 +314,19 @@ class TactilePipeline:
         return img, hw, gate
 
     def _height_work(self, image_bgr: np.ndarray):
-        import cv2
+        img, work, quality = self._work_image(image_bgr)
+        gate, quality, drift, g = self._slopes_work(work, quality)
+        if g is None:
+            return img, np.zeros(work.shape[:2], np.float32), gate, quality, drift
+        return img, self._integrate(g[0], g[1], gate), gate, quality, drift
 
+    def _work_image(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+        """(checked full-res image, image at the working resolution, quality "ok" | "saturated" | "dark")."""
         img = self._check(image_bgr)
         if self._bg_full is None:
             self.set_background(img)  # first frame is the reference: assumed out of contact
             self._bg_from_frame = True
         work = self._to_work(img)
-        model = self._model
-        bg = self._bg_work
         probe = work[::4, ::4]
         quality = "ok"
         if probe.size:
@@ -329,13 +334,22 @@ class TactilePipeline:
                 quality = "saturated"
             elif (probe.max(axis=2) <= 5).mean() > self.bad_fraction:
                 quality = "dark"
+        return img, work, quality
+
+    def _slopes_work(self, work: np.ndarray, quality: str, drift_level: tuple | None = None):
+        """(colour-change gate, quality, drift, (gx, gy) in mm/px at the working resolution or None where the
+        height is flat zero: a bad frame or no colour change). ``drift_level``: this frame's
+        ``drift_offset(work, background)`` when already computed (:func:`contact_only_many`)."""
+        model = self._model
+        bg = self._bg_work
         if quality != "ok":
-            z = np.zeros(work.shape[:2], np.float32)
-            return img, z, np.zeros(work.shape[:2], bool), quality, (0.0, 0.0, 0.0)
+            return np.zeros(work.shape[:2], bool), quality, (0.0, 0.0, 0.0), None
         drift = (0.0, 0.0, 0.0)
         gate_level = float(model.info.get("gate", 6.0))
-        if probe.size:
-            med, level = drift_offset(work, bg, self.drift_max_spread if self.drift_compensation else -1.0)
+        if work[::4, ::4].size:
+            if drift_level is None:
+                drift_level = drift_offset(work, bg, self.drift_max_spread if self.drift_compensation else -1.0)
+            med, level = drift_level
             if med.any():
                 drift = tuple(float(x) for x in med)
                 if self._shifted is None or self._shifted[0] != drift:  # drift changes slowly: reuse
@@ -346,11 +360,17 @@ class TactilePipeline:
         gate = gate_mask_images(work, bg, gate_level)
         if not gate.any():
             # no colour change anywhere: zero slopes integrate to a flat gel (what the solvers return, exactly)
-            return img, np.zeros(work.shape[:2], np.float32), gate, quality, drift
+            return gate, quality, drift, None
         gx, gy = model.slopes_from_images(work, bg, gate)
         s = np.float32(self.mm_per_px * self.downsample)
         gx *= s
         gy *= s
+        return gate, quality, drift, (gx, gy)
+
+    def _integrate(self, gx: np.ndarray, gy: np.ndarray, gate: np.ndarray) -> np.ndarray:
+        """Height (mm, float32) from slopes in mm/px with this pipeline's Poisson solver."""
+        import cv2
+
         if self.solver == "dct":
             hw = poisson_dct(gx, gy, dtype=np.float32)
         elif self.solver == "fft":
@@ -361,7 +381,7 @@ class TactilePipeline:
             k = max(5, min(gate.shape) // 20) | 1
             m = cv2.dilate(gate.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
             hw = poisson_masked_lsq(gx, gy, m)
-        return img, hw.astype(np.float32, copy=False), gate, quality, drift
+        return hw.astype(np.float32, copy=False)
 
     def height(self, image_bgr: np.ndarray) -> np.ndarray:
         """Height map (mm, float32) at full image resolution."""
@@ -438,10 +458,10 @@ class TactilePipeline:
             self._bg_from_frame = True
             img, hw, gate, quality, drift = self._height_work(img)
         t1 = time.perf_counter()
-        mask_w = contact_mask(
-            hw, self.contact_threshold_mm, noise_mm=self.noise_mm, rel=self.contact_rel, diff_mask=gate
-        )
-        return img, hw, mask_w, quality, drift, t1
+        return img, hw, self._contact_mask(hw, gate), quality, drift, t1
+
+    def _contact_mask(self, hw: np.ndarray, gate: np.ndarray) -> np.ndarray:
+        return contact_mask(hw, self.contact_threshold_mm, noise_mm=self.noise_mm, rel=self.contact_rel, diff_mask=gate)
 
     def contact_only(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
         """Sensor-frame contact points (N, 3, m), their gel normals and the frame quality of one BGR image: what a
@@ -454,6 +474,18 @@ class TactilePipeline:
         _, hw, mask_w, quality, _, _ = self._contact_work(image_bgr)
         pts, nrm = self.contact_points(hw, mask_w, self.mm_per_px * self.downsample, self.point_stride)
         return pts, nrm, quality
+
+    def _batchable(self) -> bool:
+        """Whether :func:`contact_only_many` may take this pipeline's frames with others': no stage with state
+        of its own (markers, slip, force) and a fixed background (not one taken from a live frame, which the
+        next frame may replace)."""
+        return (
+            self.markers is None
+            and self.slip is None
+            and self.force_model is None
+            and self._bg_full is not None
+            and not self._bg_from_frame
+        )
 
     def _background_was_pressed(self, hw: np.ndarray) -> bool:
         """A frame-derived background that contained a press shows up as a dent *out of* the gel."""
@@ -487,3 +519,56 @@ class TactilePipeline:
         pts[:, 0] += (c0s + (ws - 1) / 2.0 - (W - 1) / 2.0) * s
         pts[:, 1] += (r0s + (hs - 1) / 2.0 - (H - 1) / 2.0) * s
         return pts, nrm
+
+
+def contact_only_many(
+    pipes: list[TactilePipeline], images: list[np.ndarray]
+) -> list[tuple[np.ndarray, np.ndarray, str]]:
+    """``[pipes[j].contact_only(images[j]) for j]`` (e.g. the four sensors of a hand at one time step): the same
+    values, with the steps that do not depend on a sensor's model (drift estimate, DCT Poisson integration) done
+    for all frames of one working size in one numpy call each instead of one per frame. Pipelines that cannot
+    share (:meth:`TactilePipeline._batchable`, another solver or size) run on their own."""
+    n = len(pipes)
+    if n != len(images):
+        raise InputError("one image per pipeline", field="images", expected=n, got=len(images))
+    out: list[Any] = [None] * n
+    together = [j for j in range(n) if pipes[j]._batchable()]
+    if len(together) < 2:
+        together = []
+    for j in set(range(n)) - set(together):
+        out[j] = pipes[j].contact_only(images[j])
+    if not together:
+        return out
+    prep = {j: pipes[j]._work_image(images[j]) for j in together}
+    # the drift of every "ok" frame of one size and drift setting, at once
+    drifts: dict[int, tuple] = {}
+    groups: dict[tuple, list[int]] = {}
+    for j in together:
+        p, (_, work, quality) = pipes[j], prep[j]
+        if quality == "ok" and work[::4, ::4].size:
+            spread = p.drift_max_spread if p.drift_compensation else -1.0
+            groups.setdefault((work.shape, spread), []).append(j)
+    for (_, spread), js in groups.items():
+        works, bgs = np.stack([prep[j][1] for j in js]), np.stack([pipes[j]._bg_work for j in js])
+        offs, levels = drift_offsets(works, bgs, spread)
+        drifts.update({j: (offs[i], float(levels[i])) for i, j in enumerate(js)})
+    slopes = {j: pipes[j]._slopes_work(prep[j][1], prep[j][2], drifts.get(j)) for j in together}
+    hw: dict[int, np.ndarray] = {}
+    stacks: dict[tuple, list[int]] = {}
+    for j in together:
+        gate, _, _, g = slopes[j]
+        if g is None:
+            hw[j] = np.zeros(gate.shape, np.float32)
+        elif pipes[j].solver == "dct":
+            stacks.setdefault(gate.shape, []).append(j)
+        else:
+            hw[j] = pipes[j]._integrate(g[0], g[1], gate)
+    for js in stacks.values():
+        hs = poisson_dct_stack(np.stack([slopes[j][3][0] for j in js]), np.stack([slopes[j][3][1] for j in js]))
+        hw.update({j: hs[i].astype(np.float32, copy=False) for i, j in enumerate(js)})
+    for j in together:
+        p, gate, quality = pipes[j], slopes[j][0], slopes[j][1]
+        mask_w = p._contact_mask(hw[j], gate)
+        pts, nrm = p.contact_points(hw[j], mask_w, p.mm_per_px * p.downsample, p.point_stride)
+        out[j] = (pts, nrm, quality)
+    return out

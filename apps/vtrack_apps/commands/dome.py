@@ -334,6 +334,16 @@ def register(app: typer.Typer) -> None:
         joint_weights: str = typer.Option(
             "", "--joint-weights", help="training-loss weights per joint, e.g. thumb_mcp=2,thumb_ip=3 (others 1)"
         ),
+        select_weighted: bool = typer.Option(
+            False, "--select-weighted", help="checkpoint on the --joint-weights-weighted validation loss (specialists)"
+        ),
+        width: int = typer.Option(16, "--width", min=4, max=64, help="base width of the RGB image encoder"),
+        rgb_crop: str = typer.Option(
+            "", "--rgb-crop", help="RGB net reads only row,col,side,upsampling of the frame (e.g. thumb: 26,0,32,2)"
+        ),
+        rotate_deg: float = typer.Option(
+            0.0, "--rotate-deg", min=0.0, max=180.0, help="augment RGB frames: turn about the centre by +- this (deg)"
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
@@ -341,7 +351,13 @@ def register(app: typer.Typer) -> None:
         (settings not listed in --modalities are kept from that file; the dual net fuses the two single nets)."""
         import json
 
-        from vtrack.dome.handpose import MODALITIES, HandPoseTrainConfig, joint_weight_vector, train_all
+        from vtrack.dome.handpose import (
+            MODALITIES,
+            HandPoseTrainConfig,
+            joint_weight_vector,
+            parse_rgb_crop,
+            train_all,
+        )
         from vtrack.dome.handsim import GRASP_SETS
         from vtrack.errors import InputError
 
@@ -368,7 +384,13 @@ def register(app: typer.Typer) -> None:
             joint_weight_vector(jw)
         except ValueError as e:
             raise InputError(str(e), field="--joint-weights", got=joint_weights) from None
+        try:
+            parse_rgb_crop(rgb_crop)
+        except ValueError as e:
+            raise InputError(str(e), field="--rgb-crop", got=rgb_crop) from None
         tc = HandPoseTrainConfig(
+            rgb_crop=rgb_crop,
+            rotate_deg=rotate_deg,
             joint_weights=jw,
             n_train=n_train,
             steps=steps,
@@ -381,6 +403,8 @@ def register(app: typer.Typer) -> None:
             grasp_set=grasp_set,
             time_budget_s=60.0 * time_budget_min,
             model_seed=model_seed,
+            select_weighted=select_weighted,
+            width=width,
         )
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
