@@ -237,12 +237,16 @@ class HandAwareSegmenter:
         # each link's nearest depth (its samples include its mesh's vertices, where a mesh's minimum depth lies)
         z_near = np.minimum.reduceat(z, np.r_[0, np.cumsum(counts)[:-1]]) if len(z) else z
         front = z > 1e-3
-        P, z, owner = P[front], z[front], owner[front]
+        if not front.all():  # (the copies only when needed: usually the whole hand is in front of the camera)
+            P, z, owner = P[front], z[front], owner[front]
         u = np.rint(self.cam.fx * P[:, 0] / z + self.cam.cx).astype(np.int64)
         v = np.rint(self.cam.fy * P[:, 1] / z + self.cam.cy).astype(np.int64)
         ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
         zb = np.full(H * W, np.inf)
-        np.minimum.at(zb, v[ok] * W + u[ok], z[ok])
+        if ok.all():
+            np.minimum.at(zb, v * W + u, z)
+        else:
+            np.minimum.at(zb, v[ok] * W + u[ok], z[ok])
         core = zb.reshape(H, W)
         if self.opt.exact_silhouette and len(u):
             # per-link pixel boxes (+1 px): a ray is cast only against the links whose box holds its pixel.
