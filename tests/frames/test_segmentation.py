@@ -209,6 +209,37 @@ def test_exact_silhouette_matches_a_full_raycast(frames):
         assert (rough != ref).sum() > 20
 
 
+def test_refine_skips_nothing_that_matters(frames):
+    """The silhouette refinement culls (link, pixel) pairs by the link's pixel box and nearest depth; the
+    result equals casting every edge pixel against every link and keeping the nearest hit, bit for bit."""
+    make, data = frames
+    seg = make()
+    casters = seg._link_casters()
+    captured = []
+    orig = seg._refine_silhouette
+
+    def grab(core, Tcl, boxes):
+        out = orig(core, Tcl, boxes)
+        captured.append((core, Tcl, out))
+        return out
+
+    seg._refine_silhouette = grab
+    for _depth, q, _gt in data[:4]:
+        seg.render_hand_depth(seg.kin.link_poses(q))
+    assert len(captured) == 4
+    d = np.stack([seg._rx, seg._ry, np.ones_like(seg._rx)], axis=-1).reshape(-1, 3)
+    for core, Tcl, out in captured:
+        changed = out != core
+        assert changed.sum() > 20  # the splat's edges were re-decided
+        ref = np.full(len(d), np.inf)  # every pixel against every link
+        for link, T in Tcl.items():
+            if link in casters:
+                R, o = T[:3, :3], T[:3, 3]
+                ref = np.minimum(ref, casters[link].hit_distance(-(R.T @ o), d @ R))
+        ref = ref.reshape(core.shape)
+        np.testing.assert_array_equal(out[changed], ref[changed])
+
+
 @pytest.fixture(scope="module")
 def medium_frames(shared_data):
     """(segmenter, [(depth, q, gt, visible_fraction)]) of a 0.5 s session seen with medium occlusion."""

@@ -231,26 +231,33 @@ class HandAwareSegmenter:
         samples = self._hand_samples(np.array([T[2, 3] for T in Tcl.values()]))
         links = [k for k in samples if k in Tcl]
         P = np.concatenate([samples[k] @ Tcl[k][:3, :3].T + Tcl[k][:3, 3] for k in links])
-        owner = np.repeat(np.arange(len(links)), [len(samples[k]) for k in links])
+        counts = np.array([len(samples[k]) for k in links])
+        owner = np.repeat(np.arange(len(links)), counts)
         z = P[:, 2]
+        # each link's nearest depth (its samples include its mesh's vertices, where a mesh's minimum depth lies)
+        z_near = np.minimum.reduceat(z, np.r_[0, np.cumsum(counts)[:-1]]) if len(z) else z
         front = z > 1e-3
-        P, z, owner = P[front], z[front], owner[front]
+        if not front.all():  # (the copies only when needed: usually the whole hand is in front of the camera)
+            P, z, owner = P[front], z[front], owner[front]
         u = np.rint(self.cam.fx * P[:, 0] / z + self.cam.cx).astype(np.int64)
         v = np.rint(self.cam.fy * P[:, 1] / z + self.cam.cy).astype(np.int64)
         ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
         zb = np.full(H * W, np.inf)
-        np.minimum.at(zb, v[ok] * W + u[ok], z[ok])
+        if ok.all():
+            np.minimum.at(zb, v * W + u, z)
+        else:
+            np.minimum.at(zb, v[ok] * W + u[ok], z[ok])
         core = zb.reshape(H, W)
         if self.opt.exact_silhouette and len(u):
-            # per-link pixel boxes (+1 px): a ray is cast only against the links whose box holds its pixel
-            lo_u = np.full(len(links), np.iinfo(np.int64).max)
-            lo_v, hi_u, hi_v = lo_u.copy(), np.full(len(links), -1), np.full(len(links), -1)
-            np.minimum.at(lo_u, owner, u)
-            np.minimum.at(lo_v, owner, v)
-            np.maximum.at(hi_u, owner, u)
-            np.maximum.at(hi_v, owner, v)
+            # per-link pixel boxes (+1 px): a ray is cast only against the links whose box holds its pixel.
+            # ``owner`` is sorted (links in order), so each link's extremes are one segmented reduction.
+            present, start = np.unique(owner, return_index=True)
+            lo_u, hi_u = np.minimum.reduceat(u, start), np.maximum.reduceat(u, start)
+            lo_v, hi_v = np.minimum.reduceat(v, start), np.maximum.reduceat(v, start)
             boxes = {
-                k: (lo_u[i] - 1, hi_u[i] + 1, lo_v[i] - 1, hi_v[i] + 1) for i, k in enumerate(links) if hi_u[i] >= 0
+                links[i]: (lo_u[j] - 1, hi_u[j] + 1, lo_v[j] - 1, hi_v[j] + 1, z_near[i])
+                for j, i in enumerate(present)
+                if hi_u[j] >= 0
             }
             core = self._refine_silhouette(core, Tcl, boxes)
         zb = core
@@ -262,7 +269,7 @@ class HandAwareSegmenter:
         return (core, zb) if with_core else zb
 
     def _refine_silhouette(
-        self, core: np.ndarray, Tcl: dict[str, np.ndarray], boxes: dict[str, tuple[int, int, int, int]]
+        self, core: np.ndarray, Tcl: dict[str, np.ndarray], boxes: dict[str, tuple[int, int, int, int, float]]
     ) -> np.ndarray:
         """Ray-cast the hand meshes through the pixels along the splatted silhouette's edge.
 
@@ -270,6 +277,8 @@ class HandAwareSegmenter:
         a pixel (at stride 4, two full-resolution pixels: a thin object seen between two fingers loses a
         quarter of its width), and may miss edge pixels between samples. The edge band (one pixel each
         side) is re-decided exactly: a pixel is hand iff the ray through its centre hits a link mesh.
+        ``boxes``: link -> (u_lo, u_hi, v_lo, v_hi) pixel box holding its projection and its nearest depth
+        (m, camera z).
         """
         import cv2
 
@@ -290,14 +299,19 @@ class HandAwareSegmenter:
         casters = self._link_casters()
         d_cam = np.stack([self._rx[rows, cols], self._ry[rows, cols], np.ones(len(rows))], axis=1)
         t_best = np.full(len(rows), np.inf)
+        # Nearest links first: a pixel whose ray already hit nearer than a link's nearest vertex depth cannot
+        # get a nearer hit from that link, so it is not cast against it (same minimum; ~1 um float32 slack).
+        order = sorted(boxes, key=lambda k: boxes[k][4])
         # every link's box test of every band pixel at once ((links, pixels) booleans; one pass instead of a loop)
-        bx = np.array(list(boxes.values()), np.int64).reshape(-1, 4)
+        bx = np.array([boxes[k][:4] for k in order], np.int64).reshape(-1, 4)
         in_box = (cols >= bx[:, 0:1]) & (cols <= bx[:, 1:2]) & (rows >= bx[:, 2:3]) & (rows <= bx[:, 3:4])
-        for link, in_link in zip(boxes, in_box, strict=True):
+        for link, in_link in zip(order, in_box, strict=True):
             caster = casters.get(link)
-            if caster is None or not in_link.any():
+            if caster is None:
                 continue
-            inside = np.flatnonzero(in_link)
+            inside = np.flatnonzero(in_link & (t_best >= boxes[link][4] - 1e-6))
+            if not len(inside):
+                continue
             # rays into the link frame (rigid: the ray parameter stays the camera z, since d_cam.z = 1)
             T = Tcl[link]
             R, o = T[:3, :3], T[:3, 3]

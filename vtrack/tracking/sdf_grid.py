@@ -269,15 +269,18 @@ def surfel_band_sdf(
     dist = dist.reshape(len(X), k)
     idx = idx.reshape(len(X), k)
     valid = np.isfinite(dist)
-    idx_c = np.where(valid, idx, 0)
-    wgt = np.where(valid, W[idx_c] / np.maximum(dist, min_dist), 0.0)
-    # float32 differences (sub-micrometre error on a 0.3 m box): half the memory traffic of the (M, k, 3) terms
-    diff = X.astype(np.float32)[:, None, :] - S.astype(np.float32)[idx_c]
-    has_n = (np.einsum("ij,ij->i", N, N) > 0.25)[idx_c]  # per surfel once, not per (point, neighbour)
-    sd = np.where(
+    # only the (point, neighbour) pairs within reach (about half of a band's): the others weigh 0 and keep sd = 0
+    row, iv = np.nonzero(valid)[0], idx[valid]
+    wgt = np.zeros(dist.shape)
+    wgt[valid] = W[iv] / np.maximum(dist[valid], min_dist)
+    # float32 differences (sub-micrometre error on a 0.3 m box): half the memory traffic of the (n, 3) terms
+    diff = X.astype(np.float32)[row] - S.astype(np.float32)[iv]
+    has_n = (np.einsum("ij,ij->i", N, N) > 0.25)[iv]  # per surfel once, not per (point, neighbour)
+    sd = np.zeros(dist.shape, np.float32)
+    sd[valid] = np.where(
         has_n,
-        np.einsum("ijk,ijk->ij", diff, N.astype(np.float32)[idx_c]),
-        np.sqrt(np.einsum("ijk,ijk->ij", diff, diff)),
+        np.einsum("ij,ij->i", diff, N.astype(np.float32)[iv]),
+        np.sqrt(np.einsum("ij,ij->i", diff, diff)),
     )
     wsum = wgt.sum(1)
     val = np.where(wsum > 0, np.einsum("ij,ij->i", wgt, sd) / np.maximum(wsum, 1e-12), trunc)
