@@ -182,6 +182,7 @@ class NeuralSDFConfig:
     carve_crop: bool = True
     mesh_band: bool = True
     sections: bool = True
+    box: bool = False
 
 
 class NeuralSDFReconstructor:
@@ -232,6 +233,7 @@ class NeuralSDFReconstructor:
         self._hull_res = 0
         self.revolution: Any = None  # vtrack.fusion.symmetry.Revolution found by the symmetric prior, if any
         self.sections: Any = None  # vtrack.fusion.sections.Sections found by the symmetric prior, if any
+        self.box: Any = None  # vtrack.fusion.boxprior.Box found by the symmetric prior (opt-in), if any
         self._carve_idx: np.ndarray | None = None
         self.carve_seconds = 0.0
         if bounds is not None:
@@ -561,6 +563,7 @@ class NeuralSDFReconstructor:
         P, Nrm = P[fin], Nrm[fin]
         self.revolution = None
         self.sections = None
+        self.box = None
         if len(P) < 4:
             return False
         keep = largest_cluster(P, self.opts["hull_cluster_mm"] * 1e-3, return_mask=True)
@@ -590,7 +593,13 @@ class NeuralSDFReconstructor:
             self.revolution = fit_revolution(P[first], Nrm[first], seed=self.opts["seed"])
             if self.revolution is not None:
                 np.minimum(val, self.revolution.sdf(G).astype(np.float32), out=val)
-            elif self.opts["sections"]:
+            if self.revolution is None and self.opts["box"] and normals is not None:
+                from vtrack.fusion.boxprior import fit_box
+
+                self.box = fit_box(P[first], Nrm[first], seed=self.opts["seed"])
+                if self.box is not None:
+                    np.minimum(val, self.box.sdf(G).astype(np.float32), out=val)
+            if self.revolution is None and self.box is None and self.opts["sections"]:
                 from vtrack.fusion.sections import fit_sections
 
                 self.sections = fit_sections(P)
