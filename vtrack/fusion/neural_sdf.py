@@ -593,10 +593,11 @@ class NeuralSDFReconstructor:
             self.revolution = fit_revolution(P[first], Nrm[first], seed=self.opts["seed"])
             if self.revolution is not None:
                 np.minimum(val, self.revolution.sdf(G).astype(np.float32), out=val)
-            if self.revolution is None and self.opts["box"] and normals is not None:
+            if self.revolution is None and self.opts["box"]:
                 from vtrack.fusion.boxprior import fit_box
 
-                self.box = fit_box(P[first], Nrm[first], seed=self.opts["seed"])
+                # normals by local PCA of the 2 mm-thinned cloud: the fused ones are too noisy for plane families
+                self.box = fit_box(P[first], seed=self.opts["seed"])
                 if self.box is not None:
                     np.minimum(val, self.box.sdf(G).astype(np.float32), out=val)
             if self.revolution is None and self.box is None and self.opts["sections"]:
