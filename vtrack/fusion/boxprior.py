@@ -1,11 +1,12 @@
-"""Box completion prior: a cloud whose surface is made of three families of orthogonal planes (a carton, a tin
-box) is completed by its face-aligned bounding box.
+"""Box completion prior: a cloud whose surface is made of orthogonal plane families (a carton, a tin box) is
+completed by its face-aligned bounding box.
 
 The convex hull of a partly seen box cuts a diagonal across the unseen corner (half a box when two adjacent faces
-are seen). When the observed normals cluster on three orthogonal directions and the points lie on the faces of the
-box spanned by their extent along those directions, the box itself is the completion: its unseen faces are the
-planes through the extreme seen points. Triggered by the observed data only (normals and points, object frame);
-nothing comes from a mesh or an object identity.
+are seen). When the normals cluster on three orthogonal directions and the points lie on the faces of the box
+spanned by their extent along those directions, the box itself is the completion: its unseen faces are the planes
+through the extreme seen points. The neural SDF takes the box only when the cameras did not see the volume it adds
+empty (``NeuralSDFReconstructor.set_hull_prior``). Triggered by the observed data only (points, normals, free
+space; object frame): nothing comes from a mesh or an object identity.
 """
 
 from __future__ import annotations
@@ -78,22 +79,23 @@ def fit_box(
     *,
     angle_deg: float = 15.0,
     face_tol: float = 0.003,
-    min_aligned: float = 0.8,
-    min_on_face: float = 0.85,
+    min_aligned: float = 0.3,
+    min_on_face: float = 0.2,
     min_faces: int = 3,
+    min_face_share: float = 0.02,
     trim: float = 0.005,
     seed: int = 0,
 ) -> Box | None:
     """Fit a face-aligned box to an object-frame cloud; ``None`` when the cloud is not box-like.
 
-    points (N, 3) m and normals (N, 3) (zero rows = unknown) in the object frame; ``normals=None`` (what the
-    neural SDF uses: the fused observations' own normals are 25 deg off the true ones at the median on the YCB
-    sessions) estimates them by local PCA (:func:`pca_normals`; thin the cloud to ~2 mm first). The frame is found from the
-    normals (orthogonal Procrustes on their assignment to the nearest signed axis, from the points' principal
-    axes and a few random starts); the extent along each axis is the points' ``trim``/``1 - trim`` quantiles (a
-    few stray points do not grow the box). Accepted when >= ``min_aligned`` of the normals are within
-    ``angle_deg`` of an axis, >= ``min_on_face`` of the points are within ``face_tol`` of a face of the box, and
-    at least ``min_faces`` distinct faces (signed axes) each hold >= 5 % of the points.
+    points (N, 3) m and normals (N, 3) (zero rows = unknown) in the object frame. ``normals=None`` (what the
+    neural SDF uses: the fused observations' normals are ~25 deg off the true ones at the median on the YCB
+    sessions) estimates them by local PCA (:func:`pca_normals`; thin the cloud to ~2 mm first). The frame comes
+    from the normals (orthogonal Procrustes on their assignment to the nearest signed axis, started from the
+    points' principal axes and random rotations); the extent along each axis is the points' ``trim`` and
+    ``1 - trim`` quantiles (a few stray points do not grow the box). Accepted when >= ``min_aligned`` of the
+    normals are within ``angle_deg`` of an axis, >= ``min_on_face`` of the points are within ``face_tol`` of a
+    face, and >= ``min_faces`` faces (signed axes) each hold >= ``min_face_share`` of the points.
     """
     P = np.asarray(points, np.float64).reshape(-1, 3)
     if normals is None:
@@ -149,6 +151,6 @@ def fit_box(
     side = dhi[np.arange(len(L)), ax] < dlo[np.arange(len(L)), ax]
     face = 2 * ax + side
     counts = np.bincount(face[on], minlength=6) / len(L)
-    if int((counts >= 0.05).sum()) < min_faces:
+    if int((counts >= min_face_share).sum()) < min_faces:
         return None
     return Box(centre=cL @ R, axes=R, half=half, on_face=on_face, aligned=aligned)
