@@ -79,6 +79,42 @@ def _votes_at(votes: np.ndarray, lo: np.ndarray, cell: float, points: np.ndarray
     return out
 
 
+def free_votes(
+    observations: list, points: np.ndarray, *, margin: float = 0.003, origin: np.ndarray | None = None
+) -> np.ndarray:
+    """How many vision frames saw each point empty (N,) int16: the point projects into the frame's free-space
+    image and lies at least ``margin`` (m, camera z) in front of the pixel's free depth.
+
+    points (N, 3): object frame, m, or relative to ``origin`` (3,) m when given (float32 coordinates near a box
+    stay precise). Observations without ``free_depth`` / ``K`` (touch) give no votes.
+    """
+    P = np.asarray(points, np.float32).reshape(-1, 3)
+    o0 = np.zeros(3) if origin is None else np.asarray(origin, np.float64)
+    votes = np.zeros(len(P), np.int16)
+    for o in observations:
+        if o.modality != VISION or o.free_depth is None or o.K is None:
+            continue
+        T = np.asarray(o.T_view_object, np.float64)
+        R = T[:3, :3].astype(np.float32)
+        t = (T[:3, :3] @ o0 + T[:3, 3]).astype(np.float32)
+        C = P @ R.T + t
+        z = C[:, 2]
+        K = np.asarray(o.K, np.float64)
+        s = max(1, int(o.free_stride))
+        fd = o.free_depth
+        h, w = fd.shape
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (K[0, 0] * C[:, 0] / z + K[0, 2]) / s
+            v = (K[1, 1] * C[:, 1] / z + K[1, 2]) / s
+        ok = (z > 0.01) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        idx = np.nonzero(ok)[0]
+        col = u[idx].astype(np.int64)
+        row = v[idx].astype(np.int64)
+        empty = z[idx] + margin < fd[row, col]
+        votes[idx[empty]] += 1
+    return votes
+
+
 def carve(
     observations: list,
     lo: np.ndarray,
@@ -116,26 +152,7 @@ def carve(
     ax = (np.arange(n) * cell).astype(np.float32)
     X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
     P = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)  # relative to lo (float32 precision near the box)
-    votes = np.zeros(n**3, np.int16)
-    for o in views:
-        T = np.asarray(o.T_view_object, np.float64)
-        R = T[:3, :3].astype(np.float32)
-        t = (T[:3, :3] @ lo + T[:3, 3]).astype(np.float32)
-        C = P @ R.T + t
-        z = C[:, 2]
-        K = np.asarray(o.K, np.float64)
-        s = max(1, int(o.free_stride))
-        fd = o.free_depth
-        h, w = fd.shape
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = (K[0, 0] * C[:, 0] / z + K[0, 2]) / s
-            v = (K[1, 1] * C[:, 1] / z + K[1, 2]) / s
-        ok = (z > 0.01) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        idx = np.nonzero(ok)[0]
-        col = u[idx].astype(np.int64)
-        row = v[idx].astype(np.int64)
-        empty = z[idx] + margin < fd[row, col]
-        votes[idx[empty]] += 1
+    votes = free_votes(views, P, margin=margin, origin=lo)
     votes = votes.reshape(n, n, n)
     free = votes >= max(1, int(min_votes))
     if protect is not None and len(protect):

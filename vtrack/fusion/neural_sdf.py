@@ -182,6 +182,8 @@ class NeuralSDFConfig:
     carve_crop: bool = True
     mesh_band: bool = True
     sections: bool = True
+    box: bool = True
+    box_free_max: float = 0.5
 
 
 class NeuralSDFReconstructor:
@@ -232,6 +234,8 @@ class NeuralSDFReconstructor:
         self._hull_res = 0
         self.revolution: Any = None  # vtrack.fusion.symmetry.Revolution found by the symmetric prior, if any
         self.sections: Any = None  # vtrack.fusion.sections.Sections found by the symmetric prior, if any
+        self.box: Any = None  # vtrack.fusion.boxprior.Box found by the symmetric prior, if any
+        self.box_free = float("nan")  # share of the volume the accepted box adds that the cameras saw empty
         self._carve_idx: np.ndarray | None = None
         self.carve_seconds = 0.0
         if bounds is not None:
@@ -546,12 +550,16 @@ class NeuralSDFReconstructor:
             )
         }
 
-    def set_hull_prior(self, points: np.ndarray, normals: np.ndarray | None = None) -> bool:
+    def set_hull_prior(
+        self, points: np.ndarray, normals: np.ndarray | None = None, observations: list | None = None
+    ) -> bool:
         """Use the convex hull of ``points`` (object frame, m) as the SDF prior instead of the sphere: where
         nothing was observed the surface spans the observed parts (flat caps, no shrinking towards the
         centre). With ``prior="symmetric"`` a surface of revolution detected in the points
         (:func:`vtrack.fusion.symmetry.fit_revolution`; ``normals`` (N, 3) orient its normals) is added to the
-        hull (union): the unseen side of a ball or a can is completed by revolving the seen profile.
+        hull (union): the unseen side of a ball or a can is completed by revolving the seen profile; failing that,
+        a face-aligned box (:func:`vtrack.fusion.boxprior.fit_box`) when the cameras of ``observations`` saw at
+        most ``box_free_max`` of the volume it adds to the hull empty; failing that, elliptic sections.
         Returns False (sphere kept) when the points span no volume."""
         from scipy.spatial import ConvexHull, QhullError
 
@@ -561,6 +569,7 @@ class NeuralSDFReconstructor:
         P, Nrm = P[fin], Nrm[fin]
         self.revolution = None
         self.sections = None
+        self.box = None
         if len(P) < 4:
             return False
         keep = largest_cluster(P, self.opts["hull_cluster_mm"] * 1e-3, return_mask=True)
@@ -590,7 +599,31 @@ class NeuralSDFReconstructor:
             self.revolution = fit_revolution(P[first], Nrm[first], seed=self.opts["seed"])
             if self.revolution is not None:
                 np.minimum(val, self.revolution.sdf(G).astype(np.float32), out=val)
-            elif self.opts["sections"]:
+            if self.revolution is None and self.opts["box"]:
+                from vtrack.fusion.boxprior import fit_box
+
+                # normals by local PCA of the 2 mm-thinned cloud: the fused ones are too noisy for plane families
+                box = fit_box(P[first], seed=self.opts["seed"]) if observations else None
+                if box is not None:
+                    bv = box.sdf(G).astype(np.float32)
+                    # the box may fill only space nobody saw: the volume it adds to the hull (a cell deep)
+                    # must not have been seen empty (free-space votes of >= 2 frames, like the carving)
+                    cell = self.size / r
+                    add = np.nonzero((bv < -cell) & (val > cell))[0]
+                    if len(add):
+                        from vtrack.fusion.carve import free_votes
+
+                        pick = add[
+                            np.random.default_rng(self.opts["seed"]).choice(
+                                len(add), min(len(add), 4000), replace=False
+                            )
+                        ]
+                        free = float(np.mean(free_votes(observations, G[pick]) >= 2))
+                        if free <= self.opts["box_free_max"]:
+                            self.box = box
+                            self.box_free = free
+                            np.minimum(val, bv, out=val)
+            if self.revolution is None and self.box is None and self.opts["sections"]:
                 from vtrack.fusion.sections import fit_sections
 
                 self.sections = fit_sections(P)
@@ -654,7 +687,7 @@ class NeuralSDFReconstructor:
         self._recent_from = self.n_points  # offline: uniform replay
         hull_based = self.opts["prior"] in ("hull", "blend", "symmetric") or self.opts["hull_weight"] > 0
         if hull_based and self.iterations == 0:
-            self.set_hull_prior(self._buf["p"], self._buf["n"])
+            self.set_hull_prior(self._buf["p"], self._buf["n"], observations=obs)
         t_c = time.perf_counter()
         if self.opts["carve"]:
             self.set_carving(obs)
