@@ -320,6 +320,31 @@ def _adjoint(T: np.ndarray) -> np.ndarray:
     return A
 
 
+def _ray_residuals(
+    R: np.ndarray, t: np.ndarray, P: np.ndarray, Q: np.ndarray, C: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Point-to-ray residuals of colour-track anchors and their Jacobians, one row per correspondence.
+
+    ``R`` (N, 3, 3) / ``t`` (N, 3): the rotation and translation of ``T_world_object`` each row is scored at;
+    ``Q`` (N, 3) anchors in the object frame (m); ``P`` (N, 3) observed points and ``C`` (N, 3) camera centres in
+    the world frame (m). ``r = (I - d d^T)(R q + t - c)`` with ``d = (p - c)/|p - c|`` (N, 3) and
+    ``dr/d delta = (I - d d^T) R [I, -hat(q)] = (I - d d^T) [R, -hat(R q) R]`` (N, 3, 6)."""
+    Rq = np.einsum("nij,nj->ni", R, Q)
+    d = P - C
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    e = Rq + t - C
+    r = e - d * np.sum(d * e, axis=1, keepdims=True)
+    J = np.empty((len(Q), 3, 6))
+    J[:, :, :3] = R
+    hx = np.zeros((len(Q), 3, 3))
+    hx[:, 0, 1], hx[:, 0, 2] = -Rq[:, 2], Rq[:, 1]
+    hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
+    hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
+    J[:, :, 3:] = -hx @ R
+    J -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J)[:, None, :]
+    return r, J
+
+
 def _robust_weights(r_scaled: np.ndarray, kind: str, k: float) -> tuple[np.ndarray, np.ndarray]:
     """IRLS weights and robust cost for residuals already divided by their sigma."""
     a = np.abs(r_scaled)
@@ -545,24 +570,11 @@ class WindowTracker:
         if Pc is not None and not Pc.any():
             return np.zeros((6, 6)), np.zeros(6), 0.0
         T = s.T if Pc is None or s.T_lin is None else s.T_lin @ _exp(Pc @ _log(_inv(s.T_lin) @ s.T))
-        J = np.zeros((len(Q), 3, 6))
         if o.colour_residual == "ray" and C is not None:
-            R = T[:3, :3]
-            wq = Q @ R.T + T[:3, 3]
-            d = P - C
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            e = wq - C
-            r = e - d * np.sum(d * e, axis=1, keepdims=True)
-            # R [I, -hat(q)] = [R, -hat(R q) R]
-            Rq = Q @ R.T
-            J[:, :, :3] = R
-            hx = np.zeros((len(Q), 3, 3))
-            hx[:, 0, 1], hx[:, 0, 2] = -Rq[:, 2], Rq[:, 1]
-            hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
-            hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
-            J[:, :, 3:] = -hx @ R
-            J -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J)[:, None, :]
+            n = len(Q)
+            r, J = _ray_residuals(np.broadcast_to(T[:3, :3], (n, 3, 3)), np.broadcast_to(T[:3, 3], (n, 3)), P, Q, C)
         else:
+            J = np.zeros((len(Q), 3, 6))
             Ti = _inv(T)
             q = P @ Ti[:3, :3].T + Ti[:3, 3]
             r = q - Q
@@ -602,20 +614,7 @@ class WindowTracker:
         k = np.repeat(np.arange(len(batch)), counts)
         R = np.stack([slots[i].T[:3, :3] for i in batch])[k]  # (N, 3, 3) each correspondence's slot rotation
         t = np.stack([slots[i].T[:3, 3] for i in batch])[k]
-        # the per-slot algebra of _colour_terms (ray residual), row by row
-        Rq = np.einsum("nij,nj->ni", R, Q)
-        d = P - C
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        e = Rq + t - C
-        r = e - d * np.sum(d * e, axis=1, keepdims=True)
-        J = np.empty((len(Q), 3, 6))
-        J[:, :, :3] = R
-        hx = np.zeros((len(Q), 3, 3))
-        hx[:, 0, 1], hx[:, 0, 2] = -Rq[:, 2], Rq[:, 1]
-        hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
-        hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
-        J[:, :, 3:] = -hx @ R
-        J -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J)[:, None, :]
+        r, J = _ray_residuals(R, t, P, Q, C)  # the per-slot algebra of _colour_terms, row by row
         w, rho = _robust_weights(np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust, o.kernel_colour)
         w = w / o.sigma_colour**2
         # per slot, the normal equations as two BLAS products on its (3 n, 6) Jacobian (a third of the einsum's time)
