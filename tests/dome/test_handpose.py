@@ -531,9 +531,12 @@ def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
     from vtrack.dome.handpose import (
         HandPoseNet,
         HandPoseTrainConfig,
+        _build_nets,
         add_joint_specialists,
         load_models,
         predict_deg,
+        prep_rgb,
+        rotate_frames,
         save_models,
         weights_path,
     )
@@ -561,6 +564,26 @@ def test_joint_specialists_replace_only_their_joints(tmp_path) -> None:
             np.testing.assert_allclose(after[m][others], before[m][others], atol=1e-4)
             np.testing.assert_allclose(after[m][thumb], (1 - mix) * before[m][thumb] + mix * ys[thumb], atol=1e-3)
         np.testing.assert_allclose(after["ir"], before["ir"], atol=1e-4)
+    # test-time rotation averaging: the specialist's thumb is its mean over the frame turned by -10 / 0 / +10 deg
+    # (with a trained specialist, the shipped file's first: the random one above barely reacts to its input)
+    shipped = torch.load(weights_path(), map_location="cpu", weights_only=False)["specialists"]["nets"][0]
+    save_models(tmp_path / "r.pt", {"rgb": _build_nets({"rgb": shipped}, [])["rgb"]}, tc, {})
+    add_joint_specialists(base, [tmp_path / "r.pt"], ["thumb_mcp", "thumb_ip"], 1.0, (-10.0, 0.0, 10.0))
+    after = {m: predict_deg(n, data)[0] for m, n in load_models(base)[0].items()}
+    x = torch.from_numpy(prep_rgb(data["rgb"]))
+    spec_net = load_models(tmp_path / "r.pt")[0]["rgb"]
+    ys = predict_deg(spec_net, data)[0]
+    with torch.no_grad():
+        turned = [
+            spec_net.degrees({"rgb": rotate_frames(x, 0.0, None, 0.0, torch.tensor([a]))})[0] for a in (-10, 0, 10)
+        ]
+    expect = torch.stack(turned).mean(0).numpy()
+    assert np.abs(expect[thumb] - ys[thumb]).max() > 1e-3  # the turns do change the specialist's output
+    for m in ("rgb", "dual"):
+        np.testing.assert_allclose(after[m][others], before[m][others], atol=1e-4)
+        np.testing.assert_allclose(after[m][thumb], expect[thumb], atol=1e-3)
+    with pytest.raises(ValueError, match="test-time turns"):
+        add_joint_specialists(base, [tmp_path / "s.pt"], ["thumb_ip"], 1.0, (float("nan"),))
     tc_other = HandPoseTrainConfig(grasp_set="mixed", n_train=tc.n_train)
     save_models(tmp_path / "o.pt", {"rgb": spec}, tc_other, {})
     with pytest.raises(ValueError, match="same training set"):

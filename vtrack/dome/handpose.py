@@ -288,7 +288,11 @@ def prep_ir(ir: np.ndarray, ref: np.ndarray) -> np.ndarray:
 
 
 def rotate_frames(
-    x: torch.Tensor, max_deg: float, gen: torch.Generator, noise: float = 0.01, angles_deg: torch.Tensor | None = None
+    x: torch.Tensor,
+    max_deg: float,
+    gen: torch.Generator | None,
+    noise: float = 0.01,
+    angles_deg: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Training augmentation: (n, C, S, S) prepared frames each turned about the image centre by an angle drawn
     uniformly in +-``max_deg`` (or by ``angles_deg``; bilinear; the corners outside the shell's disc repeat the
@@ -302,7 +306,7 @@ def rotate_frames(
     theta = torch.stack([torch.stack([c, -s, torch.zeros(n)], 1), torch.stack([s, c, torch.zeros(n)], 1)], 1)
     grid = nn.functional.affine_grid(theta, list(x.shape), align_corners=False)
     out = nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
-    return out + noise * torch.randn(out.shape, generator=gen)
+    return out if noise == 0 else out + noise * torch.randn(out.shape, generator=gen)
 
 
 def model_inputs(modality: str, data: dict, idx: np.ndarray | slice) -> dict[str, torch.Tensor]:
@@ -618,7 +622,8 @@ def load_models(path: Path | None = None) -> tuple[dict[str, HandPoseNet], dict]
         idx = [JOINTS.index(j) for j in sp["joints"]]
         for m in [m for m in models if m in ("rgb", "dual")]:
             base = models[m] if isinstance(models[m], HandPoseEnsemble) else HandPoseEnsemble([models[m]])
-            models[m] = HandPoseEnsemble(list(base.nets), spec, idx, float(sp.get("mix", 1.0)))
+            tta = tuple(sp.get("tta_deg", (0.0,)))
+            models[m] = HandPoseEnsemble(list(base.nets), spec, idx, float(sp.get("mix", 1.0)), tta)
     return models, blob
 
 
@@ -628,7 +633,9 @@ class HandPoseEnsemble(nn.Module):
 
     ``specialists``: RGB nets trained for a few joints (``joints``, indices into :data:`JOINTS`; e.g. the thumb
     MCP / IP, :func:`add_joint_specialists`). Those joints become ``(1 - mix) x`` the members' mean ``+ mix x``
-    the specialists' mean; the other joints stay the members' mean."""
+    the specialists' mean; the other joints stay the members' mean. ``tta_deg``: the specialists' angles are
+    averaged over the RGB frame turned about the image centre by each of these angles (deg; test-time rotation
+    averaging, exact for this axially symmetric sensor up to interpolation, see :func:`rotate_frames`)."""
 
     def __init__(
         self,
@@ -636,9 +643,11 @@ class HandPoseEnsemble(nn.Module):
         specialists: list[HandPoseNet] | None = None,
         joints: list[int] | None = None,
         mix: float = 1.0,
+        tta_deg: tuple[float, ...] = (0.0,),
     ) -> None:
         super().__init__()
         self.nets = nn.ModuleList(nets)
+        self.tta_deg = tuple(float(a) for a in tta_deg) or (0.0,)
         self.specialists = nn.ModuleList(specialists or [])
         self.joints = list(joints or [])
         self.mix = float(mix)
@@ -648,7 +657,9 @@ class HandPoseEnsemble(nn.Module):
     def degrees(self, inputs: dict[str, torch.Tensor]) -> torch.Tensor:
         y = torch.stack([n.degrees(inputs) for n in self.nets]).mean(0)
         if len(self.specialists) and self.joints:
-            ys = torch.stack([n.degrees({"rgb": inputs["rgb"]}) for n in self.specialists]).mean(0)
+            x = inputs["rgb"]
+            turned = [x if a == 0 else rotate_frames(x, 0.0, None, 0.0, torch.full((len(x),), a)) for a in self.tta_deg]
+            ys = torch.stack([n.degrees({"rgb": xa}) for xa in turned for n in self.specialists]).mean(0)
             y = y.clone()
             y[:, self.joints] = (1.0 - self.mix) * y[:, self.joints] + self.mix * ys[:, self.joints]
         return y
@@ -672,15 +683,20 @@ def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
     atomic_torch_save(path, blob)
 
 
-def add_joint_specialists(path: Path, specialist_paths: list[Path], joints: list[str], mix: float = 1.0) -> None:
+def add_joint_specialists(
+    path: Path, specialist_paths: list[Path], joints: list[str], mix: float = 1.0, tta_deg: tuple[float, ...] = (0.0,)
+) -> None:
     """Store the RGB nets of ``specialist_paths`` (trained on the same grasps and split, e.g. with the thumb MCP /
     IP weighted, ``--select-weighted``, maybe ``--rgb-crop``) in the hand-pose weights file ``path`` as joint
     specialists: in the ``rgb`` and ``dual`` settings the listed ``joints`` become ``(1 - mix) x`` the setting's
-    prediction ``+ mix x`` the specialists' mean (:class:`HandPoseEnsemble`). Replaces earlier specialists."""
+    prediction ``+ mix x`` the specialists' mean (:class:`HandPoseEnsemble`), each averaged over the RGB frame
+    turned by the angles ``tta_deg`` (deg; ``(0,)``: no turn). Replaces earlier specialists."""
     blob = torch.load(path, map_location="cpu", weights_only=False)
     bad = [j for j in joints if j not in JOINTS]
     if bad or not joints or not 0.0 <= mix <= 1.0:
         raise ValueError(f"specialist joints must name joints of {JOINTS} and mix lie in [0, 1], got {joints}, {mix}")
+    if not tta_deg or not all(np.isfinite(a) and abs(a) <= 45.0 for a in tta_deg):
+        raise ValueError(f"test-time turns must be finite angles within +-45 deg, got {tta_deg}")
     nets = []
     for sp in specialist_paths:
         sb = torch.load(sp, map_location="cpu", weights_only=False)
@@ -688,7 +704,12 @@ def add_joint_specialists(path: Path, specialist_paths: list[Path], joints: list
         if "rgb" not in sb.get("models", {}) or not all(same):
             raise ValueError(f"{sp}: not an RGB net of the same training set as {path}")
         nets.append(sb["models"]["rgb"])
-    blob["specialists"] = {"joints": list(joints), "mix": float(mix), "nets": nets}
+    blob["specialists"] = {
+        "joints": list(joints),
+        "mix": float(mix),
+        "nets": nets,
+        "tta_deg": [float(a) for a in tta_deg],
+    }
     atomic_torch_save(path, blob)
 
 
