@@ -15,19 +15,11 @@ Usage: ``python data_tools/frames_touch_seg_micro_ab.py OLD_DIR [ROUNDS]`` with 
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 import time
 
 import numpy as np
-
-
-def _load(path: str, name: str):
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod
+from snapshot_module import load as _load
 
 
 def main() -> None:

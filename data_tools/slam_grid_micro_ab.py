@@ -9,11 +9,11 @@ Usage: ``python data_tools/slam_grid_micro_ab.py OLD_DIR [ROUNDS]`` with OLD_DIR
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 import time
 
 import numpy as np
+from snapshot_module import load as load_snapshot
 
 
 def main() -> None:
@@ -28,10 +28,7 @@ def main() -> None:
     from vtrack.tracking.sdf_grid import surfel_band_sdf as new
 
     old_dir, rounds = sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 5
-    spec = importlib.util.spec_from_file_location("old_sdf_grid", f"{old_dir}/vtrack/tracking/sdf_grid.py")
-    old_mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    sys.modules["old_sdf_grid"] = old_mod  # (dataclasses look their module up)
-    spec.loader.exec_module(old_mod)  # type: ignore[union-attr]
+    old_mod = load_snapshot(f"{old_dir}/vtrack/tracking/sdf_grid.py", "old_sdf_grid")
     calls = []
 
     def record(*a, **k):
