@@ -37,7 +37,8 @@ def test_live_frames_carry_the_offline_colour_tracks_inline_and_from_the_helper(
     frames = helper.parts()[1]
     frames.forward = lambda ev: got["helper"].append(ev.data["frame"])
     depth, rgb = cam.stream["depth"], cam.stream["rgb"]
-    ring = FrameRing.create({"camera/cam0": {"depth": (depth.shape[1:], depth.dtype), "rgb": (rgb.shape[1:], rgb.dtype)}}, 2)
+    shapes = {"depth": (depth.shape[1:], depth.dtype), "rgb": (rgb.shape[1:], rgb.dtype)}
+    ring = FrameRing.create({"camera/cam0": shapes}, 2)
     want = []
     try:
         for i in range(n):
