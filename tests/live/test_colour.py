@@ -82,9 +82,9 @@ def test_live_frames_carry_the_offline_colour_tracks_inline_and_from_the_helper(
 
 @pytest.mark.slow
 def test_live_replay_of_the_spinning_mug_tracks_its_spin_with_colour(shared_data):
-    """A 0.5 s mug session (generated once, ~20 s CPU) replayed at quarter speed: with the colour term the
-    tracker's frames carry feature tracks and the motion error is a fraction of the depth-only one (0.41 vs
-    3.05 mm measured on the first 0.5 s of the 1 s session)."""
+    """A 0.5 s mug session (generated once, ~20 s CPU) replayed at a tenth of real time (so that a loaded machine
+    drops no camera frame): with the colour term the tracker's frames carry feature tracks and the motion error is a
+    fraction of the depth-only one (0.37 vs 2.57 mm measured, 15 camera frames tracked each)."""
     pytest.importorskip("open3d")
     from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
     from vtrack.live.pipeline import LivePipeline
@@ -99,12 +99,12 @@ def test_live_replay_of_the_spinning_mug_tracks_its_spin_with_colour(shared_data
         step = tc._step
         tc._step = lambda ev, fr, step=step, seen=seen: (seen.append(len(_colour(fr)[0])), step(ev, fr))
         src = SessionReplaySource(
-            session, streams=replay_streams(session, [tc]), fields=replay_fields([tc]), reader="process", speed=0.25
+            session, streams=replay_streams(session, [tc]), fields=replay_fields([tc]), reader="process", speed=0.1
         )
         res = LivePipeline(src, [tc]).run()
         r = res["consumers"]["track"]
         assert r["errors"] == 0, r.get("first_error")
-        assert r["result"]["steps"] >= 8 and r["result"]["colour"] == (["camera/cam0"] if colour else [])
+        assert r["result"]["steps"] >= 10 and r["result"]["colour"] == (["camera/cam0"] if colour else [])
         assert (np.median(seen) >= 10) if colour else max(seen) == 0
         out[colour] = r["result"]["motion_err_mm"]
     assert np.isfinite(out[True]) and out[True] < 1.5 and out[True] < 0.5 * out[False], out
