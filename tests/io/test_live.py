@@ -171,7 +171,7 @@ def test_track_consumer_runs_touch_as_the_images_arrive(tiny_session, mode):
     try:
         touch, track = tc.parts()
         assert isinstance(touch, TouchConsumer) and track is tc
-        assert set(tc.fields()["camera/cam0"]) == {"depth"}  # the colour image is never decoded
+        assert set(tc.fields()["camera/cam0"]) == {"depth", "rgb"}  # RGB for the colour term (SLAM)
         assert not tc.wants("tactile/digit_index") and touch.wants("tactile/digit_index")
         sf = tc.sf
         i = len(sf) // 2

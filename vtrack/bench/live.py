@@ -17,15 +17,17 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   measured in wall time is inflated).
 
 Variants: ``default`` (what ``vtrack live`` does: the tactile pipeline on every tactile image as it arrives in a
-child process, segmentation + tracking in the tracker's step, the replay decoding the session in a third process
-into a shared-memory ring that the tracker's process and the touch child read in place), ``frames in their own
+child process, segmentation + tracking in the tracker's step with the colour term's feature tracks on the camera's
+RGB image, the replay decoding the session in a third process into a shared-memory ring that the tracker's process
+and the touch child read in place), ``frames in their own
 process`` / ``frames in the touch process`` (segmentation a stage ahead of the tracker in a child),
 ``frames inline, reader thread``, ``touch thread`` (the tactile pipeline in a worker thread sharing the GIL with
 the tracker), ``touch in camera step`` (the newest image of each sensor is processed inside the camera step, as
 offline tracking does; tactile images in between are never read), ``pickled transport`` (the default without
 the shared-memory ring: every frame pickled through the reader's queue, every tactile image again to the touch
 child) and ``adaptive camera stride`` (the tracker skips camera frames, stride <= 2, while its steps take longer
-than 0.9 camera periods; ``camera_strided_pct`` = camera frames it did not track).
+than 0.9 camera periods; ``camera_strided_pct`` = camera frames it did not track) and ``no colour (depth only)``
+(the tracker's frames without the colour term's feature tracks; the replay does not decode the camera's RGB).
 
 Cases: 3 shared YCB objects, 5 s sessions, occlusion none, or ``VTRACK_BENCH_LIVE_CASES`` =
 ``"object|occlusion|seconds;..."``. Quick mode: one 2 s session, the default variant.
@@ -52,6 +54,9 @@ VARIANTS = {
     "pickled transport": {"transport": "pipe"},
     # the tracker skips camera frames while its steps take longer than 0.9 camera periods (stride <= 2)
     "adaptive camera stride": {"max_camera_stride": 2},
+    # depth only: frames without the colour term's feature tracks, the camera's RGB not decoded (before 2026-11-26
+    # evening)
+    "no colour (depth only)": {"colour": False},
 }
 DEFAULT_VARIANT = "default (touch process, frames inline, reader process)"
 CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))

@@ -23,7 +23,7 @@ from vtrack.errors import InputError
 from vtrack.live.pipeline import Consumer
 from vtrack.live.shared import FrameOverwritten
 from vtrack.live.sources import FrameEvent
-from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE
+from vtrack.tracking.run import TRACK_TOUCH_DOWNSAMPLE, TRACK_TOUCH_STRIDE, colour_term_on
 
 
 @dataclass
@@ -43,8 +43,9 @@ class LiveTrackConfig:
     between are neither segmented nor tracked); max_camera_stride = the stride the tracker may go up to while
     it falls behind: after each step the stride becomes ceil(recent step wall time / (track_budget x camera
     period)), between camera_stride and max_camera_stride, so the CPU it would spend on frames it cannot keep
-    up with goes to the touch stage and the replay instead. The tracker's own options are
-    :class:`vtrack.tracking.window.TrackerOptions` (passed through)."""
+    up with goes to the touch stage and the replay instead; colour = the colour term (see the field). The
+    tracker's own options are :class:`vtrack.tracking.window.TrackerOptions` (passed through; ``colour_opts``:
+    :class:`vtrack.tracking.colour.ColourOptions` overrides)."""
 
     depth_stride: int = 4
     touch_worker: str = "process"
@@ -56,6 +57,11 @@ class LiveTrackConfig:
     camera_stride: int = 1
     max_camera_stride: int = 1
     track_budget: float = 0.9
+    #: the tracker's colour term (KLT feature tracks on each camera's RGB image, :mod:`vtrack.tracking.colour`,
+    #: built by :meth:`vtrack.frames.session.SessionFrames.build`) when the tracker uses it (SLAM by default,
+    #: :func:`vtrack.tracking.run.colour_term_on`): the replay then decodes the camera's ``rgb`` field too, and the
+    #: tracks live in the process that builds the frames. Off: depth only (frames without ``colour_ids``)
+    colour: bool = True
 
 
 class CameraStride:
@@ -119,6 +125,26 @@ class NullConsumer(Consumer):
         return {"checksum": self.checksum}
 
 
+def _camera_raw(sf: Any, cam: Any, depth: np.ndarray, rgb: np.ndarray | None, strided: bool) -> dict:
+    """The camera part of a live frame's raw input to :meth:`SessionFrames.build` (the layout of
+    :meth:`SessionFrames.read`): ``depth`` at full resolution (``strided`` False; the colour term reads its tracks'
+    depth there) or already subsampled by the depth stride; ``rgb`` (H, W, 3) for the colour term or None."""
+    k = sf.depth_stride
+    d = depth if strided else np.ascontiguousarray(depth[::k, ::k])
+    raw: dict = {"cams": [(cam, d, None)]}
+    if rgb is not None and cam.tracks is not None:
+        raw["rgb"] = {cam.name: rgb}
+        if not strided:
+            raw["depth_full"] = {cam.name: depth}
+    return raw
+
+
+def _local(x: Any) -> np.ndarray:
+    """An array sent to the helper: as it is, or a checked copy of a slot of the replay's shared ring (raises
+    :class:`FrameOverwritten` if the slot was reused before it was read)."""
+    return x if isinstance(x, np.ndarray) else x.read()
+
+
 def _helper_process(
     session: str,
     modalities: tuple[str, ...],
@@ -127,13 +153,16 @@ def _helper_process(
     downsample: int,
     touch_conn: Any,
     frames_conn: Any,
+    colour: bool = False,
+    colour_opts: dict | None = None,
 ) -> None:
     """Child process of the ``track`` consumer (:class:`_Helper`). ``touch_conn``: tactile images in, contacts
-    (sensor frame) out; the newest contact per sensor is kept here. ``frames_conn``: a camera frame's strided
-    depth, joints and time in, its :class:`~vtrack.tracking.frame.TrackingFrame` out (segmentation by the
-    FK-posed hand with the newest contacts; with touch in another worker the request carries them). When both
-    wait they are served in turn. ``None`` on either
-    connection ends the process; it answers with its CPU seconds since it was ready."""
+    (sensor frame) out; the newest contact per sensor is kept here. ``frames_conn``: a camera frame's depth (strided,
+    or at full resolution / a slot of the replay's shared ring), its RGB image with ``colour`` (the feature tracks'
+    state lives here, in the process that builds the frames), joints and time in, its
+    :class:`~vtrack.tracking.frame.TrackingFrame` out (segmentation by the FK-posed hand with the newest contacts;
+    with touch in another worker the request carries them). When both wait they are served in turn. ``None`` on
+    either connection ends the process; it answers with its CPU seconds since it was ready."""
     import time
 
     try:
@@ -150,14 +179,18 @@ def _helper_process(
             depth_stride=depth_stride,
             touch_stride=touch_stride,
             touch_downsample=downsample,
+            colour=colour,
+            colour_opts=colour_opts,
         )
         cams = {f"camera/{c.name}": c for c in sf.cams}
         if sf.cams and "vision" in sf.modalities:
-            # warm-up (lazy imports, ray-casting scenes, first-call costs) on the first depth image, before the
-            # replay: not in the first frame's latency. Touch is left out (the tactile pipeline takes its
-            # reference image from the first image it is given); the segmenter's state is reset after.
-            c, k = sf.cams[0], sf.depth_stride
-            sf.build({"i": 0, "cams": [(c, np.asarray(c.stream["depth"][0])[::k, ::k], None)], "touch": []})
+            # warm-up (lazy imports, ray-casting scenes, first-call costs; the colour tracks' too) on the first
+            # camera frame, before the replay: not in the first frame's latency. Touch is left out (the tactile
+            # pipeline takes its reference image from the first image it is given); the segmenter's and the
+            # tracks' state is reset after.
+            c = sf.cams[0]
+            rgb = np.asarray(c.stream["rgb"][0]) if c.tracks is not None else None
+            sf.build({"i": 0, "touch": [], **_camera_raw(sf, c, np.asarray(c.stream["depth"][0]), rgb, False)})
             sf.reset()
     except Exception as e:  # reported by the parent as one line
         touch_conn.send(f"{type(e).__name__}: {e}")
@@ -197,13 +230,19 @@ def _helper_process(
                     contacts[sensor] = c
                     out[j] = (c.points, c.normals, c.penetration_mm, c.valid)
                 conn.send((out, time.thread_time() - c0))
-            else:
-                _, stream, t, depth, q, touch = msg
+            else:  # ("frame", stream, t, q, touch, depth, rgb, strided): depth / rgb arrays or shared slots
+                _, stream, t, q, touch, depth, rgb, strided = msg
+                try:
+                    depth = _local(depth)
+                    rgb = None if rgb is None else _local(rgb)
+                except FrameOverwritten as e:  # a dropped frame: the tracks never saw it
+                    conn.send(f"FrameOverwritten: {e}")
+                    continue
                 raw = {
                     "t": t,
                     "q": q,
-                    "cams": [(cams[stream], depth, None)],
                     "touch": [] if q is None else (list(contacts.items()) if touch is None else touch),
+                    **_camera_raw(sf, cams[stream], depth, rgb, strided),
                 }
                 conn.send((sf.build(raw).tracking_frame(), time.thread_time() - c0))
         except Exception as e:
@@ -232,6 +271,8 @@ class _Helper:
                 cfg.touch_downsample,
                 c_touch,
                 c_frames,
+                owner.colour,
+                owner.colour_opts,
             ),
             daemon=True,
             name="live-track-helper",
@@ -250,6 +291,8 @@ class _Helper:
         conn.send(msg)
         got = conn.recv()
         if isinstance(got, str):
+            if got.startswith("FrameOverwritten"):  # a shared slot reused before the helper read it: dropped
+                raise FrameOverwritten(got)
             raise RuntimeError(f"live helper process: {got}")
         return got
 
@@ -372,11 +415,20 @@ class FramesConsumer(Consumer):
             return
         if not o.stride.take(ev.t):  # not tracked: not segmented either
             return
-        k = o.sf.depth_stride
-        depth = ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k]))
         # the shared helper keeps the contacts it computed; else the newest ones (or raw images) go along
         touch = None if o.frames_helper is o.touch_helper else list(o.images.items())
-        fr, cpu = _Helper.call(o.frames_helper.frames_conn, ("frame", ev.stream, ev.t, depth, self.q, touch))  # type: ignore[union-attr]
+        sh = ev.shared or {}
+        colour = ev.stream in o.colour_cams and "rgb" in ev.data
+        rgb = (sh["rgb"] if "rgb" in sh else ev.data["rgb"]) if colour else None
+        if "depth" in sh:  # in the replay's shared ring: the helper reads (and strides) it in place
+            depth, strided = sh["depth"], False
+        elif colour:  # the colour tracks read their depth at full resolution
+            depth, strided = ev.data["depth"], False
+        else:
+            k = o.sf.depth_stride
+            depth, strided = ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k])), True
+        msg = ("frame", ev.stream, ev.t, self.q, touch, depth, rgb, strided)
+        fr, cpu = _Helper.call(o.frames_helper.frames_conn, msg)  # type: ignore[union-attr]
         self.offload_cpu_s = cpu
         if self.forward is not None:
             from vtrack.live.pipeline import DERIVED_PREFIX
@@ -419,6 +471,13 @@ class TrackConsumer(Consumer):
         self.config = build_config(LiveTrackConfig, cfg_opts, "live tracking", base=config)
         depth_stride = self.config.depth_stride
         self.session = Path(session)
+        self.mesh = None if mesh is None else Path(mesh)
+        # the colour term's feature tracks only when the tracker uses them (as offline: `track_session`)
+        self.colour_opts = tracker_opts.pop("colour_opts", None)
+        self.colour = self.config.colour and colour_term_on(
+            "known_shape" if self.mesh is not None else "slam", tracker_opts
+        )
+        col = {"colour": self.colour, "colour_opts": self.colour_opts}
         try:
             self.sf = SessionFrames(
                 self.session,
@@ -426,15 +485,18 @@ class TrackConsumer(Consumer):
                 depth_stride=depth_stride,
                 touch_stride=self.config.touch_stride,
                 touch_downsample=self.config.touch_downsample,
+                **col,
             )
         except InputError:  # e.g. a sensor without calibration: vision only, said in the result
-            self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride)
-        self.mesh = None if mesh is None else Path(mesh)
+            self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride, **col)
         self.init_pose = init_pose
         self.tracker_opts = tracker_opts
         self.tracker: Any = None
         self.reloc: Any = None  # known shape: run.Relocalisation once the tracker starts
         self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
+        # cameras whose RGB the colour term reads (those with an ``rgb`` field); with a frames worker their tracks
+        # are the helper process's (this process's stay unused)
+        self.colour_cams = {k for k, c in self.cams.items() if c.tracks is not None}
         self.touch_streams = [f"tactile/{s}" for s in (self.sf.touch.sensors if self.sf.touch else [])]
         self.q: np.ndarray | None = None
         self.images: dict[str, Any] = {}  # newest tactile image (or its Contact, with the touch worker) per sensor
@@ -479,8 +541,9 @@ class TrackConsumer(Consumer):
         return s
 
     def fields(self) -> dict[str, list[str]]:
-        """The fields this consumer reads per stream (depth only: the colour image is not used)."""
-        out = {c: ["depth"] for c in self.cams} | {s: ["image"] for s in self.touch_streams}
+        """The fields this consumer reads per stream (a camera's colour image only for the colour term)."""
+        out = {c: ["depth", "rgb"] if c in self.colour_cams else ["depth"] for c in self.cams}
+        out |= {s: ["image"] for s in self.touch_streams}
         if self.sf.kin is not None:
             out["joints"] = ["q"]
         return out
@@ -540,13 +603,12 @@ class TrackConsumer(Consumer):
             return
         t0 = time.perf_counter()
         c = self.cams[ev.stream]
-        k = self.sf.depth_stride
-        raw = {
-            "t": ev.t,
-            "q": self.q,
-            "cams": [(c, ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k])), None)],
-            "touch": list(self.images.items()) if self.q is not None else [],
-        }
+        if ev.stream in self.colour_cams and "rgb" in ev.data:  # the colour term: RGB and full-resolution depth
+            cam = _camera_raw(self.sf, c, ev.read("depth"), ev.read("rgb"), False)
+        else:
+            k = self.sf.depth_stride
+            cam = _camera_raw(self.sf, c, ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k])), None, True)
+        raw = {"t": ev.t, "q": self.q, "touch": list(self.images.items()) if self.q is not None else [], **cam}
         self._step(ev, self.sf.build(raw).tracking_frame())
         self.stride.done(time.perf_counter() - t0)
 
@@ -576,6 +638,7 @@ class TrackConsumer(Consumer):
             "stride_hist": {str(k): v for k, v in sorted(self.stride.hist.items())},
             "modalities": list(self.sf.modalities),
             "mode": "known_shape" if self.mesh is not None else "slam",
+            "colour": sorted(self.colour_cams),  # cameras whose feature tracks fed the colour term
         }
         if self.reloc is not None:
             out["reloc_attempts"], out["reloc_successes"] = self.reloc.attempts, self.reloc.successes

@@ -53,6 +53,11 @@ def register(app: typer.Typer) -> None:
             "--max-camera-stride",
             help="track: skip camera frames (stride up to this) while the tracker's steps exceed 0.9 camera periods",
         ),
+        colour: bool = typer.Option(
+            None,
+            "--colour/--no-colour",
+            help="track: the colour term (feature tracks on the camera's RGB image; SLAM's default) or depth only",
+        ),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
         import os
@@ -77,6 +82,7 @@ def register(app: typer.Typer) -> None:
                 "frames_worker": frames_worker,
                 "camera_stride": camera_stride,
                 "max_camera_stride": max_camera_stride,
+                "colour": colour,
             },
             "reconstruct": {"poses": poses},
         }
