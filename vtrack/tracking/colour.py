@@ -59,6 +59,9 @@ class ColourOptions:
     #: "intrinsic" / albedo image; needs the full-resolution depth, else falls back to ``"local"``); ``"sh_local"``
     #: both, the SH division first
     shading: str = "local"
+    #: per-frame weight kept of the earlier frames' lighting fit (0: each frame alone; 0.98: ~50 frames; the light
+    #: is fixed relative to the camera, the albedo of a turning object averages out)
+    sh_memory: float = 0.0
     sh_depth_blur_px: float = 3.0  #: sigma of the masked smoothing of the depth before its normals, px
     #: sigma of a Gaussian pre-blur of the shading-free image, px (0 = none): shading of surface relief finer
     #: than the depth resolves is not divided out and partly stays with the light; a blur weakens it
@@ -76,13 +79,14 @@ class ColourOptions:
             or o.levels < 0
             or o.shading not in SHADING_MODES
             or o.sh_depth_blur_px < 0
+            or not 0.0 <= o.sh_memory <= 1.0
             or o.pre_blur_px < 0
         ):
             raise InputError(
                 "colour options out of range",
                 field="colour",
                 expected=f"max_features >= 1, win >= 3, blur_px > 0, levels >= 0, shading in {SHADING_MODES}, "
-                "sh_depth_blur_px >= 0, pre_blur_px >= 0",
+                "sh_depth_blur_px >= 0, pre_blur_px >= 0, 0 <= sh_memory <= 1",
                 got=(o.max_features, o.win, o.blur_px, o.levels, o.shading, o.sh_depth_blur_px, o.pre_blur_px),
             )
         return o
@@ -136,6 +140,9 @@ def normals_from_depth(
         nd = cv2.GaussianBlur(np.dstack([zc, ok.astype(np.float32)]), (0, 0), blur_px)
         if nd.ndim == 2:
             nd = nd.reshape(zc.shape + (2,))
+        # holes of the depth (dropouts) inside the mask are filled from their neighbours: a hole must not become
+        # a patch without a normal (an artificial, world-fixed corner in the shading-free image)
+        ok = np.asarray(mask, bool) & (nd[..., 1] > 0.25)
         zc = np.where(ok, nd[..., 0] / np.maximum(nd[..., 1], 1e-6), 0.0).astype(np.float32)
     H, W = z.shape
     r0, c0 = offset
@@ -170,28 +177,50 @@ def sh_basis(n: np.ndarray) -> np.ndarray:
 
 
 def fit_sh_lighting(
-    intensity: np.ndarray, normals: np.ndarray, iters: int = 3, ridge: float = 1e-3, huber_k: float = 1.345
+    intensity: np.ndarray,
+    normals: np.ndarray,
+    iters: int = 3,
+    ridge: float = 1e-3,
+    huber_k: float = 1.345,
+    state: dict | None = None,
+    memory: float = 0.0,
 ) -> np.ndarray:
     """Coefficients (9,) of the lighting model ``intensity ~ sh_basis(normals) @ c`` (Lambertian shading of a
     uniform albedo under distant light: the 2nd-order SH capture ~98 % of it; the albedo's variation is the
     residual, down-weighted by Huber IRLS, ``huber_k`` robust sigmas). ``ridge`` (relative to the mean diagonal
     of the normal matrix) keeps the solve finite when the normals do not span the basis (a flat surface: every
-    normal the same): the prediction is then the mean intensity. Empty input: zeros."""
+    normal the same): the prediction is then the mean intensity. Empty input: zeros (or the state's model).
+
+    ``state`` (a dict kept by the caller) with ``memory`` in (0, 1]: the normal equations of earlier frames,
+    scaled by ``memory`` per frame, are added to this frame's (each frame weighted as one): a light fixed in the
+    camera frame over many frames, so the albedo of a turning object averages out of it. A per-frame fit cannot
+    tell an albedo pattern around a body of revolution from shading (both are functions of the normal there)."""
     I = np.asarray(intensity, np.float64).ravel()
     B = sh_basis(np.asarray(normals, np.float64).reshape(-1, 3))
+    A0 = np.zeros((9, 9))
+    b0 = np.zeros(9)
+    if state is not None and memory > 0 and "A" in state:
+        A0, b0 = memory * state["A"], memory * state["b"]
     if not len(I):
-        return np.zeros(9)
+        if not np.any(A0):
+            return np.zeros(9)
+        c = np.linalg.solve(A0 + np.eye(9) * ridge * max(np.trace(A0) / 9.0, 1e-12), b0)
+        return c if np.all(np.isfinite(c)) else np.zeros(9)
     w = np.ones(len(I))
     c = np.zeros(9)
+    inv_n = 1.0 / len(I)
     for _ in range(max(1, iters)):
-        Bw = B * w[:, None]
-        A = Bw.T @ B
+        Bw = B * (w * inv_n)[:, None]
+        A = Bw.T @ B + A0
         A += np.eye(9) * ridge * max(np.trace(A) / 9.0, 1e-12)
-        c = np.linalg.solve(A, Bw.T @ I)
+        c = np.linalg.solve(A, Bw.T @ I + b0)
         r = I - B @ c
         s = 1.4826 * np.median(np.abs(r)) + 1e-6
         a = np.abs(r) / (huber_k * s)
         w = np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-12))
+    if state is not None and memory > 0:
+        Bw = B * (w * inv_n)[:, None]
+        state["A"], state["b"] = Bw.T @ B + A0, Bw.T @ I + b0
     return c if np.all(np.isfinite(c)) else np.zeros(9)
 
 
@@ -203,13 +232,16 @@ def remove_shading_sh(
     depth_blur_px: float = 3.0,
     offset: tuple[int, int] = (0, 0),
     max_fit_px: int = 4000,
+    state: dict | None = None,
+    memory: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Albedo ("intrinsic") image of the object: ``grey`` divided by a 2nd-order spherical-harmonics lighting
     model fitted (robust least squares, :func:`fit_sh_lighting`) to the intensity against the normals of the
     depth (:func:`normals_from_depth`) over the object pixels of this frame; scaled to mean 128 on the object,
     128 elsewhere. Returns the float32 image and where it is valid (mask, a normal, a positive predicted shading);
     pixels without a valid normal keep 128. Everything is estimated from the frame (no light or albedo known).
-    ``max_fit_px``: a regular subsample of at most this many pixels fits the model (the whole image is divided)."""
+    ``max_fit_px``: a regular subsample of at most this many pixels fits the model (the whole image is divided).
+    ``state`` / ``memory``: the lighting model accumulated over frames (:func:`fit_sh_lighting`)."""
     g = np.asarray(grey, np.float32)
     n, ok = normals_from_depth(depth_m, mask, K, depth_blur_px, offset)
     out = np.full(g.shape, 128.0, np.float32)
@@ -217,17 +249,32 @@ def remove_shading_sh(
     if len(idx) < 20:
         return out, np.zeros(g.shape, bool)
     fit = idx[:: max(1, len(idx) // max_fit_px)]
-    c = fit_sh_lighting(g.ravel()[fit], n.reshape(-1, 3)[fit])
-    shade = (sh_basis(n.reshape(-1, 3)[idx]) @ c.astype(np.float32)).astype(np.float32)
+    c = fit_sh_lighting(g.ravel()[fit], n.reshape(-1, 3)[fit], state=state, memory=memory)
+    shade = np.zeros(g.size, np.float32)
+    shade[idx] = sh_basis(n.reshape(-1, 3)[idx]) @ c.astype(np.float32)
     # a predicted shading below a tenth of the object's median: a normal far outside the fitted range, no division
-    good = shade > 0.1 * max(float(np.median(g.ravel()[idx])), 1.0)
-    alb = g.ravel()[idx[good]] / shade[good]
-    if not len(alb):
+    floor = 0.1 * max(float(np.median(g.ravel()[idx])), 1.0)
+    have = ok.ravel() & (shade > floor)
+    if not have.any():
         return out, np.zeros(g.shape, bool)
+    # mask pixels without a usable normal take the shading of their neighbours (normalised convolution; the
+    # shading is smooth), so the albedo image has no edge where the depth has none
+    import cv2
+
+    m = np.asarray(mask, bool).ravel()
+    fill = m & ~have
+    if fill.any():
+        sw = cv2.GaussianBlur(
+            np.dstack([np.where(have, shade, 0.0).reshape(g.shape), have.reshape(g.shape).astype(np.float32)]),
+            (0, 0),
+            max(depth_blur_px, 2.0),
+        ).reshape(-1, 2)
+        shade[fill] = np.where(sw[fill, 1] > 1e-3, sw[fill, 0] / np.maximum(sw[fill, 1], 1e-6), np.median(shade[have]))
+        have = m & (shade > floor)
+    alb = g.ravel()[have] / shade[have]
     flat = out.ravel()
-    flat[idx[good]] = 128.0 * alb / max(float(np.mean(alb)), 1e-6)
-    valid = np.zeros(g.size, bool)
-    valid[idx[good]] = True
+    flat[have] = 128.0 * alb / max(float(np.mean(alb)), 1e-6)
+    valid = have
     return out, valid.reshape(g.shape)
 
 
@@ -260,6 +307,7 @@ class FeatureTracks:
         """Forget every track (e.g. before re-running from the first frame); ids restart at 0."""
         self._end_tracks()
         self._next_id = 0
+        self._sh_state: dict = {}  # the lighting model's normal equations over frames (``sh_memory``)
 
     def _end_tracks(self) -> None:
         """End every track (ids are not reused: a later track never takes an ended one's anchor)."""
@@ -302,7 +350,16 @@ class FeatureTracks:
         g_box = to_grey(grey[r0:r1, c0:c1])
         if o.shading != "local" and depth is not None and K is not None and np.shape(depth)[:2] == mask.shape:
             d = np.asarray(depth[r0:r1, c0:c1], np.float32) * np.float32(depth_scale)
-            norm, _ = remove_shading_sh(g_box, sub_mask, d, np.asarray(K, np.float64), o.sh_depth_blur_px, (r0, c0))
+            norm, _ = remove_shading_sh(
+                g_box,
+                sub_mask,
+                d,
+                np.asarray(K, np.float64),
+                o.sh_depth_blur_px,
+                (r0, c0),
+                state=self._sh_state,
+                memory=o.sh_memory,
+            )
             if o.shading == "sh_local":
                 norm = normalise_shading(norm, sub_mask, o.blur_px)
         else:
