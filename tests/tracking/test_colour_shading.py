@@ -118,9 +118,7 @@ def test_tracks_with_sh_shading_follow_a_textured_sphere_and_fall_back_without_d
     # a sharp albedo texture (a printed label), shifted by 2 px between the frames
     rng = np.random.default_rng(1)
     tex = (rng.random((H // 4 + 2, W // 4 + 2)) > 0.5).repeat(4, 0).repeat(4, 1)
-    imgs = [
-        np.clip(200.0 * (0.6 + 0.4 * tex[1 : H + 1, s : W + s]) * shade, 0, 255).astype(np.uint8) for s in (2, 0)
-    ]
+    imgs = [np.clip(200.0 * (0.6 + 0.4 * tex[1 : H + 1, s : W + s]) * shade, 0, 255).astype(np.uint8) for s in (2, 0)]
     ft = FeatureTracks({"shading": "sh", "max_features": 40})
     ids0, uv0 = ft.update(imgs[0], hit, z, K)
     ids1, uv1 = ft.update(imgs[1], hit, z, K)
@@ -132,6 +130,23 @@ def test_tracks_with_sh_shading_follow_a_textured_sphere_and_fall_back_without_d
     a = FeatureTracks({"shading": "sh"}).update(imgs[0], hit)
     b = FeatureTracks({"shading": "local"}).update(imgs[0], hit)
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+
+
+def test_lighting_accumulated_over_frames_keeps_its_model_through_an_empty_frame():
+    _, hit, n, P = _sphere()
+    L = np.array([0.3, -0.4, -0.85])
+    L /= np.linalg.norm(L)
+    img = 150.0 * _albedo(P) * (0.5 + 0.4 * (n @ L))
+    state: dict = {}
+    c1 = fit_sh_lighting(img[hit], n[hit], state=state, memory=0.9)
+    # the same frame again: the accumulated model is the single frame's (to rounding)
+    c2 = fit_sh_lighting(img[hit], n[hit], state=state, memory=0.9)
+    assert np.allclose(c1, c2, rtol=1e-3, atol=1e-3 * np.abs(c1).max())
+    # a frame without object pixels: the model of the earlier frames, not zeros
+    c3 = fit_sh_lighting(np.zeros(0), np.zeros((0, 3)), state=state, memory=0.9)
+    assert np.allclose(c3, c1, rtol=1e-3, atol=1e-3 * np.abs(c1).max())
+    with pytest.raises(InputError):
+        ColourOptions.from_dict({"sh_memory": 1.5})
 
 
 def test_bad_shading_option_is_an_input_error():

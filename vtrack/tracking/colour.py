@@ -15,6 +15,13 @@ shading stays put in the image while the texture moves; LK on raw intensities is
 masked Gaussian of ``blur_px``), which keeps the texture and removes most of the smooth shading (106 of 135 deg,
 ``data_tools``-style check in docs/benchmarks/slam_colour.md).
 
+Alternative (opt-in, ``shading="sh"`` / ``"sh_local"``): an "intrinsic" image, the intensity divided by a
+2nd-order spherical-harmonics lighting model fitted against the surface normals of the frame's own depth
+(:func:`remove_shading_sh`; nothing of the simulator's lights is used). Measured on the 5 s sessions it is worse
+than the local mean (docs/benchmarks/slam_5s_medium.md): the depth's normals do not resolve the scanned meshes'
+fine relief, whose shading is what the tracks follow, and the model's residual (mask borders, a mug's rim)
+is light-fixed texture of its own.
+
 Graceful degradation: features are kept only where the normalised image has a corner whose minimum
 eigenvalue is above ``min_eig`` (absolute, on the normalised image: a uniformly coloured object has none, its
 shading divided out), away from the mask's border (occluding contours and fingers are not object-fixed);
@@ -28,7 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtrack.errors import InputError
-
 
 SHADING_MODES = ("local", "sh", "sh_local")
 
