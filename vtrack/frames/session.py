@@ -466,7 +466,12 @@ class SessionFrames:
         k = self.depth_stride
         hw = image.shape[:2]  # ``image``: the camera's RGB (H, W, 3) or grey (H, W) image
         full = upsample_mask(mask, hw) if mask.shape != hw else mask
-        ids, uv = c.tracks.update(image, full[: hw[0], : hw[1]])
+        if c.tracks.opts.shading != "local" and depth_full is not None and depth_full.shape == hw:
+            # the shading model's normals come from the full-resolution depth
+            scale = c.depth_scale if depth_full.dtype.kind in "ui" else 1.0
+            ids, uv = c.tracks.update(image, full[: hw[0], : hw[1]], depth_full, c.cam.K, scale)
+        else:
+            ids, uv = c.tracks.update(image, full[: hw[0], : hw[1]])
         X, ok = backproject(uv, np.where(mask, z, 0.0), k, c.cam.K)
         if depth_full is not None and depth_full.shape == hw:
             scale = c.depth_scale if depth_full.dtype.kind in "ui" else 1.0

@@ -135,6 +135,15 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 #: (4.81 with the first kernel, 1.5 sigma); heavy occlusion 2 s 4.81 -> 3.73 mm; +3-6 % CPU per frame (A/B under
 #: load). ``sigma_colour=0`` turns it off (and the frames layer then reads no RGB).
 SLAM_COLOUR_SIGMA = 0.001
+#: SLAM's ``TrackerOptions.colour_few_tracks`` / ``colour_few_min_vision``: in a frame with >= 250 depth points (of the
+#: tracker's 300 at most) the colour term needs >= 12 anchored tracks (else 6, the tracker's ``colour_min_tracks``).
+#: With Huber at 0.5 sigma every track past 0.5 mm pulls with the same force, so a handful of slipping tracks (a small
+#: object half hidden by the fingers: the 5 s banana at medium occlusion keeps ~12) steer the pose about axes the
+#: depth holds only weakly: 32 deg + 19 mm lost in its last 2 s (colour off: 2.59 mm). Where depth is sparse (heavy
+#: occlusion, ~100 points) the few tracks are what sees a spin: 12 tracks everywhere took the heavy mug 4.14 ->
+#: 9.80 mm. Blind YCB sessions, docs/benchmarks/slam_5s_medium.md.
+SLAM_COLOUR_FEW_TRACKS = 12
+SLAM_COLOUR_FEW_MIN_VISION = 250
 #: the colour term on (``track_session(..., **SLAM_COLOUR)``; SLAM's default) / off (``SLAM_NO_COLOUR``)
 SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}
 SLAM_NO_COLOUR: dict[str, float] = {"sigma_colour": 0.0}
@@ -223,6 +232,8 @@ class SLAMOptions:
         # hidden; SLAM_COLOUR_SIGMA above for the measurements). No tracks in the frames (no RGB, no texture, frames
         # built without colour): no term, the same poses as without it.
         rest.setdefault("sigma_colour", SLAM_COLOUR_SIGMA)
+        rest.setdefault("colour_few_tracks", SLAM_COLOUR_FEW_TRACKS)
+        rest.setdefault("colour_few_min_vision", SLAM_COLOUR_FEW_MIN_VISION)
         return so, bo, TrackerOptions.from_dict(rest)
 
 

@@ -141,6 +141,12 @@ class TrackerOptions:
     kernel_colour: float = 0.5
     colour_gate: float = 0.01  #: drop tracks farther than this from their anchor at the prediction, m
     colour_min_tracks: int = 6  #: fewer anchored tracks in a frame: no colour term there
+    #: > 0: in a frame with at least ``colour_few_min_vision`` depth points (after ``max_vision_points`` and the gate),
+    #: the colour term needs at least this many anchored tracks instead. Each track past the kernel pulls with the
+    #: same force, so a handful of slipping ones steers the pose about axes the depth holds only weakly (the 5 s
+    #: banana at medium occlusion); where depth is sparse (heavy occlusion) a few tracks are still what sees a spin
+    colour_few_tracks: int = 0
+    colour_few_min_vision: int = 0
     #: > 0: the colour term acts only along the eigen-directions of the frame's depth / touch data weaker than this
     #: fraction of the strongest (rotation scaled by ``object_radius``, as in the degeneracy test): colour observes
     #: what the geometry leaves free and does not fight it where the geometry is good (LK on shaded texture is
@@ -187,6 +193,13 @@ class TrackerOptions:
             )
         if not (o.sigma_colour >= 0 and np.isfinite(o.sigma_colour)):
             raise InputError("sigma_colour must be >= 0 (m; 0: off)", field="sigma_colour", got=o.sigma_colour)
+        if o.colour_few_tracks < 0 or o.colour_few_min_vision < 0:
+            raise InputError(
+                "colour few-track options out of range",
+                field="colour_few_tracks",
+                expected="colour_few_tracks >= 0, colour_few_min_vision >= 0",
+                got=(o.colour_few_tracks, o.colour_few_min_vision),
+            )
         if not (o.colour_reanchor >= 0 and np.isfinite(o.colour_reanchor)) or o.colour_max_age < 0:
             raise InputError(
                 "colour re-anchoring out of range",
@@ -472,7 +485,10 @@ class WindowTracker:
         if ids is None or P is None or len(ids) == 0:
             return None
         sel = [(k, a) for k, a in enumerate(np.asarray(ids).tolist()) if a in self._anchors]
-        if len(sel) < o.colour_min_tracks:
+        n_min = o.colour_min_tracks
+        if o.colour_few_tracks > 0 and fr.n_vision >= o.colour_few_min_vision:
+            n_min = max(n_min, o.colour_few_tracks)
+        if len(sel) < n_min:
             return None
         rows = [k for k, _ in sel]
         P = np.asarray(P, np.float64)
@@ -484,7 +500,7 @@ class WindowTracker:
         ok = np.isfinite(P).all(1) & (np.linalg.norm(P @ Ti[:3, :3].T + Ti[:3, 3] - Q, axis=1) < o.colour_gate)
         if o.colour_residual == "ray" and C is not None:
             ok &= np.isfinite(C).all(1) & (np.linalg.norm(P - C, axis=1) > 1e-6)
-        if ok.sum() < o.colour_min_tracks:
+        if ok.sum() < n_min:
             return None
         return P[ok], Q[ok], (None if C is None else np.array(C[ok]))
 
