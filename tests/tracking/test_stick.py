@@ -120,3 +120,28 @@ def test_contact_ids_follow_unbroken_patches():
     assert ids[3][0] == ids[2][0] and ids[3][1] not in (a0, b0)  # b's new contact is a new id
     np.testing.assert_allclose(patch_centre(_contact(0.001).points, np.ones(9)), [0.001, 0.0, 0.0], atol=1e-12)
     assert patch_centre(np.zeros((0, 3)), np.zeros(0)) is None
+
+
+def test_drop_touch_only_where_sticking_contacts_and_vision_hold_the_frame():
+    def frames(tr, vision: bool, n: int = 12):
+        rng = np.random.default_rng(1)
+        surf = R * _dirs(*rng.normal(size=(40, 3)))
+        for k in range(n):
+            t = k / FPS
+            T = _pose(t)
+            pts = se3.transform_points(T, STICK_OBJ[None])[0]
+            fr = TrackingFrame(
+                t=t,
+                vision_points=se3.transform_points(T, surf[None])[0] if vision else None,
+                touch_points=pts,
+                touch_normals=(pts - T[:3, 3]) / R,
+            )
+            fr.info.update(stick_ids=np.arange(3), stick_points=pts, stick_normals=(pts - T[:3, 3]) / R)
+            tr.step(fr)
+        return tr.keyframes[-1].frame
+
+    opts = {"sigma_stick": 0.001, "stick_drop_touch": True, "stick_min_step": 0.0}
+    assert frames(WindowTracker(_Sphere(), _pose(0.0), opts), vision=True).n_touch == 0
+    assert frames(WindowTracker(_Sphere(), _pose(0.0), opts), vision=False).n_touch == 3
+    off = {**opts, "stick_drop_touch": False}
+    assert frames(WindowTracker(_Sphere(), _pose(0.0), off), vision=True).n_touch == 3

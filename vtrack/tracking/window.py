@@ -173,6 +173,11 @@ class TrackerOptions:
     stick_gate: float = 0.004  #: m (see ``sigma_stick``)
     #: m: a patch centre that moves more than this on the gel between frames starts a new contact (the gel slips)
     stick_patch_move: float = 0.0008
+    #: in a frame with vision points and at least one sticking contact that passes the slip test, drop the contacts'
+    #: point-to-map residuals (they are matched against the strip of map they laid down themselves; the sticking term
+    #: carries what they know). The map still integrates them. Frames without vision keep them: nothing else holds
+    #: the map there (the baseball hidden at medium occlusion)
+    stick_drop_touch: bool = False
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -482,6 +487,8 @@ class WindowTracker:
         cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy(), n_vision=fr.n_vision)
         cur.colour = self._colour_pairs(fr, T_pred)
         cur.stick = self._stick_pairs(fr, T_pred)
+        if o.stick_drop_touch and cur.stick is not None and fr.n_vision > 0:
+            fr.touch_points = fr.touch_normals = None
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
         if info.n_vision + info.n_touch + info.n_free == 0:
