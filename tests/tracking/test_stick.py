@@ -122,7 +122,7 @@ def test_contact_ids_follow_unbroken_patches():
     assert patch_centre(np.zeros((0, 3)), np.zeros(0)) is None
 
 
-def test_drop_touch_only_where_sticking_contacts_and_vision_hold_the_frame():
+def test_drop_touch_only_where_vision_holds_the_frame():
     def frames(tr, vision: bool, n: int = 12):
         rng = np.random.default_rng(1)
         surf = R * _dirs(*rng.normal(size=(40, 3)))

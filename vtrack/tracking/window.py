@@ -173,10 +173,10 @@ class TrackerOptions:
     stick_gate: float = 0.004  #: m (see ``sigma_stick``)
     #: m: a patch centre that moves more than this on the gel between frames starts a new contact (the gel slips)
     stick_patch_move: float = 0.0008
-    #: in a frame with vision points and at least one sticking contact that passes the slip test, drop the contacts'
-    #: point-to-map residuals (they are matched against the strip of map they laid down themselves; the sticking term
-    #: carries what they know). The map still integrates them. Frames without vision keep them: nothing else holds
-    #: the map there (the baseball hidden at medium occlusion)
+    #: with the sticking term on, drop the contacts' point-to-map residuals in every frame that has vision points
+    #: (they are matched against the strip of map they laid down themselves; the sticking term carries what they
+    #: know). The map still integrates them. Frames without vision keep them: nothing else holds the map there (the
+    #: baseball hidden at medium occlusion)
     stick_drop_touch: bool = False
 
     @classmethod
@@ -487,7 +487,7 @@ class WindowTracker:
         cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy(), n_vision=fr.n_vision)
         cur.colour = self._colour_pairs(fr, T_pred)
         cur.stick = self._stick_pairs(fr, T_pred)
-        if o.stick_drop_touch and cur.stick is not None and fr.n_vision > 0:
+        if o.stick_drop_touch and o.sigma_stick > 0 and fr.n_vision > 0:
             fr.touch_points = fr.touch_normals = None
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
