@@ -94,6 +94,14 @@ def test_options_are_checked():
         WindowTracker(_Sphere(), np.eye(4), {"sigma_stick": -1.0})
     with pytest.raises(InputError):
         WindowTracker(_Sphere(), np.eye(4), {"sigma_stick": 0.001, "stick_step_gate": 0.0})
+    with pytest.raises(InputError):
+        WindowTracker(_Sphere(), np.eye(4), {"sigma_stick": 0.001, "stick_reference": "gt"})
+
+
+def test_data_reference_keeps_the_window_as_it_was():
+    # the slip test's reference solve (without the term) must not leak into the result: same spin tracked
+    assert _run(stick_reference="data") < 1.0
+    assert _run(slide=True, stick_reference="data") < 1.0
 
 
 class _Frame:

@@ -178,6 +178,11 @@ class TrackerOptions:
     #: know). The map still integrates them. Frames without vision keep them: nothing else holds the map there (the
     #: baseball hidden at medium occlusion)
     stick_drop_touch: bool = False
+    #: what the slip test compares a contact's motion with: ``prediction`` (the constant-velocity prediction) or
+    #: ``data`` (the frame solved first WITHOUT the sticking term: the motion the other senses see; one more solve per
+    #: frame). With ``prediction`` the accepted contacts bend the prediction itself, so sliding contacts that hold the
+    #: object still pass
+    stick_reference: str = "prediction"
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -235,6 +240,10 @@ class TrackerOptions:
                     o.stick_patch_move,
                     o.stick_min_step,
                 ),
+            )
+        if o.stick_reference not in ("prediction", "data"):
+            raise InputError(
+                "unknown stick reference", field="stick_reference", expected="prediction|data", got=o.stick_reference
             )
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
@@ -486,11 +495,14 @@ class WindowTracker:
         )
         cur = _Slot(T=T_pred.copy(), t=fr.t, frame=fr, T_prior=T_pred.copy(), n_vision=fr.n_vision)
         cur.colour = self._colour_pairs(fr, T_pred)
-        cur.stick = self._stick_pairs(fr, T_pred)
-        if o.stick_drop_touch and o.sigma_stick > 0 and fr.n_vision > 0:
-            fr.touch_points = fr.touch_normals = None
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
+        T_ref = T_pred
+        if o.sigma_stick > 0 and o.stick_reference == "data" and len(fr.info.get("stick_ids", ())):
+            T_ref = self._solve_without_stick(slots, v_before)
+        cur.stick = self._stick_pairs(fr, T_ref)
+        if o.stick_drop_touch and o.sigma_stick > 0 and fr.n_vision > 0:
+            fr.touch_points = fr.touch_normals = None
         if info.n_vision + info.n_touch + info.n_free == 0:
             info.status = "no_data"
         else:
@@ -719,6 +731,21 @@ class WindowTracker:
         if not keep:
             return None
         return P[keep], np.array(anchors)
+
+    def _solve_without_stick(self, slots: list[_Slot], v_before: np.ndarray) -> np.ndarray:
+        """The current (last) slot's pose solved from the window WITHOUT the sticking term (the slots are left as they
+        were): the reference of the slip test with ``stick_reference="data"``."""
+        saved = [(s.T.copy(), s.stick) for s in slots]
+        for s in slots:
+            s.stick = None
+        try:
+            if self.t_last is not None:
+                self._optimise(slots, v_before)
+            T = slots[-1].T.copy()
+        finally:
+            for s, (T0, st) in zip(slots, saved, strict=True):
+                s.T, s.stick = T0, st
+        return T
 
     def _stick_anchor(self, fr: TrackingFrame, T: np.ndarray) -> None:
         """After a frame: anchor its new (or re-anchored) sticking contacts in the object frame of the committed pose
