@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
 
 
 class _Model(BaseModel):
@@ -236,6 +236,19 @@ class SimSpec(_Model):
     penetration_mm: tuple[float, float] = (0.5, 2.0)
     finger_gaiting: bool = False
     joint_rate_hz: float = Field(60.0, gt=0, le=10000.0)
+    #: ``slide``: each finger closes along its synergy and the object turns under it (contacts slide over the
+    #: surface); ``stick``: fingers in contact follow the object (object-frame contact point fixed) and gait when
+    #: their kinematics cannot follow (see :mod:`vtrack.sim.grasp`). Opt-in; absent from dumps when ``slide``.
+    contact_mode: Literal["slide", "stick"] = "slide"
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):  # noqa: ANN001
+        # the default mode is left out of dumps, so scenes and sessions made before the option existed keep their
+        # bytes and cache keys
+        d = handler(self)
+        if isinstance(d, dict) and d.get("contact_mode") == "slide":
+            d.pop("contact_mode")
+        return d
 
     @field_validator("penetration_mm")
     @classmethod

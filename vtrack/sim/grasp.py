@@ -37,6 +37,13 @@ ALLEGRO_CLOSED = np.array([0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6, 1.5, 0.0, 1.5, 1.6
 FINE_STRIDE_MM = 0.5  # grid of the indentation checks (thin features such as can rims are ~1 mm)
 MAX_CLOSING_RATE = 1.2  # synergy units per second (~1.7 rad/s per joint): no finger jumps
 LIFT_S = 0.12  # how far (in synergy units) a gaiting finger opens
+# contact_mode "stick" (see _stick_plan)
+STICK_POS_TOL = 0.3e-3  # m, the gel origin follows its object-fixed target at least this well ...
+STICK_NORMAL_TOL = 0.2  # rad, ... and its normal; else the finger gaits
+STICK_NORMAL_WEIGHT = 0.01  # m/rad: the contact's position matters more than the gel's tilt
+STICK_GAIT_S = 0.1  # s, one gait (open, move back, re-close)
+STICK_DRIFT_TOL = 0.7e-3  # m, ... and the patch centre stays this close to where it was in the object frame
+STICK_DEPTH_TOL_MM = 0.3  # a contact-phase frame's indentation stays this close to the phase's first frame
 
 
 @dataclass
@@ -499,10 +506,14 @@ def plan_grasp(
     q = _posture(q_open, q_closed, cols, s_val)
     if align_normals:
         q = _align_gels(hk, obj_rc, T_wo, q, tactile_specs, d_target, phase_ok)
+    stick = getattr(sim, "contact_mode", "slide") == "stick"
+    if stick:
+        q, phase_ok, d_target = _stick_plan(hk, obj_rc, T_wo, q, phase_ok, cols, tactile_specs, q_open, q_closed, times)
     for s in names:
         meas[s], _ = _max_indentation(hk, obj_rc, T_ow, q, s, tactile_specs[s], stride_mm=FINE_STRIDE_MM)
         # A first contact can jump (e.g. onto a rim) inside a bisection bracket: not a controlled contact.
-        phase_ok[s] &= np.abs(meas[s] - d_target[s]) < 0.15
+        # (stick: the IK follows the object to STICK_POS_TOL, so the depth may be off by about that much)
+        phase_ok[s] &= np.abs(meas[s] - d_target[s]) < (STICK_DEPTH_TOL_MM + 0.05 if stick else 0.15)
     return GraspPlan(
         times,
         T_wo,
@@ -515,6 +526,123 @@ def plan_grasp(
         float(sim.rotation_speed),
         float(sim.translation_amplitude),
     )
+
+
+def _stick_plan(
+    hk, obj_rc, T_wo, q_slide, phase_slide, cols, tactile_specs, q_open, q_closed, times
+) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """``contact_mode: stick``: fingers in contact follow the object, then gait when they cannot.
+
+    Per finger, a contact phase starts where the sliding plan holds a controlled contact (``phase_slide``): the
+    sensor's pose in the object frame at that frame, ``T_os``, is frozen and the finger's joints are solved per
+    frame by the batched IK (:func:`vtrack.kinematics.ik.solve_sensor_ik`) so the gel follows ``T_wo @ T_os``
+    (origin exactly, normal softly: a finger has 4 joints). The phase ends at the first frame the IK misses by more
+    than ``STICK_POS_TOL`` (m) or ``STICK_NORMAL_TOL`` (rad) (workspace / joint limits), or the patch centre moves
+    by more than ``STICK_DRIFT_TOL`` on the object or its depth by ``STICK_DEPTH_TOL_MM``: the finger then gaits for
+    ``STICK_GAIT_S`` (opens by up to ``LIFT_S`` synergy units while blending back to its sliding-plan posture, no
+    contact phase) and a new phase starts on the point it closes on. Fingers are independent chains, so each is
+    solved alone. Returns the joint vectors (N, J), the contact phases and the target depths (the depth at each
+    phase's first frame; mm).
+    """
+    from vtrack.kinematics.ik import solve_sensor_ik
+
+    n = len(T_wo)
+    dt = float(np.median(np.diff(times))) if n > 1 else 1.0
+    n_gait = max(2, int(round(STICK_GAIT_S / dt)))
+    q = q_slide.copy()
+    sp = hk.sensor_poses(q_slide)
+    T_ow = se3.invert(T_wo)
+    phase = {s: np.zeros(n, bool) for s in hk.sensor_names}
+    depth = {}
+    for s in hk.sensor_names:
+        c = cols[s]
+        c_slide, d_s = patch_centres(hk, obj_rc, T_ow, q_slide, s, tactile_specs[s])
+        depth[s] = d_s.copy()
+        i = 0
+        while i < n:
+            if not phase_slide[s][i]:
+                i += 1
+                continue
+            T_os = T_ow[i] @ sp[s][i]
+            tgt = T_wo[i:] @ T_os
+            res = solve_sensor_ik(
+                hk,
+                q[i],
+                {s: tgt[:, :3, 3]},
+                {s: tgt[:, :3, 2]},
+                q_init=q[i],
+                iterations=30,
+                normal_weight=STICK_NORMAL_WEIGHT,
+                rest_weight=1e-4,
+            )
+            c_ik, d_ik = patch_centres(hk, obj_rc, T_ow[i:], res.q, s, tactile_specs[s])
+            bad = (res.position_error[s] > STICK_POS_TOL) | (res.normal_error[s] > STICK_NORMAL_TOL)
+            bad |= np.abs(d_ik - d_s[i]) > STICK_DEPTH_TOL_MM  # the tilted gel would press in or lift off
+            # a tilted gel rolls its patch over the surface: the contact must stay where it was made
+            with np.errstate(invalid="ignore"):
+                bad |= ~(np.linalg.norm(c_ik - c_slide[i], axis=1) <= STICK_DRIFT_TOL)
+            bad[0] = False  # the phase's first frame is the sliding plan's own (exact) posture
+            e = int(np.argmax(bad)) if bad.any() else len(bad)
+            end = i + e
+            q[i:end, c] = res.q[:e][:, c]
+            phase[s][i:end] = True
+            depth[s][i:end] = d_s[i]
+            # gait: open and move back to the sliding plan's posture (reached at the end of the gait)
+            last = q[end - 1, c].copy()
+            for k, j in enumerate(range(end, min(n, end + n_gait))):
+                u = (k + 1) / n_gait
+                w = u * u * (3.0 - 2.0 * u)
+                lift = LIFT_S * np.sin(np.pi * u) ** 2
+                q[j, c] = (1.0 - w) * last + w * q_slide[j, c] - lift * (q_closed[c] - q_open[c])
+            q[end : end + n_gait] = hk.clip_to_limits(q[end : end + n_gait])
+            i = end + n_gait
+    return q, phase, depth
+
+
+def patch_centres(
+    hk, obj_rc: Raycaster, T_ow: np.ndarray, q: np.ndarray, sensor: str, spec, stride_mm: float = FINE_STRIDE_MM
+) -> tuple[np.ndarray, np.ndarray]:
+    """Contact patch centre of ``sensor`` in the OBJECT frame (N, 3), m (indentation-weighted centroid of the gel
+    height map above the contact threshold, on the gel surface; NaN without contact) and the max indentation (N,),
+    mm, for postures ``q`` (N, J) and object poses ``T_ow`` (N, 4, 4) = T_object_world."""
+    stride = max(1, int(round(stride_mm / spec.mm_per_px)))
+    T_os = T_ow @ hk.sensor_poses(q)[sensor]
+    h = gel_heights(obj_rc, T_os, spec.width, spec.height, spec.mm_per_px, spec.gel_thickness_mm, stride=stride)
+    rows = (np.arange(0, spec.height, stride) - (spec.height - 1) / 2.0) * spec.mm_per_px / 1000.0
+    cols = (np.arange(0, spec.width, stride) - (spec.width - 1) / 2.0) * spec.mm_per_px / 1000.0
+    w = np.maximum(h - spec.contact_threshold_mm, 0.0).astype(np.float64)
+    tot = w.sum((1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cy = (w.sum(2) @ rows) / tot
+        cx = (w.sum(1) @ cols) / tot
+    c_s = np.stack([cx, cy, np.zeros_like(cx)], axis=1)
+    return se3.transform_points(T_os, c_s[:, None])[:, 0], h.reshape(len(h), -1).max(1).astype(np.float64)
+
+
+def contact_drift_mm(hk: HandKinematics, obj_rc: Raycaster, plan: GraspPlan, tactile_specs: dict) -> dict[str, list]:
+    """Ground truth (scoring and tests only): per sensor and contact phase of ``plan`` (runs of
+    ``in_contact_phase`` of >= 2 frames), the largest distance (mm) of the contact patch centre
+    (:func:`patch_centres`) in the OBJECT frame from where it was at the phase's first frame. A sliding contact
+    drifts by the path it slides."""
+    T_ow = se3.invert(plan.T_world_object)
+    out: dict[str, list] = {}
+    for s in hk.sensor_names:
+        c_o, _ = patch_centres(hk, obj_rc, T_ow, plan.q, s, tactile_specs[s])
+        ph = plan.in_contact_phase[s] & np.isfinite(c_o).all(1)
+        drifts = []
+        i = 0
+        while i < len(ph):
+            if not ph[i]:
+                i += 1
+                continue
+            j = i
+            while j < len(ph) and ph[j]:
+                j += 1
+            if j - i >= 2:
+                drifts.append(float(np.linalg.norm(c_o[i:j] - c_o[i], axis=1).max() * 1e3))
+            i = j
+        out[s] = drifts
+    return out
 
 
 def _align_gels(hk, obj_rc, T_wo, q_syn, tactile_specs, d_target, active, iters: int = 4) -> np.ndarray:

@@ -24,6 +24,7 @@ def tiny_session_path(
     object: str | Path | None = None,
     seed: int = 0,
     depth_noise: float | None = None,
+    contact_mode: str = "slide",
 ) -> Path:
     """A small synthetic session of the default scene (generated once into ``cache_dir()``).
 
@@ -42,9 +43,12 @@ def tiny_session_path(
     }
     if depth_noise is not None:
         spec["noise"] = float(depth_noise)
+    if contact_mode != "slide":  # the default mode is not in the key: its sessions keep their cache keys
+        spec["contact"] = contact_mode
     key = json.dumps(spec, sort_keys=True)
     digest = hashlib.sha1(key.encode()).hexdigest()[:12]
-    path = cache_dir() / "sessions" / f"tiny-{occlusion}-{seconds:g}s-{digest}"
+    mode = "" if contact_mode == "slide" else f"{contact_mode}-"
+    path = cache_dir() / "sessions" / f"tiny-{mode}{occlusion}-{seconds:g}s-{digest}"
     if is_complete(path):
         return path
     from vtrack.sim.generate import generate_session
@@ -52,11 +56,14 @@ def tiny_session_path(
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
     scene: Any = scene_file
-    if depth_noise is not None:
+    if depth_noise is not None or contact_mode != "slide":
         from vtrack.scene import load_scene
 
         scene = load_scene(scene_file)
-        scene.sim.depth_noise = float(depth_noise)
+        if depth_noise is not None:
+            scene.sim.depth_noise = float(depth_noise)
+        if contact_mode != "slide":
+            scene.sim.contact_mode = contact_mode
     generate_session(scene, tmp, seconds=seconds, seed=seed, occlusion=occlusion, object_mesh=object, overwrite=True)
     if not is_complete(path):
         try:
@@ -85,9 +92,16 @@ def ycb_objects() -> list[str]:
     return names
 
 
-def ycb_session(name: str, occlusion: str = "none", seconds: float = 2.0, depth_noise: float | None = None) -> Path:
+def ycb_session(
+    name: str,
+    occlusion: str = "none",
+    seconds: float = 2.0,
+    depth_noise: float | None = None,
+    contact_mode: str = "slide",
+) -> Path:
     """Cached session of the default scene holding the shared YCB object ``name`` (e.g. ``006_mustard_bottle``);
-    the default object's sessions are the tests' ones. Used by the benchmarks."""
+    the default object's sessions are the tests' ones. Used by the benchmarks. ``contact_mode``: the simulator's
+    ``sim.contact_mode`` (``slide`` default, ``stick``: fingers follow the object, see :mod:`vtrack.sim.grasp`)."""
     from vtrack.errors import InputError
     from vtrack.paths import shared_data_dir
 
@@ -95,5 +109,9 @@ def ycb_session(name: str, occlusion: str = "none", seconds: float = 2.0, depth_
     if not mesh.exists():
         raise InputError("no such YCB object in the shared data", path=mesh, expected="<name>.ply")
     return tiny_session_path(
-        occlusion=occlusion, seconds=seconds, object=None if name == DEFAULT_OBJECT else mesh, depth_noise=depth_noise
+        occlusion=occlusion,
+        seconds=seconds,
+        object=None if name == DEFAULT_OBJECT else mesh,
+        depth_noise=depth_noise,
+        contact_mode=contact_mode,
     )

@@ -345,6 +345,11 @@ def track_session(
         else None
     )
     cpu_read = np.zeros(n)
+    sticker = None
+    if "touch" in modalities and float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
+        from vtrack.tracking.stick import StickingContacts
+
+        sticker = StickingContacts(float(tracker.opts.stick_patch_move))
     for i in range(n):
         c0 = time.process_time()
         raw = frames.read(i)  # disk read + decompression: not part of the per-frame tracking cost ...
@@ -353,6 +358,8 @@ def track_session(
         fr = frames.build(raw)
         t1 = time.perf_counter()
         tf = fr.tracking_frame()
+        if sticker is not None:
+            sticker.annotate(fr, tf)
         est[i] = tracker.step(tf)
         st = tracker.last_info.status if tracker.last_info else "ok"
         if reloc is not None:

@@ -318,6 +318,7 @@ class SLAMTracker(WindowTracker):
             self.t_last = float(frame.t)
             self.history.append(StepInfo(t=float(frame.t), status="mapping"))
             self._colour_anchor(frame, T, True)
+            self._stick_anchor(frame, T)
         else:
             T = super().step(frame)
         t1 = time.perf_counter()

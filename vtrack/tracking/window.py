@@ -162,6 +162,33 @@ class TrackerOptions:
     #: > 0: tracks anchored this many frames ago are re-anchored at the committed pose (bounds the slip a track
     #: accumulates against its anchor; the term then observes the motion over at most this many frames)
     colour_max_age: int = 0
+    #: sticking-contact term (0: off), m: a contact that sticks to the object keeps its object-frame point. Each
+    #: sensor's contact patch centre (``frame.info["stick_ids"]`` / ``["stick_points"]``, world, from
+    #: :class:`vtrack.tracking.stick.StickingContacts`: one id per unbroken contact whose patch stays put on the gel)
+    #: is anchored in the object frame when first seen; later observations must land on the anchor, point-to-point
+    #: with this sigma, robust (``kernel_stick``). Blind slip test, besides the patch staying put on the gel: a
+    #: contact is used only while its finger carries it ALONG the surface (tangential step since the last frame of at
+    #: least ``stick_min_step`` per nominal frame: a finger closing on an object that turns under it moves along the
+    #: normal, or not at all) and while that step follows the predicted object motion within ``stick_step_gate``
+    #: and the contact lies within ``stick_gate`` of its anchor at the prediction; otherwise it is re-anchored.
+    #: Added after the degeneracy projection, like the colour term (see docs/benchmarks/heavy_occlusion3.md)
+    sigma_stick: float = 0.0
+    kernel_stick: float = 1.5  #: robust kernel width of the sticking-contact term, in sigmas
+    stick_step_gate: float = 0.001  #: m per frame (see ``sigma_stick``)
+    stick_min_step: float = 0.00015  #: m per nominal frame (see ``sigma_stick``)
+    stick_gate: float = 0.004  #: m (see ``sigma_stick``)
+    #: m: a patch centre that moves more than this on the gel between frames starts a new contact (the gel slips)
+    stick_patch_move: float = 0.0008
+    #: with the sticking term on, drop the contacts' point-to-map residuals in every frame that has vision points
+    #: (they are matched against the strip of map they laid down themselves; the sticking term carries what they
+    #: know). The map still integrates them. Frames without vision keep them: nothing else holds the map there (the
+    #: baseball hidden at medium occlusion)
+    stick_drop_touch: bool = False
+    #: what the slip test compares a contact's motion with: ``prediction`` (the constant-velocity prediction) or
+    #: ``data`` (the frame solved first WITHOUT the sticking term: the motion the other senses see; one more solve per
+    #: frame). With ``prediction`` the accepted contacts bend the prediction itself, so sliding contacts that hold the
+    #: object still pass
+    stick_reference: str = "prediction"
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -207,6 +234,30 @@ class TrackerOptions:
                 expected="colour_reanchor >= 0 (m), colour_max_age >= 0 (frames)",
                 got=(o.colour_reanchor, o.colour_max_age),
             )
+        if not (o.sigma_stick >= 0 and np.isfinite(o.sigma_stick)) or not (
+            o.stick_step_gate > 0
+            and o.stick_gate > 0
+            and o.kernel_stick > 0
+            and o.stick_patch_move > 0
+            and o.stick_min_step >= 0
+        ):
+            raise InputError(
+                "sticking-contact options out of range",
+                field="sigma_stick",
+                expected="sigma_stick >= 0 (m; 0: off), stick gates, kernel and patch move > 0, min step >= 0",
+                got=(
+                    o.sigma_stick,
+                    o.stick_step_gate,
+                    o.stick_gate,
+                    o.kernel_stick,
+                    o.stick_patch_move,
+                    o.stick_min_step,
+                ),
+            )
+        if o.stick_reference not in ("prediction", "data"):
+            raise InputError(
+                "unknown stick reference", field="stick_reference", expected="prediction|data", got=o.stick_reference
+            )
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
         return o
@@ -248,6 +299,8 @@ class _Slot:
     colour: tuple[np.ndarray, ...] | None = None
     #: projector of a twist onto the directions the colour term acts along (None: all of them; see colour_ratio)
     proj_colour: np.ndarray | None = None
+    #: sticking contacts (see ``TrackerOptions.sigma_stick``): world points (K, 3) and their object-frame anchors
+    stick: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _hat3(v: np.ndarray) -> np.ndarray:
@@ -410,6 +463,9 @@ class WindowTracker:
         self._t_vision: float | None = None  # time of the last frame with segmented vision points
         self._anchors: dict[int, np.ndarray] = {}  # colour track id -> object-frame anchor (m)
         self._anchor_frame: dict[int, int] = {}  # colour track id -> frame count when anchored
+        self._stick_anchors: dict[int, np.ndarray] = {}  # sticking-contact id -> object-frame anchor (m)
+        self._stick_last: dict[int, np.ndarray] = {}  # sticking-contact id -> its world point in the last frame
+        self._stick_reanchor: set[int] = set()  # ids that failed the slip test this frame
 
     # -- public API ---------------------------------------------------------------------------
     def reset(self, T_world_object: np.ndarray) -> None:
@@ -420,6 +476,8 @@ class WindowTracker:
         self.t_last = None
         self._anchors.clear()
         self._anchor_frame.clear()
+        self._stick_anchors.clear()
+        self._stick_last.clear()
 
     @property
     def last_info(self) -> StepInfo | None:
@@ -452,6 +510,12 @@ class WindowTracker:
         cur.colour = self._colour_pairs(fr, T_pred)
         slots = [*self.keyframes[-(o.window - 1) :], cur] if o.window > 1 else [cur]
         v_before = self.velocity.copy()
+        T_ref = T_pred
+        if o.sigma_stick > 0 and o.stick_reference == "data" and len(fr.info.get("stick_ids", ())):
+            T_ref = self._solve_without_stick(slots, v_before)
+        cur.stick = self._stick_pairs(fr, T_ref)
+        if o.stick_drop_touch and o.sigma_stick > 0 and fr.n_vision > 0:
+            fr.touch_points = fr.touch_normals = None
         if info.n_vision + info.n_touch + info.n_free == 0:
             info.status = "no_data"
         else:
@@ -468,6 +532,7 @@ class WindowTracker:
         self._bound(cur, T_pred)
         self._commit(slots, cur, dt)
         self._colour_anchor(fr, self.T, info.status not in ("lost", "no_data"))
+        self._stick_anchor(fr, self.T)
         info.ms = (time.perf_counter() - t_start) * 1e3
         self.history.append(info)
         return self.T.copy()
@@ -642,6 +707,105 @@ class WindowTracker:
             sl = slice(3 * a, 3 * (a + n))
             out[i] = (Jw[sl].T @ J[sl], Jw[sl].T @ r[sl], float(rho[a : a + n].sum()))
             a += n
+        return out
+
+    def _stick_pairs(self, fr: TrackingFrame, T_pred: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The frame's sticking contacts that pass the blind slip test at the prediction: (world points (K, 3),
+        object-frame anchors (K, 3)); None when the term is off or none passes. The ones that fail are re-anchored
+        after the frame (:meth:`_stick_anchor`)."""
+        o = self.opts
+        self._stick_reanchor = set()
+        if o.sigma_stick <= 0:
+            return None
+        ids = fr.info.get("stick_ids")
+        P = fr.info.get("stick_points")
+        if ids is None or P is None or not len(ids):
+            return None
+        P = np.asarray(P, np.float64)
+        Nrm = fr.info.get("stick_normals")
+        Nrm = np.full(P.shape, np.nan) if Nrm is None or len(Nrm) != len(P) else np.asarray(Nrm, np.float64)
+        dt = o.nominal_dt if self.t_last is None else max(fr.t - self.t_last, 1e-6)
+        min_step = o.stick_min_step * dt / o.nominal_dt
+        Tp_inv = _inv(T_pred)
+        M = T_pred @ _inv(self.T)  # predicted motion of object-fixed world points since the last frame
+        keep, anchors = [], []
+        for k, i in enumerate(np.asarray(ids).tolist()):
+            a = self._stick_anchors.get(i)
+            last = self._stick_last.get(i)
+            if a is None or last is None or not np.all(np.isfinite(P[k])):
+                continue
+            step = P[k] - last
+            n = Nrm[k] if np.all(np.isfinite(Nrm[k])) else np.zeros(3)
+            tangential = np.linalg.norm(step - (step @ n) * n)
+            step_err = np.linalg.norm(P[k] - (M[:3, :3] @ last + M[:3, 3]))
+            anchor_err = np.linalg.norm(Tp_inv[:3, :3] @ P[k] + Tp_inv[:3, 3] - a)
+            if tangential < min_step or step_err > o.stick_step_gate or anchor_err > o.stick_gate:
+                self._stick_reanchor.add(i)  # slipping (or a bad prediction): start over from this frame
+                continue
+            keep.append(k)
+            anchors.append(a)
+        if not keep:
+            return None
+        return P[keep], np.array(anchors)
+
+    def _solve_without_stick(self, slots: list[_Slot], v_before: np.ndarray) -> np.ndarray:
+        """The current (last) slot's pose solved from the window WITHOUT the sticking term (the slots are left as they
+        were): the reference of the slip test with ``stick_reference="data"``."""
+        saved = [(s.T.copy(), s.stick) for s in slots]
+        for s in slots:
+            s.stick = None
+        try:
+            if self.t_last is not None:
+                self._optimise(slots, v_before)
+            T = slots[-1].T.copy()
+        finally:
+            for s, (T0, st) in zip(slots, saved, strict=True):
+                s.T, s.stick = T0, st
+        return T
+
+    def _stick_anchor(self, fr: TrackingFrame, T: np.ndarray) -> None:
+        """After a frame: anchor its new (or re-anchored) sticking contacts in the object frame of the committed pose
+        ``T``; forget the contacts that ended."""
+        if self.opts.sigma_stick <= 0:
+            return
+        ids = fr.info.get("stick_ids")
+        P = fr.info.get("stick_points")
+        ids = [] if ids is None or P is None else np.asarray(ids).tolist()
+        Tinv = _inv(T)
+        present = set(ids)
+        for i in [i for i in self._stick_anchors if i not in present]:
+            del self._stick_anchors[i]
+            self._stick_last.pop(i, None)
+        for k, i in enumerate(ids):
+            p = np.asarray(P[k], np.float64)
+            if not np.all(np.isfinite(p)):
+                continue
+            if i not in self._stick_anchors or i in self._stick_reanchor:
+                self._stick_anchors[i] = Tinv[:3, :3] @ p + Tinv[:3, 3]
+            self._stick_last[i] = p
+        self._stick_reanchor = set()
+
+    def _window_stick_terms(self, slots: list[_Slot]) -> dict[int, tuple[np.ndarray, np.ndarray, float]]:
+        """Per slot with sticking contacts: normal matrix, gradient and robust cost of ``T^-1 p - anchor`` (object
+        frame; Jacobian ``[-I, hat(q)]`` for the right perturbation ``T exp(xi)``, ``q = T^-1 p``)."""
+        o = self.opts
+        out = {}
+        sig = o.sigma_stick
+        for i, s in enumerate(slots):
+            if s.stick is None:
+                continue
+            P, A = s.stick
+            Ti = _inv(s.T)
+            q = P @ Ti[:3, :3].T + Ti[:3, 3]
+            r = q - A
+            w, rho = _robust_weights(np.linalg.norm(r, axis=1) / sig, o.robust, o.kernel_stick)
+            w = w / (sig * sig)
+            J = np.zeros((len(q), 3, 6))
+            J[:, :, :3] = -np.eye(3)
+            J[:, :, 3:] = np.stack([_hat3(x) for x in q])
+            H = np.einsum("k,kai,kaj->ij", w, J, J)
+            b = np.einsum("k,kai,ka->i", w, J, r)
+            out[i] = (H, b, float(rho.sum()))
         return out
 
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
@@ -966,6 +1130,10 @@ class WindowTracker:
             H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hc
             b[6 * i : 6 * i + 6] += bc
             cost += cc
+        for i, (Hs, bs, cs) in sorted(self._window_stick_terms(slots).items()):
+            H[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] += Hs
+            b[6 * i : 6 * i + 6] += bs
+            cost += cs
         terms, cm = self._motion_terms(slots, v_before, dt_first)
         cost += cm
         for ids, Js, r, sq in terms:

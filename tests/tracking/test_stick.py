@@ -1,0 +1,155 @@
+"""The sticking-contact term (``TrackerOptions.sigma_stick``, :mod:`vtrack.tracking.stick`).
+
+A sphere spinning about its centre: its surface (depth or contacts) says nothing about the spin. Contacts that stick
+to it (object-fixed points, seen in the world as they move) observe the spin; a contact that slides (a world-fixed
+finger the sphere turns under) must be recognised by the blind slip test and left out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vtrack.errors import InputError
+from vtrack.frames.touch import Contact
+from vtrack.geometry import se3
+from vtrack.tracking.frame import TrackingFrame
+from vtrack.tracking.stick import StickingContacts, patch_centre
+from vtrack.tracking.window import WindowTracker
+
+R = 0.04  # sphere radius, m
+SPIN = 0.6  # rad/s about z
+FPS = 30.0
+
+
+class _Sphere:
+    def query(self, points, with_grad=True):
+        P = np.asarray(points, float)
+        n = np.linalg.norm(P, axis=1)
+        return n - R, (P / np.maximum(n, 1e-12)[:, None] if with_grad else None)
+
+
+def _angle(t: float, ramp: float = 0.5) -> float:
+    """Spin angle (rad) at t (s): the simulator's cosine ramp-in of the angular velocity over ``ramp`` s."""
+    r = min(t / ramp, 1.0)
+    return SPIN * (ramp * (r - np.sin(np.pi * r) / np.pi) / 2.0 if t < ramp else t - ramp / 2.0)
+
+
+def _pose(t: float) -> np.ndarray:
+    return se3.make_transform(se3.so3_exp(np.array([0.0, 0.0, _angle(t)])), np.array([0.0, 0.0, 0.3]))
+
+
+def _dirs(*v) -> np.ndarray:
+    d = np.array(v, float)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+STICK_OBJ = R * _dirs([1, 0, 0.3], [-0.5, 0.8, -0.2], [-0.4, -0.9, 0.1])  # object-fixed contact points
+SLIDE_WORLD = np.array([0.0, 0.0, 0.3]) + R * _dirs([0.6, -0.75, 0.2], [0.1, 0.95, 0.1])  # fingers it turns under
+
+
+def _run(n: int = 45, slide: bool = False, stick: bool = True, **opts) -> np.ndarray:
+    """Final rotation error (deg) of a tracker seeing the sphere's surface and the contacts."""
+    rng = np.random.default_rng(0)
+    tr = WindowTracker(_Sphere(), _pose(0.0), {"sigma_stick": 0.001, **opts})
+    surf = R * _dirs(*rng.normal(size=(60, 3)))
+    for k in range(n):
+        t = k / FPS
+        T = _pose(t)
+        fr = TrackingFrame(t=t, vision_points=se3.transform_points(T, surf[None])[0] + rng.normal(0, 2e-4, (60, 3)))
+        ids, pts = [], []
+        if stick:
+            ids += [0, 1, 2]
+            pts += list(se3.transform_points(T, STICK_OBJ[None])[0] + rng.normal(0, 1e-4, (3, 3)))
+        if slide:
+            ids += [7, 8]
+            pts += list(SLIDE_WORLD + rng.normal(0, 3e-5, (2, 3)))
+        fr.info["stick_ids"] = np.array(ids, np.int64)
+        fr.info["stick_points"] = np.array(pts).reshape(-1, 3)
+        fr.info["stick_normals"] = (np.array(pts).reshape(-1, 3) - T[:3, 3]) / R
+        T_est = tr.step(fr)
+    dR = T_est[:3, :3].T @ _pose((n - 1) / FPS)[:3, :3]
+    return float(np.degrees(np.linalg.norm(se3.so3_log(dR))))
+
+
+def test_sticking_contacts_recover_an_unobservable_spin():
+    assert _run(sigma_stick=0.0) > 0.6 * np.degrees(_angle(44 / FPS))  # the surface alone: the spin is lost
+    assert _run() < 1.0  # sticking contacts: the spin is tracked
+
+
+def test_sliding_contacts_are_gated_out():
+    with_slide = _run(slide=True)
+    assert with_slide < 1.0
+    # without the slip test (gates wide open) the same sliding contacts hold the sphere back
+    assert _run(slide=True, stick_step_gate=1.0, stick_gate=1.0, stick_min_step=0.0) > 3.0 * max(with_slide, 0.3)
+
+
+def test_sliding_contacts_alone_change_nothing():
+    # alone, the sliding contacts fail the slip test in every frame: the tracker behaves as without the term
+    assert abs(_run(slide=True, stick=False) - _run(stick=False)) < 0.5
+
+
+def test_options_are_checked():
+    with pytest.raises(InputError):
+        WindowTracker(_Sphere(), np.eye(4), {"sigma_stick": -1.0})
+    with pytest.raises(InputError):
+        WindowTracker(_Sphere(), np.eye(4), {"sigma_stick": 0.001, "stick_step_gate": 0.0})
+    with pytest.raises(InputError):
+        WindowTracker(_Sphere(), np.eye(4), {"sigma_stick": 0.001, "stick_reference": "gt"})
+
+
+def test_data_reference_keeps_the_window_as_it_was():
+    # the slip test's reference solve (without the term) must not leak into the result: same spin tracked
+    assert _run(stick_reference="data") < 1.0
+    assert _run(slide=True, stick_reference="data") < 1.0
+
+
+class _Frame:
+    def __init__(self, contacts, poses):
+        self.contacts, self.sensor_poses = contacts, poses
+
+
+def _contact(cx: float, n: int = 9) -> Contact:
+    P = np.stack([np.full(n, cx), np.linspace(-1e-3, 1e-3, n), np.zeros(n)], 1)
+    return Contact(P, np.tile([0.0, 0.0, 1.0], (n, 1)), np.ones(n))
+
+
+def test_contact_ids_follow_unbroken_patches():
+    sc = StickingContacts(patch_move=0.0008)
+    poses = {"a": np.eye(4), "b": np.eye(4)}
+    ids = []
+    for cx_a, has_b in [(0.0, True), (0.0003, True), (0.002, False), (0.0021, True)]:
+        cont = {"a": _contact(cx_a), "b": _contact(0.0) if has_b else Contact(*(np.zeros((0, 3)),) * 2, np.zeros(0))}
+        tf = sc.annotate(_Frame(cont, poses), TrackingFrame(t=0.0))
+        ids.append(tf.info["stick_ids"].tolist())
+    a0, b0 = ids[0]
+    assert ids[1] == [a0, b0]  # small patch motion: same contacts
+    assert len(ids[2]) == 1 and ids[2][0] not in (a0, b0)  # a's patch jumped on the gel; b lost contact
+    assert ids[3][0] == ids[2][0] and ids[3][1] not in (a0, b0)  # b's new contact is a new id
+    np.testing.assert_allclose(patch_centre(_contact(0.001).points, np.ones(9)), [0.001, 0.0, 0.0], atol=1e-12)
+    assert patch_centre(np.zeros((0, 3)), np.zeros(0)) is None
+
+
+def test_drop_touch_only_where_vision_holds_the_frame():
+    def frames(tr, vision: bool, n: int = 12):
+        rng = np.random.default_rng(1)
+        surf = R * _dirs(*rng.normal(size=(40, 3)))
+        for k in range(n):
+            t = k / FPS
+            T = _pose(t)
+            pts = se3.transform_points(T, STICK_OBJ[None])[0]
+            fr = TrackingFrame(
+                t=t,
+                vision_points=se3.transform_points(T, surf[None])[0] if vision else None,
+                touch_points=pts,
+                touch_normals=(pts - T[:3, 3]) / R,
+            )
+            fr.info.update(stick_ids=np.arange(3), stick_points=pts, stick_normals=(pts - T[:3, 3]) / R)
+            tr.step(fr)
+        return tr.keyframes[-1].frame
+
+    opts = {"sigma_stick": 0.001, "stick_drop_touch": True, "stick_min_step": 0.0}
+    assert frames(WindowTracker(_Sphere(), _pose(0.0), opts), vision=True).n_touch == 0
+    assert frames(WindowTracker(_Sphere(), _pose(0.0), opts), vision=False).n_touch == 3
+    off = {**opts, "stick_drop_touch": False}
+    assert frames(WindowTracker(_Sphere(), _pose(0.0), off), vision=True).n_touch == 3
