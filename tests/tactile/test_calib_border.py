@@ -1,0 +1,77 @@
+"""Calibration near the gel's border (issue #21, docs/benchmarks/calib_border.md): MLP ensembles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _net(rng, dims):
+    p = {"n_layers": np.int64(len(dims) - 1)}
+    for i in range(len(dims) - 1):
+        p[f"W{i}"] = rng.normal(0, 0.5, (dims[i], dims[i + 1])).astype(np.float32)
+        p[f"b{i}"] = rng.normal(0, 0.1, dims[i + 1]).astype(np.float32)
+    return p
+
+
+def test_ensemble_forward_is_the_mean_of_its_members():
+    from vtrack.tactile.calibration import _mlp_forward
+
+    rng = np.random.default_rng(3)
+    a, b, c = (_net(rng, [8, 5, 5, 2]) for _ in range(3))
+    x = rng.normal(0, 1, (40, 8)).astype(np.float32)
+    ens = dict(a)
+    ens.update({f"m1_{k}": v for k, v in b.items() if k != "n_layers"})
+    ens.update({f"m2_{k}": v for k, v in c.items() if k != "n_layers"})
+    ens["n_members"] = np.int64(3)
+    want = (_mlp_forward(a, x) + _mlp_forward(b, x) + _mlp_forward(c, x)) / 3.0
+    got = _mlp_forward(ens, x)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    assert np.abs(got - _mlp_forward(a, x)).max() > 1e-3  # the other members do count
+    assert np.abs(got).max() < 1.0  # still a mean of tanh outputs: bounded normals
+
+
+def test_options_key_keeps_the_old_cache_keys():
+    """A calibration cached before ``mlp_ensemble`` existed keeps its key (and so do the sessions built on the
+    simulator's cached calibrations); another ensemble size is another key."""
+    from vtrack.tactile.calibration import TrainOptions, options_key
+
+    k1 = options_key(TrainOptions())
+    assert "mlp_ensemble" not in k1 and k1["mlp_hidden"] == 64 and k1["mlp_features"] == "raw"
+    assert options_key(TrainOptions(mlp_ensemble=3))["mlp_ensemble"] == 3
+
+
+@pytest.fixture(scope="module")
+def mini_small(tmp_path_factory):
+    from vtrack.sim.presses import render_press_set
+
+    return render_press_set("gelsight_mini", tmp_path_factory.mktemp("mini_b") / "set", n=6, seed=4)
+
+
+def test_ensemble_calibration_round_trips_and_averages_its_nets(mini_small, tmp_path):
+    import torch
+
+    from vtrack.tactile.calibration import Calibration, TrainOptions, _mlp_forward, calibrate
+    from vtrack.tactile.pressset import load_press_set
+
+    torch.set_num_threads(1)
+    ps = load_press_set(mini_small)
+    small = {"mlp_epochs": 1, "mlp_hidden": 16, "inside_per_press": 800, "flat_per_press": 500}
+    one = calibrate(ps, "mlp", ps.presses[:3], TrainOptions(mlp_features="relpoly", **small))
+    two = calibrate(ps, "mlp", ps.presses[:3], TrainOptions(mlp_features="relpoly", mlp_ensemble=2, **small))
+    assert int(two.params["n_members"]) == 2 and two.params["m1_W0"].shape == (36, 16)
+    # member 0 is the single net (same seed, same data); member 1 differs (another seed)
+    np.testing.assert_array_equal(two.params["W0"], one.params["W0"])
+    assert not np.allclose(two.params["m1_W0"], two.params["W0"])
+    back = Calibration.load(two.save(tmp_path / "ens.npz"))
+    img = ps.image(ps.presses[4])
+    nx, ny = back.normals(img)
+    np.testing.assert_array_equal(nx, two.normals(img)[0])
+    assert np.isfinite(nx).all() and np.isfinite(ny).all() and np.abs(nx).max() > 0.05
+    # the prediction is the mean of the two nets
+    rng = np.random.default_rng(0)
+    x = rng.normal(0, 0.3, (30, 36)).astype(np.float32)
+    m1 = {"n_layers": two.params["n_layers"], **{k[3:]: v for k, v in two.params.items() if k.startswith("m1_")}}
+    np.testing.assert_allclose(
+        _mlp_forward(two.params, x), 0.5 * (_mlp_forward(one.params, x) + _mlp_forward(m1, x)), rtol=1e-5, atol=1e-6
+    )
