@@ -75,3 +75,34 @@ def test_ensemble_calibration_round_trips_and_averages_its_nets(mini_small, tmp_
     np.testing.assert_allclose(
         _mlp_forward(two.params, x), 0.5 * (_mlp_forward(one.params, x) + _mlp_forward(m1, x)), rtol=1e-5, atol=1e-6
     )
+
+
+def test_training_at_the_working_resolution_uses_the_downscaled_presses(mini_small):
+    """``train_work_res``: samples come from the presses at the pipeline's default working resolution (the
+    Mini's 320x240 frames: 160x120), with the circles scaled, and only from the training presses."""
+    import torch
+
+    from vtrack.tactile.calibration import TrainOptions, _training_set, calibrate
+    from vtrack.tactile.pipeline import auto_downsample
+    from vtrack.tactile.pressset import load_press_set
+
+    torch.set_num_threads(1)
+    ps = load_press_set(mini_small)
+    H, W = ps.shape
+    f = auto_downsample((H, W))
+    assert f == 2
+    same, tr = _training_set(ps, ps.presses[:3], TrainOptions())
+    assert same is ps and tr == ps.presses[:3]
+    small, tr = _training_set(ps, ps.presses[:3], TrainOptions(train_work_res=True))
+    assert small.shape == (H // 2, W // 2) and small.mm_per_px == 2 * ps.mm_per_px
+    assert [p.file for p in tr] == [p.file for p in ps.presses[:3]]
+    p0, q0 = ps.presses[0], tr[0]
+    assert q0.contact_radius_px == p0.contact_radius_px / 2
+    assert abs(q0.center_xy_px[0] - ((p0.center_xy_px[0] + 0.5) / 2 - 0.5)) < 1e-9
+    small_opts = {"mlp_epochs": 1, "mlp_hidden": 16, "inside_per_press": 800, "flat_per_press": 500}
+    full = calibrate(ps, "mlp", ps.presses[:3], TrainOptions(mlp_features="relpoly", **small_opts))
+    work = calibrate(ps, "mlp", ps.presses[:3], TrainOptions(mlp_features="relpoly", train_work_res=True, **small_opts))
+    assert work.shape == full.shape  # the calibration keeps the full-resolution background
+    assert work.info["n_train_pixels"] < full.info["n_train_pixels"]  # a quarter of the disc pixels
+    gx, gy = work.slopes(ps.image(ps.presses[4]))
+    assert np.isfinite(gx).all() and np.abs(gx).max() > 0.05

@@ -48,6 +48,9 @@ class TrainOptions:
     #: MLPs trained from different random starts whose predictions are averaged (1 = one net). Averaging
     #: lowers the variance of a net fitted to few presses (the gel's border, docs/benchmarks/calib_border.md)
     mlp_ensemble: int = 1
+    #: draw the training pixels from the presses downscaled to the pipeline's default working resolution
+    #: (``auto_downsample``: 2 at 320x240, 4 at 640x480) instead of the full-resolution images
+    train_work_res: bool = False
     #: MLP colour features besides the change: "raw" = the raw colour (the original model), "rel" = the change
     #: relative to the sensor's own background at that pixel, dI / (bg + 16): an LED's fall-off across the
     #: gel scales bg and dI alike, so "rel" needs fewer presses to learn it; "poly" / "relpoly": the change
@@ -67,7 +70,7 @@ class TrainOptions:
 #: Options added after calibrations were first cached, with the value that reproduces the older behaviour:
 #: left out of cache keys at that value, so the calibrations cached before (and the sessions built on them)
 #: keep their keys.
-_KEY_NEUTRAL_OPTIONS = {"mlp_ensemble": 1}
+_KEY_NEUTRAL_OPTIONS = {"mlp_ensemble": 1, "train_work_res": False}
 
 
 def options_key(opts: TrainOptions) -> dict[str, Any]:
@@ -706,6 +709,26 @@ def height_noise(calib: Calibration, ps: PressSet, presses: list[Press], max_pre
     return float(np.median(vals)) if vals else 0.0
 
 
+def _training_set(ps: PressSet, train: list[Press], opts: TrainOptions) -> tuple[PressSet, list[Press]]:
+    """The press set and presses the samples are drawn from: ``ps`` itself, or (``opts.train_work_res``) its
+    ``train`` presses downscaled to the tactile pipeline's default working resolution
+    (:func:`vtrack.tactile.pipeline.auto_downsample`), so the model learns from the colour changes, camera
+    noise and pixel positions it is later applied to (a 2 x 2 area average halves the noise: a net trained on
+    full-resolution pixels shrinks its slopes for noise the working image no longer has)."""
+    if not opts.train_work_res:
+        return ps, train
+    from dataclasses import replace as dc_replace
+
+    from vtrack.tactile.pipeline import auto_downsample
+    from vtrack.tactile.pressset import scaled_press_set
+
+    f = auto_downsample(ps.shape)
+    if f == 1:
+        return ps, train
+    small = scaled_press_set(dc_replace(ps, presses=list(train)), f)
+    return small, small.presses
+
+
 def calibrate(
     ps: PressSet, method: str = "lut", train: list[Press] | None = None, opts: TrainOptions | None = None
 ) -> Calibration:
@@ -721,7 +744,8 @@ def calibrate(
     if not train:
         raise InputError("no training presses left after the hold-out split", field="holdout")
     t0 = time.perf_counter()
-    data = training_samples(ps, train, opts)
+    tps, ttrain = _training_set(ps, train, opts)
+    data = training_samples(tps, ttrain, opts)
     info: dict[str, Any] = {
         "gate": opts.gate,
         "train_files": [p.file for p in train],
@@ -734,7 +758,7 @@ def calibrate(
     elif method == "lut_raw":
         params = fit_lut(data["raw"], data["n"], opts.lut_bins, -0.5, 255.5)
     elif method == "mlp":
-        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], ps.shape, opts.mlp_features)
+        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], tps.shape, opts.mlp_features)
         params = fit_mlp(feats, data["n"], opts)
         for e in range(1, max(1, opts.mlp_ensemble)):  # more members: the same data, other initial weights/batches
             member = fit_mlp(feats, data["n"], replace(opts, seed=opts.seed + 1000 * e))
