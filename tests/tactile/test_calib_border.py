@@ -106,3 +106,37 @@ def test_training_at_the_working_resolution_uses_the_downscaled_presses(mini_sma
     assert work.info["n_train_pixels"] < full.info["n_train_pixels"]  # a quarter of the disc pixels
     gx, gy = work.slopes(ps.image(ps.presses[4]))
     assert np.isfinite(gx).all() and np.abs(gx).max() > 0.05
+
+
+def test_training_resolution_is_chosen_by_cross_validation_on_the_same_presses(mini_small):
+    """``choose_train_res``: the chosen model is cross-validated again at the other training resolution and
+    wins or loses by the model choice's rule; its row is added to the CV rows with exactly one ``chosen``."""
+    from vtrack.tactile.calibrate_set import choose_train_res, cross_validate
+    from vtrack.tactile.calibration import TrainOptions
+    from vtrack.tactile.pressset import load_press_set
+
+    ps = load_press_set(mini_small)
+    real = cross_validate(ps, "lut", ps.presses, TrainOptions(), name="lut")
+    for fake_n, alt_wins in ((90.0, True), (0.0, False)):  # a hopeless / a perfect full-resolution row
+        rows = [{**real, "normal_err_deg_median": fake_n, "chosen": True}]
+        name, opts = choose_train_res(ps, ps.presses, "lut", "lut", TrainOptions(), rows)
+        assert [r["model"] for r in rows] == ["lut", "lut+work-res"]
+        assert [r["chosen"] for r in rows] == [not alt_wins, alt_wins]
+        assert opts.train_work_res is alt_wins and name == ("lut+work-res" if alt_wins else "lut")
+        # the work-resolution row is a real cross-validation over the same presses (not the full-res one)
+        assert rows[1]["n_presses"] == real["n_presses"] and rows[1]["folds"] == real["folds"]
+        assert 1.0 < rows[1]["normal_err_deg_median"] < 30.0
+        assert rows[1]["normal_err_deg_median"] != real["normal_err_deg_median"]
+
+
+def test_press_set_training_resolution_option(mini_small):
+    from vtrack.errors import InputError
+    from vtrack.tactile.calibrate_set import calibrate_press_set
+
+    with pytest.raises(InputError, match="unknown training resolution"):
+        calibrate_press_set(mini_small, method="lut", train_res="half")
+    full = calibrate_press_set(mini_small, method="lut", train_res="full")
+    work = calibrate_press_set(mini_small, method="lut", train_res="work")
+    assert work.calib.info["options"]["train_work_res"] and not full.calib.info["options"]["train_work_res"]
+    assert work.calib.info["n_train_pixels"] < full.calib.info["n_train_pixels"]
+    assert work.calib.shape == full.calib.shape and work.held_out is not None
