@@ -140,3 +140,17 @@ def test_press_set_training_resolution_option(mini_small):
     assert work.calib.info["options"]["train_work_res"] and not full.calib.info["options"]["train_work_res"]
     assert work.calib.info["n_train_pixels"] < full.calib.info["n_train_pixels"]
     assert work.calib.shape == full.calib.shape and work.held_out is not None
+
+
+def test_cli_rejects_a_bad_training_resolution_or_working_factor_with_one_line(mini_small, tmp_path):
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    from vtrack.errors import InputError
+
+    out = str(tmp_path / "c.npz")
+    for extra, field in ((["--train-res", "half"], "train_res"), (["--downsample", "x"], "--downsample")):
+        r = CliRunner().invoke(app, ["calibrate", str(mini_small), "--out", out, *extra])
+        # an InputError: the CLI's entry point prints it as one line and exits 2
+        assert isinstance(r.exception, InputError) and r.exception.field == field, repr(r.exception)
+    assert not (tmp_path / "c.npz").exists()
