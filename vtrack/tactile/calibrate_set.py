@@ -240,6 +240,13 @@ def calibrate_press_set(
 ) -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
 
+    ``train_res``: resolution of the training pixels (:data:`TRAIN_RES`). ``"cv"`` (default): with
+    ``method="auto"`` the chosen model is cross-validated again trained on the presses at the tactile pipeline's
+    working resolution (``TrainOptions.train_work_res``) and the better one is kept (:func:`choose_train_res`;
+    a fixed ``method`` keeps ``opts`` as given); ``"full"`` / ``"work"`` force one. DIGIT unit 7 (60 fresh
+    presses): 3.99 % / 5.02 -> 2.11 % / 4.31 deg; the 640x480 real GelSight set keeps full resolution by CV
+    (docs/benchmarks/calib_border.md).
+
     ``refit_all``: once every choice is made (labels, placement, model) and the held-out presses have checked
     it, train the calibration that is returned again on every usable press, held-out ones included (more
     presses, lower error; the held-out errors then describe the model trained without them, and
