@@ -1,13 +1,16 @@
 """Measure ``vtrack calibrate``'s model choice (issue #21): the fixed default ``mlp`` vs ``--method auto``.
 
     python data_tools/calib_choice_eval.py SET auto|hand [--fresh FRESH_SET] [--json OUT.json] [--reselect [cv]]
+        [--candidates NAMES] [--no-train-res]
 
 ``SET`` is calibrated as ``vtrack calibrate`` does (auto labels: edge placement chosen on common circles;
 hold-out ``every:4:3``). Then the models are chosen by cross-validation over the training presses; with
 ``--reselect`` and auto labels the edge placement is then chosen again with the chosen model (the opt-in
 ``reselect_edge`` of ``calibrate_press_set``; ``--reselect cv``: by the ball-radius check cross-validated over the
 training presses, also when the chosen model is the default, and the chosen placement's cross-validated errors
-are reported as ``cv_expected`` beside the held-out ones). Both the default ``mlp`` and the chosen model are scored:
+are reported as ``cv_expected`` beside the held-out ones). As ``vtrack calibrate``, the chosen model's training
+resolution (full or the pipeline's working resolution) is then chosen by cross-validation too (``--no-train-res``:
+skip that, the earlier default). Both the default ``mlp`` and the chosen model are scored:
 - on ``FRESH_SET`` (e.g. 60 more presses of the same simulated unit, rendered with
   ``render_press_set(type, DIR, n=60, seed=S2, model=OpticalModel.for_sensor(type, S1))``), against its true
   circles;
@@ -31,10 +34,11 @@ def evaluate(
     fresh: str | Path | None = None,
     reselect: bool | str = False,
     candidates: tuple[str, ...] | None = None,
+    train_res: bool = True,
 ) -> dict:
     """The comparison for one press set (see the module docstring). ``candidates``: names of
     ``AUTO_CANDIDATES`` to cross-validate (default all)."""
-    from vtrack.tactile.calibrate_set import AUTO_CANDIDATES, _labelled_run, choose_model
+    from vtrack.tactile.calibrate_set import AUTO_CANDIDATES, _labelled_run, choose_model, choose_train_res
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import evaluate_calibration
     from vtrack.tactile.pressset import load_press_set
@@ -69,6 +73,8 @@ def evaluate(
     out["default_mlp"] = score(run.calib)
     cands = AUTO_CANDIDATES if not candidates else tuple(c for c in AUTO_CANDIDATES if c[0] in candidates)
     name, method, opts, rows = choose_model(run.press_set, run.train, candidates=cands)
+    if train_res:  # as calibrate_press_set(train_res="cv"): the chosen model at the other training resolution
+        name, opts = choose_train_res(run.press_set, run.train, name, method, opts, rows)
     out["cv"] = rows
     out["chosen"] = name
     if reselect == "cv" and run.edge_trials:  # as calibrate_press_set(reselect_edge="cv")
@@ -82,7 +88,7 @@ def evaluate(
         out["auto"] = score(rerun.calib)
         if fresh:  # the same choices, the model refitted on every usable press (held-out ones too)
             out["auto_refit_all"] = score(calibrate(rerun.press_set, method, rerun.press_set.presses, opts))
-    elif name == "mlp":
+    elif name == "mlp" and not opts.train_work_res:
         out["auto"] = out["default_mlp"]
     elif reselect and run.edge_trials:  # as calibrate_press_set(reselect_edge=True)
         rerun = _labelled_run(root, method=method, opts=opts, **kw)
@@ -101,6 +107,11 @@ def main() -> None:
     ap.add_argument("labels", choices=("auto", "hand"))
     ap.add_argument("--fresh", type=Path, default=None, help="fresh presses of the same unit (true circles)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--no-train-res",
+        action="store_true",
+        help="skip the training-resolution choice (the default before docs/benchmarks/calib_border.md)",
+    )
     ap.add_argument(
         "--reselect",
         nargs="?",
@@ -122,7 +133,12 @@ def main() -> None:
     limit_threads(1)
     cands = tuple(a.candidates.split(",")) if a.candidates else None
     res = evaluate(
-        a.set, a.labels, a.fresh, reselect={None: False, "heldout": True}.get(a.reselect, a.reselect), candidates=cands
+        a.set,
+        a.labels,
+        a.fresh,
+        reselect={None: False, "heldout": True}.get(a.reselect, a.reselect),
+        candidates=cands,
+        train_res=not a.no_train_res,
     )
     res["candidates"] = list(cands) if cands else "all"
     print(json.dumps(res))

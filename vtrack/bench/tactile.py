@@ -22,32 +22,9 @@ import time
 import numpy as np
 
 from vtrack.bench.harness import BenchTable
+from vtrack.tactile.pressset import scaled_press_set
 
 HOLDOUT = "every:4:3"
-
-
-def scaled_press_set(ps, factor: int):
-    """The press set with images, background and labels downscaled by ``factor`` (held in memory)."""
-    import cv2
-
-    from vtrack.tactile.pressset import Press, PressSet
-
-    if factor == 1:
-        return ps
-    H, W = ps.shape
-    size = (W // factor, H // factor)
-    cache = {
-        name: cv2.resize(ps.read(name), size, interpolation=cv2.INTER_AREA)
-        for name in [ps.background_file] + [p.file for p in ps.presses]
-    }
-    # pixel centres: x_small = (x + 0.5) / f - 0.5
-    presses = [
-        Press(p.file, tuple((c + 0.5) / factor - 0.5 for c in p.center_xy_px), p.contact_radius_px / factor, p.index)
-        for p in ps.presses
-    ]
-    return PressSet(
-        ps.root, presses, ps.sensor, ps.mm_per_px * factor, ps.ball_radius_mm, ps.background_file, _cache=cache
-    )
 
 
 def _row(

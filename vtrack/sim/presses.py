@@ -189,7 +189,7 @@ def sensor_calibration(
     """
     from vtrack.paths import cache_dir
     from vtrack.sim.tactile_optics import optics_fingerprint
-    from vtrack.tactile.calibration import TrainOptions, calibrate
+    from vtrack.tactile.calibration import TrainOptions, calibrate, options_key
     from vtrack.tactile.pressset import load_press_set
     from vtrack.tactile.sensors import default_background
 
@@ -209,7 +209,7 @@ def sensor_calibration(
             "n": n,
             "method": method,
             "holdout": holdout,
-            "opts": opts.__dict__,
+            "opts": options_key(opts),
         },
         sort_keys=True,
     )

@@ -73,6 +73,12 @@ class CalibrationRun:
         return all(e <= MAX_NORMAL_ERR_DEG for e in errs)
 
 
+#: Training resolutions ``calibrate_press_set(train_res=...)`` knows: ``cv`` = chosen by cross-validation for the
+#: chosen model (``method="auto"``), ``full`` = the full-resolution presses, ``work`` = the presses at the tactile
+#: pipeline's working resolution (``TrainOptions.train_work_res``).
+TRAIN_RES = ("cv", "full", "work")
+
+
 def _with(opts, overrides: dict[str, Any]):
     """``opts`` (default TrainOptions) with ``overrides`` applied."""
     from dataclasses import replace
@@ -80,6 +86,15 @@ def _with(opts, overrides: dict[str, Any]):
     from vtrack.tactile.calibration import TrainOptions
 
     return replace(opts or TrainOptions(), **overrides)
+
+
+def _pick(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The row with the lowest cross-validated median normal error; a tie (within 0.25 deg) goes to the smaller
+    radius error (normals are what a calibration learns; the radius follows from integrating them)."""
+    best_n = min(r["normal_err_deg_median"] for r in rows)
+    return min(
+        (r for r in rows if r["normal_err_deg_median"] <= best_n + 0.25), key=lambda r: r["radius_abs_err_pct_median"]
+    )
 
 
 def cross_validate(
@@ -149,14 +164,44 @@ def choose_model(
         cross_validate(ps, method, presses, _with(opts, over), folds=folds, downsample=downsample, name=name)
         for name, method, over in candidates
     ]
-    best_n = min(r["normal_err_deg_median"] for r in rows)
-    best = min(
-        (r for r in rows if r["normal_err_deg_median"] <= best_n + 0.25), key=lambda r: r["radius_abs_err_pct_median"]
-    )
+    best = _pick(rows)
     for r in rows:
         r["chosen"] = r is best
     name, method, over = next(c for c in candidates if c[0] == best["model"])
     return name, method, _with(opts, over), rows
+
+
+def choose_train_res(
+    ps,
+    presses: list,
+    name: str,
+    method: str,
+    opts,
+    rows: list[dict[str, Any]],
+    *,
+    folds: int = CV_FOLDS,
+    downsample: int | str = "auto",
+) -> tuple[str, Any]:
+    """The training resolution of the model :func:`choose_model` chose (``name``, ``method``, ``opts``; ``rows``
+    its cross-validation rows): the same model trained on the presses at the other resolution
+    (``TrainOptions.train_work_res`` flipped) is cross-validated on the same folds and kept when it wins by the
+    same rule (:func:`_pick`). Its row is appended to ``rows`` (``chosen`` moved to it when it wins). Returns
+    ``(name, opts)`` of the winner (``name + "+work-res"`` / ``"+full-res"`` when the other resolution won).
+
+    Why (docs/benchmarks/calib_border.md): the pipeline applies the model to its working image (a 320x240 DIGIT
+    frame at half resolution: 2 x 2 area averages, half the camera noise); a net trained on full-resolution
+    pixels has learnt to shrink its slopes for noise that image no longer has, most near the border where the
+    LEDs' fall-off and the vignetting leave the least signal. On the 640x480 real GelSight set (working image a
+    quarter of the size) the full-resolution training is better, so it is chosen per sensor."""
+    alt = _with(opts, {"train_work_res": not opts.train_work_res})
+    tag = "work-res" if alt.train_work_res else "full-res"
+    row = cross_validate(ps, method, presses, alt, folds=folds, downsample=downsample, name=f"{name}+{tag}")
+    best = next(r for r in rows if r.get("chosen"))
+    won = _pick([best, row]) is row
+    row["chosen"] = won
+    best["chosen"] = not won
+    rows.append(row)
+    return (row["model"], alt) if won else (name, opts)
 
 
 def choose_method(
@@ -191,8 +236,16 @@ def calibrate_press_set(
     candidates: tuple[tuple[str, str, dict[str, Any]], ...] = AUTO_CANDIDATES,
     reselect_edge: bool | str = "cv",
     refit_all: bool = False,
+    train_res: str = "cv",
 ) -> CalibrationRun:
     """Label (hand or auto), train ``method`` on the non-held-out presses and evaluate the held-out ones.
+
+    ``train_res``: resolution of the training pixels (:data:`TRAIN_RES`). ``"cv"`` (default): with
+    ``method="auto"`` the chosen model is cross-validated again trained on the presses at the tactile pipeline's
+    working resolution (``TrainOptions.train_work_res``) and the better one is kept (:func:`choose_train_res`;
+    a fixed ``method`` keeps ``opts`` as given); ``"full"`` / ``"work"`` force one. DIGIT unit 7 (60 fresh
+    presses): 3.99 % / 5.02 -> 2.11 % / 4.31 deg; the 640x480 real GelSight set keeps full resolution by CV
+    (docs/benchmarks/calib_border.md).
 
     ``refit_all``: once every choice is made (labels, placement, model) and the held-out presses have checked
     it, train the calibration that is returned again on every usable press, held-out ones included (more
@@ -233,6 +286,7 @@ def calibrate_press_set(
         downsample=downsample,
         candidates=candidates,
         reselect_edge=reselect_edge,
+        train_res=train_res,
     )
     if refit_all and run.test:
         from vtrack.tactile.calibration import TrainOptions, calibrate
@@ -262,10 +316,16 @@ def _calibrate_press_set(
     downsample,
     candidates,
     reselect_edge,
+    train_res="cv",
 ) -> CalibrationRun:
     """:func:`calibrate_press_set` without the final refit."""
     from vtrack.tactile.calibration import METHODS
 
+    if train_res not in TRAIN_RES:
+        raise InputError(
+            "unknown training resolution", field="train_res", expected=" | ".join(TRAIN_RES), got=train_res
+        )
+    opts = _with(opts, {} if train_res == "cv" else {"train_work_res": train_res == "work"})
     if reselect_edge not in (False, True, "cv"):
         raise InputError(
             "unknown edge re-selection", field="reselect_edge", expected="False | True | cv", got=reselect_edge
@@ -297,6 +357,8 @@ def _calibrate_press_set(
     name, chosen, copts, run.cv = choose_model(
         run.press_set, run.train, opts, candidates=candidates, downsample=downsample
     )
+    if train_res == "cv":
+        name, copts = choose_train_res(run.press_set, run.train, name, chosen, copts, run.cv, downsample=downsample)
     by_cv = reselect_edge == "cv"
     changed = (chosen, copts) != (run.calib.method, _with(opts, {}))
     if (changed or by_cv) and reselect_edge and run.edge_trials:
@@ -391,6 +453,8 @@ def _labelled_run(
     from vtrack.tactile.calibration import calibrate
     from vtrack.tactile.evaluation import evaluate_calibration
     from vtrack.tactile.pressset import load_press_set
+
+    opts = _with(opts, {})
 
     def held_out(ps, calib, test) -> dict[str, float]:
         return evaluate_calibration(ps, calib, test, downsample=downsample)["summary"]

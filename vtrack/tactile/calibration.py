@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +45,12 @@ class TrainOptions:
     mlp_layers: int = 2
     mlp_epochs: int = 12
     mlp_lr: float = 3e-3
+    #: MLPs trained from different random starts whose predictions are averaged (1 = one net). Averaging
+    #: lowers the variance of a net fitted to few presses (the gel's border, docs/benchmarks/calib_border.md)
+    mlp_ensemble: int = 1
+    #: draw the training pixels from the presses downscaled to the pipeline's default working resolution
+    #: (``auto_downsample``: 2 at 320x240, 4 at 640x480) instead of the full-resolution images
+    train_work_res: bool = False
     #: MLP colour features besides the change: "raw" = the raw colour (the original model), "rel" = the change
     #: relative to the sensor's own background at that pixel, dI / (bg + 16): an LED's fall-off across the
     #: gel scales bg and dI alike, so "rel" needs fewer presses to learn it; "poly" / "relpoly": the change
@@ -59,6 +65,17 @@ class TrainOptions:
     # area of the real GelSight frames from 46 % to 25 % (JPEG noise, uneven drift) at no accuracy cost.
     gate: float = 12.0
     seed: int = 0
+
+
+#: Options added after calibrations were first cached, with the value that reproduces the older behaviour:
+#: left out of cache keys at that value, so the calibrations cached before (and the sessions built on them)
+#: keep their keys.
+_KEY_NEUTRAL_OPTIONS = {"mlp_ensemble": 1, "train_work_res": False}
+
+
+def options_key(opts: TrainOptions) -> dict[str, Any]:
+    """``opts`` as a dict for cache keys (fields at their :data:`_KEY_NEUTRAL_OPTIONS` value left out)."""
+    return {k: v for k, v in opts.__dict__.items() if _KEY_NEUTRAL_OPTIONS.get(k, object()) != v}
 
 
 def normals_to_slopes(nx: np.ndarray, ny: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -531,14 +548,25 @@ def _mlp_features(
 
 
 def _mlp_forward(params: dict[str, np.ndarray], x: np.ndarray) -> np.ndarray:
-    """numpy forward pass (no torch at inference): Linear-ReLU ... Linear, tanh -> (nx, ny) in (-1, 1)."""
+    """numpy forward pass (no torch at inference): Linear-ReLU ... Linear, tanh -> (nx, ny) in (-1, 1).
+
+    An ensemble (``params["n_members"]`` = E > 1, members' weights ``m{e}_W{i}`` / ``m{e}_b{i}`` for e >= 1 beside
+    member 0's ``W{i}`` / ``b{i}``) predicts the mean of its members' (nx, ny)."""
     n_layers = int(params["n_layers"])
-    h = x
-    for i in range(n_layers):
-        h = h @ params[f"W{i}"] + params[f"b{i}"]
-        if i < n_layers - 1:
-            np.maximum(h, 0.0, out=h)
-    return np.tanh(h)
+    n_members = int(params.get("n_members", 1))
+    out = None
+    for e in range(n_members):
+        pre = "" if e == 0 else f"m{e}_"
+        h = x
+        for i in range(n_layers):
+            h = h @ params[f"{pre}W{i}"] + params[f"{pre}b{i}"]
+            if i < n_layers - 1:
+                np.maximum(h, 0.0, out=h)
+        h = np.tanh(h)
+        out = h if out is None else out + h
+    if n_members > 1:
+        out *= np.float32(1.0 / n_members)
+    return out
 
 
 def fit_mlp(feats: np.ndarray, target: np.ndarray, opts: TrainOptions) -> dict[str, np.ndarray]:
@@ -681,6 +709,26 @@ def height_noise(calib: Calibration, ps: PressSet, presses: list[Press], max_pre
     return float(np.median(vals)) if vals else 0.0
 
 
+def _training_set(ps: PressSet, train: list[Press], opts: TrainOptions) -> tuple[PressSet, list[Press]]:
+    """The press set and presses the samples are drawn from: ``ps`` itself, or (``opts.train_work_res``) its
+    ``train`` presses downscaled to the tactile pipeline's default working resolution
+    (:func:`vtrack.tactile.pipeline.auto_downsample`), so the model learns from the colour changes, camera
+    noise and pixel positions it is later applied to (a 2 x 2 area average halves the noise: a net trained on
+    full-resolution pixels shrinks its slopes for noise the working image no longer has)."""
+    if not opts.train_work_res:
+        return ps, train
+    from dataclasses import replace as dc_replace
+
+    from vtrack.tactile.pipeline import auto_downsample
+    from vtrack.tactile.pressset import scaled_press_set
+
+    f = auto_downsample(ps.shape)
+    if f == 1:
+        return ps, train
+    small = scaled_press_set(dc_replace(ps, presses=list(train)), f)
+    return small, small.presses
+
+
 def calibrate(
     ps: PressSet, method: str = "lut", train: list[Press] | None = None, opts: TrainOptions | None = None
 ) -> Calibration:
@@ -696,7 +744,8 @@ def calibrate(
     if not train:
         raise InputError("no training presses left after the hold-out split", field="holdout")
     t0 = time.perf_counter()
-    data = training_samples(ps, train, opts)
+    tps, ttrain = _training_set(ps, train, opts)
+    data = training_samples(tps, ttrain, opts)
     info: dict[str, Any] = {
         "gate": opts.gate,
         "train_files": [p.file for p in train],
@@ -709,8 +758,13 @@ def calibrate(
     elif method == "lut_raw":
         params = fit_lut(data["raw"], data["n"], opts.lut_bins, -0.5, 255.5)
     elif method == "mlp":
-        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], ps.shape, opts.mlp_features)
+        feats = _mlp_features(data["dI"], data["raw"], data["rows"], data["cols"], tps.shape, opts.mlp_features)
         params = fit_mlp(feats, data["n"], opts)
+        for e in range(1, max(1, opts.mlp_ensemble)):  # more members: the same data, other initial weights/batches
+            member = fit_mlp(feats, data["n"], replace(opts, seed=opts.seed + 1000 * e))
+            params.update({f"m{e}_{k}": v for k, v in member.items() if k != "n_layers"})
+        if opts.mlp_ensemble > 1:
+            params["n_members"] = np.int64(opts.mlp_ensemble)
         if opts.mlp_features != "raw":  # absent = raw: calibrations written before the option load unchanged
             params["mlp_features"] = np.int64(MLP_FEATURES.index(opts.mlp_features))
     else:
@@ -739,7 +793,7 @@ def cached_calibration(
             "meta": ps.meta(),
             "method": method,
             "train": [p.file for p in train],
-            "opts": opts.__dict__,
+            "opts": options_key(opts),
             "v": FORMAT_VERSION,
         },
         sort_keys=True,

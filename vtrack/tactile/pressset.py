@@ -362,3 +362,26 @@ def sphere_truth(
     gx = np.where(inside, -dx / s, 0.0)
     gy = np.where(inside, -dy / s, 0.0)
     return h, gx, gy, inside
+
+
+def scaled_press_set(ps: PressSet, factor: int) -> PressSet:
+    """The press set with images, background and labels downscaled by ``factor`` (INTER_AREA, held in memory;
+    pitch x ``factor``): what the tactile pipeline sees at its working resolution."""
+    import cv2
+
+    if factor == 1:
+        return ps
+    H, W = ps.shape
+    size = (W // factor, H // factor)
+    cache = {
+        name: cv2.resize(ps.read(name), size, interpolation=cv2.INTER_AREA)
+        for name in [ps.background_file] + [p.file for p in ps.presses]
+    }
+    # pixel centres: x_small = (x + 0.5) / f - 0.5
+    presses = [
+        Press(p.file, tuple((c + 0.5) / factor - 0.5 for c in p.center_xy_px), p.contact_radius_px / factor, p.index)
+        for p in ps.presses
+    ]
+    return PressSet(
+        ps.root, presses, ps.sensor, ps.mm_per_px * factor, ps.ball_radius_mm, ps.background_file, _cache=cache
+    )

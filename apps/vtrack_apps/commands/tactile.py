@@ -50,7 +50,18 @@ def register(app: typer.Typer) -> None:
         lut_bins: int = typer.Option(None, "--lut-bins", help="LUT bins per colour channel (default: TrainOptions)"),
         mlp_hidden: int = typer.Option(None, "--mlp-hidden", help="MLP hidden width (default: TrainOptions)"),
         mlp_epochs: int = typer.Option(None, "--mlp-epochs", help="MLP training epochs (default: TrainOptions)"),
-        downsample: int = typer.Option(1, "--downsample", help="working-resolution factor for the evaluation"),
+        downsample: str = typer.Option(
+            "auto",
+            "--downsample",
+            help="working-resolution factor of the held-out / cross-validated evaluation: auto (the tactile "
+            "pipeline's default, what the calibration is used at) or an integer >= 1",
+        ),
+        train_res: str = typer.Option(
+            "cv",
+            "--train-res",
+            help="resolution of the training pixels: cv (--method auto: the chosen model at full and at the "
+            "pipeline's working resolution, the better by cross-validation) | full | work",
+        ),
         labels: str = typer.Option(
             "hand_or_auto", "--labels", help="hand (labels.csv) | auto (detect contacts) | hand_or_auto"
         ),
@@ -91,6 +102,16 @@ def register(app: typer.Typer) -> None:
             )
         given = {"lut_bins": lut_bins, "mlp_hidden": mlp_hidden, "mlp_epochs": mlp_epochs}
         opts = TrainOptions(**{k: v for k, v in given.items() if v is not None})
+        if downsample != "auto":
+            try:
+                downsample = int(downsample)
+            except ValueError:
+                raise InputError(
+                    "bad working-resolution factor",
+                    field="--downsample",
+                    expected="auto | integer >= 1",
+                    got=downsample,
+                ) from None
         run = calibrate_press_set(
             pressset,
             method=method,
@@ -104,6 +125,7 @@ def register(app: typer.Typer) -> None:
             downsample=downsample,
             reselect_edge=reselect[edge_choice],
             refit_all=refit_all,
+            train_res=train_res,
         )
         ps, train, test = run.press_set, run.train, run.test
         from vtrack.tactile.sensors import orientation_warning, press_count_warning
