@@ -392,8 +392,10 @@ def test_varied_eval_smoke_and_shipped_weights(tmp_path) -> None:
     models, blob = load_models(weights_path("varied"))
     assert set(models) == {"rgb", "ir", "dual"} and blob["dual_shared"]
     assert not any(k in blob["models"]["dual"] for k in blob["dual_shared"])
-    # a 3-seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
-    assert len(blob["members"]) == 2 and all(not mb["models"]["ir"] for mb in blob["members"])
+    # a seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
+    assert len(blob["members"]) >= 1 and all(not mb["models"]["ir"] for mb in blob["members"])
+    # trained on 15000 grasps whose validation split nests the 9000-grasp one of the (older) thumb specialists
+    assert blob["train"]["n_train"] == 15000 and blob["train"]["val_base"] == 9000
     assert blob["specialists"]["joints"] == ["thumb_mcp", "thumb_ip"] and len(blob["specialists"]["nets"]) == 2
     assert weights_path("varied").stat().st_size < 5_000_000
 
