@@ -392,8 +392,10 @@ def test_varied_eval_smoke_and_shipped_weights(tmp_path) -> None:
     models, blob = load_models(weights_path("varied"))
     assert set(models) == {"rgb", "ir", "dual"} and blob["dual_shared"]
     assert not any(k in blob["models"]["dual"] for k in blob["dual_shared"])
-    # a 3-seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
-    assert len(blob["members"]) == 2 and all(not mb["models"]["ir"] for mb in blob["members"])
+    # a seed ensemble: the members store only what differs (their RGB nets and fusion heads, not the IR net)
+    assert len(blob["members"]) >= 1 and all(not mb["models"]["ir"] for mb in blob["members"])
+    # trained on 15000 grasps whose validation split nests the 9000-grasp one of the (older) thumb specialists
+    assert blob["train"]["n_train"] == 15000 and blob["train"]["val_base"] == 9000
     assert blob["specialists"]["joints"] == ["thumb_mcp", "thumb_ip"] and len(blob["specialists"]["nets"]) == 2
     assert weights_path("varied").stat().st_size < 5_000_000
 
@@ -637,3 +639,30 @@ def test_rgb_rotation_augmentation_is_the_hand_yawed() -> None:
     g = torch.Generator().manual_seed(0)
     out = rotate_frames(x.repeat(4, 1, 1, 1), 20.0, g)
     assert out.shape == (4, 3, RGB_SIZE, RGB_SIZE) and torch.isfinite(out).all()
+
+
+def test_nested_split_keeps_the_smaller_runs_validation_grasps() -> None:
+    """``val_base``: a run on more grasps keeps the validation grasps of the run on its first ``val_base`` grasps out
+    of training (so nets of both runs can be chosen and combined on grasps none of them saw); default unchanged."""
+    from dataclasses import asdict
+
+    from vtrack.dome.handpose import HandPoseTrainConfig, split_train_val, trained_within
+
+    small = HandPoseTrainConfig(n_train=900)
+    big = HandPoseTrainConfig(n_train=1500, val_base=900)
+    tr_s, va_s = split_train_val(900, small)
+    tr_b, va_b = split_train_val(1500, big)
+    assert set(va_s) <= set(va_b) and set(tr_s) <= set(tr_b)  # nested: both halves of the small split are kept
+    assert len(va_b) == 150 and not set(tr_b) & set(va_b) and set(tr_b) | set(va_b) == set(range(1500))
+    extra = va_b[va_b >= 900]
+    assert 50 <= len(extra) <= 70 and np.ptp(extra) > 300  # a fraction of the new grasps, spread over them
+    # the default (0) and a base covering every grasp are the old single permutation
+    for cfg in (HandPoseTrainConfig(n_train=1500), HandPoseTrainConfig(n_train=1500, val_base=1500)):
+        tr, va = split_train_val(1500, cfg)
+        assert set(va) == set(np.random.default_rng(0).permutation(1500)[:150])
+    # what may be combined: the same split, or the nested base; not another set, seed or an unrelated size
+    assert trained_within(asdict(small), asdict(big)) and trained_within(asdict(big), asdict(big))
+    assert not trained_within(asdict(big), asdict(small))
+    assert not trained_within(asdict(HandPoseTrainConfig(n_train=600)), asdict(big))
+    assert not trained_within(asdict(HandPoseTrainConfig(n_train=900, seed=1)), asdict(big))
+    assert not trained_within({"n_train": 900, "seed": 0, "grasp_set": "mixed"}, asdict(big))

@@ -111,6 +111,11 @@ class HandPoseTrainConfig:
     #: symmetric about the dome axis, so a turned frame is the same grasp with the hand yawed (a nuisance) and
     #: the joint angles are unchanged
     rotate_deg: float = 0.0
+    #: nested validation split: the first ``val_base`` grasps are split exactly as a run with ``n_train = val_base``
+    #: splits them, the grasps beyond by a permutation of their own (0 = one permutation of all ``n_train``). A run
+    #: on more grasps then keeps the smaller run's validation grasps out of training, so nets of both runs are
+    #: compared and combined on validation grasps that none of them was trained on
+    val_base: int = 0
 
 
 def parse_rgb_crop(text: str) -> tuple[int, int, int, int] | None:
@@ -408,10 +413,29 @@ def rgb_gate_scores(gate: dict[str, torch.Tensor], rgb: np.ndarray) -> tuple[np.
 
 
 def split_train_val(n: int, tc: HandPoseTrainConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(train, val) indices: a fixed ``val_frac`` of the grasps (same split for every setting of a run)."""
-    perm = np.random.default_rng(tc.seed).permutation(n)
-    n_val = max(8, int(round(tc.val_frac * n)))
-    return perm[n_val:], np.sort(perm[:n_val])
+    """(train, val) indices: a fixed ``val_frac`` of the grasps (same split for every setting of a run). With
+    ``tc.val_base`` in (0, n) the split is nested: the first ``val_base`` grasps as in a run on ``val_base`` grasps,
+    plus ``val_frac`` of the rest by its own permutation (see :class:`HandPoseTrainConfig`)."""
+    base = tc.val_base if 0 < tc.val_base < n else n
+    perm = np.random.default_rng(tc.seed).permutation(base)
+    n_val = max(8, int(round(tc.val_frac * base)))
+    tr, val = perm[n_val:], perm[:n_val]
+    if base < n:  # the extra grasps: their own permutation, seeded by (seed, base) so it does not depend on n
+        extra = base + np.random.default_rng([tc.seed, base]).permutation(n - base)
+        n_extra = int(round(tc.val_frac * (n - base)))
+        tr, val = np.concatenate([tr, extra[n_extra:]]), np.concatenate([val, extra[:n_extra]])
+    return tr, np.sort(val)
+
+
+def trained_within(sub: dict, main: dict) -> bool:
+    """True when nets trained with the config ``sub`` (:func:`dataclasses.asdict` of a
+    :class:`HandPoseTrainConfig`, as stored in a weights file) saw no grasp that is a validation grasp of ``main``:
+    the same grasp set and seed, and either the same training set and split, or ``sub``'s set is ``main``'s nested
+    base (``main["val_base"] == sub["n_train"]``). Files from before ``val_base`` count as 0."""
+    same = all(sub.get(k) == main.get(k) for k in ("seed", "grasp_set"))
+    same_split = sub.get("n_train") == main.get("n_train") and sub.get("val_base", 0) == main.get("val_base", 0)
+    nested = main.get("val_base", 0) == sub.get("n_train") and sub.get("val_base", 0) in (0, sub.get("n_train"))
+    return same and (same_split or nested)
 
 
 def _fit(model: nn.Module, params, loss_on, val_loss, n_steps: int, n_train: int, tc, log, tag: str) -> dict:
@@ -666,13 +690,13 @@ class HandPoseEnsemble(nn.Module):
 
 
 def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
-    """Append the nets of other weights files (same training set and split, other ``--model-seed``) to the
+    """Append the nets of other weights files (same training set and split or the file's nested base,
+    :func:`trained_within`; other ``--model-seed``) to the
     hand-pose weights file ``path`` as ensemble members (their RGB gate and info are not used)."""
     blob = torch.load(path, map_location="cpu", weights_only=False)
     for mp in member_paths:
         mb = torch.load(mp, map_location="cpu", weights_only=False)
-        same = [mb.get("train", {}).get(k) == blob["train"].get(k) for k in ("n_train", "seed", "grasp_set")]
-        if set(mb["models"]) != set(blob["models"]) or not all(same):
+        if set(mb["models"]) != set(blob["models"]) or not trained_within(mb.get("train", {}), blob["train"]):
             raise ValueError(f"{mp}: not a member of the same recipe as {path}")
         main = blob["models"]
         diff = {
@@ -686,7 +710,8 @@ def add_ensemble_members(path: Path, member_paths: list[Path]) -> None:
 def add_joint_specialists(
     path: Path, specialist_paths: list[Path], joints: list[str], mix: float = 1.0, tta_deg: tuple[float, ...] = (0.0,)
 ) -> None:
-    """Store the RGB nets of ``specialist_paths`` (trained on the same grasps and split, e.g. with the thumb MCP /
+    """Store the RGB nets of ``specialist_paths`` (trained on the same grasps and split or on the file's nested
+    base, :func:`trained_within`; e.g. with the thumb MCP /
     IP weighted, ``--select-weighted``, maybe ``--rgb-crop``) in the hand-pose weights file ``path`` as joint
     specialists: in the ``rgb`` and ``dual`` settings the listed ``joints`` become ``(1 - mix) x`` the setting's
     prediction ``+ mix x`` the specialists' mean (:class:`HandPoseEnsemble`), each averaged over the RGB frame
@@ -700,8 +725,7 @@ def add_joint_specialists(
     nets = []
     for sp in specialist_paths:
         sb = torch.load(sp, map_location="cpu", weights_only=False)
-        same = [sb.get("train", {}).get(k) == blob["train"].get(k) for k in ("n_train", "seed", "grasp_set")]
-        if "rgb" not in sb.get("models", {}) or not all(same):
+        if "rgb" not in sb.get("models", {}) or not trained_within(sb.get("train", {}), blob["train"]):
             raise ValueError(f"{sp}: not an RGB net of the same training set as {path}")
         nets.append(sb["models"]["rgb"])
     blob["specialists"] = {

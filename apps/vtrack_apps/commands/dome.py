@@ -344,6 +344,12 @@ def register(app: typer.Typer) -> None:
         rotate_deg: float = typer.Option(
             0.0, "--rotate-deg", min=0.0, max=180.0, help="augment RGB frames: turn about the centre by +- this (deg)"
         ),
+        val_base: int = typer.Option(
+            0,
+            "--val-base",
+            min=0,
+            help="nested split: the first N grasps keep the validation grasps of a run on N (0 = one split of all)",
+        ),
         json_out: Path = typer.Option(None, "--json", help="write the training summary + held-out metrics"),
     ) -> None:
         """Simulate grasps (cached), train the single- and dual-modality regressors (loss S25-S27, best
@@ -405,6 +411,7 @@ def register(app: typer.Typer) -> None:
             model_seed=model_seed,
             select_weighted=select_weighted,
             width=width,
+            val_base=val_base,
         )
         info = train_all(tc, out, mods, progress=True)
         typer.echo(json.dumps(info["test"], indent=1))
