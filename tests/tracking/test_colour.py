@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from vtrack.geometry import se3
 from vtrack.tracking.colour import FeatureTracks, backproject
 from vtrack.tracking.frame import TrackingFrame
 from vtrack.tracking.window import WindowTracker
@@ -24,15 +25,12 @@ FPS = 30.0
 
 
 def _rot_y(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return se3.so3_exp(np.array([0.0, a, 0.0]))
 
 
 def _pose(t: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = _rot_y(SPIN * t)
-    T[:3, 3] = CENTRE
-    return T
+    """``T_world_object`` at time ``t`` (s): the spin about the world y axis through ``CENTRE``."""
+    return se3.make_transform(_rot_y(SPIN * t), CENTRE)
 
 
 def _render(t: float, textured: bool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
