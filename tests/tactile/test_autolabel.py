@@ -198,14 +198,18 @@ def test_method_auto_chooses_by_cross_validation_on_training_presses_only(shared
         opts=TrainOptions(mlp_epochs=6, inside_per_press=3000, flat_per_press=2000),
         candidates=cands,
     )
-    assert [r["model"] for r in run.cv] == ["mlp", "mlp-rel", "lut", "ps"]
+    # the four candidates, then the model they chose cross-validated at the other training resolution
+    # (`choose_train_res`, `--train-res cv`): the winner of those two carries ``chosen``
+    assert [r["model"] for r in run.cv[:4]] == ["mlp", "mlp-rel", "lut", "ps"]
+    (first,) = [r["model"] for r in run.cv[:4] if r["model"] == run.cv[4]["model"].split("+")[0]]
+    assert len(run.cv) == 5 and run.cv[4]["model"] in (f"{first}+work-res", f"{first}+full-res")
     assert all(r["n_presses"] == 36 and r["folds"] == 3 for r in run.cv)
     best_n = min(r["normal_err_deg_median"] for r in run.cv)
     (chosen,) = [r for r in run.cv if r["chosen"]]
     assert chosen["normal_err_deg_median"] <= best_n + 0.25  # the tie rule: within 0.25 deg, smaller radius error
     assert run.calib.info["model"] == chosen["model"] and run.calib.method == chosen["method"] == "mlp"
     # the chosen model was trained (the relative-colour MLP stores its feature set), not the default
-    assert ("mlp_features" in run.calib.params) == (chosen["model"] == "mlp-rel")
+    assert ("mlp_features" in run.calib.params) == chosen["model"].startswith("mlp-rel")
     assert set(run.calib.info["train_files"]) == {p.file for p in run.train}
     assert not set(run.calib.info["train_files"]) & {p.file for p in run.test}
     # the CV estimate predicts the held-out error (same sensor, same labels): within 1.5 deg
