@@ -30,3 +30,11 @@ def mlp_calib(gelsight_set):
 
     torch.set_num_threads(1)
     return cached_calibration(gelsight_set, "mlp", "every:4:3", TrainOptions(**TEST_MLP))
+
+
+@pytest.fixture(scope="session")
+def mini_small(tmp_path_factory):
+    """A small simulated GelSight Mini press set (6 presses, seed 4): read only, shared by the calibration tests."""
+    from vtrack.sim.presses import render_press_set
+
+    return render_press_set("gelsight_mini", tmp_path_factory.mktemp("mini_small") / "set", n=6, seed=4)

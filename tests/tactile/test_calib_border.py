@@ -41,13 +41,6 @@ def test_options_key_keeps_the_old_cache_keys():
     assert options_key(TrainOptions(mlp_ensemble=3))["mlp_ensemble"] == 3
 
 
-@pytest.fixture(scope="module")
-def mini_small(tmp_path_factory):
-    from vtrack.sim.presses import render_press_set
-
-    return render_press_set("gelsight_mini", tmp_path_factory.mktemp("mini_b") / "set", n=6, seed=4)
-
-
 def test_ensemble_calibration_round_trips_and_averages_its_nets(mini_small, tmp_path):
     import torch
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 
 def test_relpoly_features_are_a_position_varying_linear_map_of_the_colour_change():
@@ -28,13 +27,6 @@ def test_relpoly_features_are_a_position_varying_linear_map_of_the_colour_change
     np.testing.assert_allclose(f[:, 4], dI[:, 0] / 64.0 * x * y, rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(f[:, 18 + 6 + 2], 2 * dI[:, 1] / (bg[:, 1] + 16.0) * y, rtol=1e-4, atol=1e-6)
     assert _mlp_features(dI, bg + dI, rows, cols, shape, "poly").shape == (n, 18)
-
-
-@pytest.fixture(scope="module")
-def mini_small(tmp_path_factory):
-    from vtrack.sim.presses import render_press_set
-
-    return render_press_set("gelsight_mini", tmp_path_factory.mktemp("mini_s") / "set", n=6, seed=4)
 
 
 def test_relpoly_calibration_round_trips_and_its_features_are_used(mini_small, tmp_path):
