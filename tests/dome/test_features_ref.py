@@ -96,6 +96,26 @@ def test_gated_assignment_equals_dense_hungarian() -> None:
         assert np.isclose(d.sum(), D[rr[keep], cc[keep]].sum())
 
 
+def test_gated_assignment_with_crowded_gates_and_empty_sides() -> None:
+    """More reference points inside one gate than the first k-nearest query returns (the query must widen),
+    and empty inputs on either side."""
+    from scipy.optimize import linear_sum_assignment
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    b = np.concatenate([rng.normal(10, 0.8, (25, 2)), rng.uniform(20, 60, (10, 2))])  # a crowd of 25
+    a = np.concatenate([rng.normal(10, 0.8, (20, 2)), b[25:] + 0.5])
+    r, c = gated_assignment(a, b, cKDTree(b), 3.0)
+    D = np.linalg.norm(a[:, None] - b[None], axis=-1)
+    rr, cc = linear_sum_assignment(np.where(D <= 3.0, D, 1e6))
+    keep = D[rr, cc] <= 3.0
+    assert len(r) == keep.sum() == 30
+    assert np.isclose(np.linalg.norm(a[r] - b[c], axis=1).sum(), D[rr[keep], cc[keep]].sum())
+    for x, y in ((np.zeros((0, 2)), b), (a, np.zeros((0, 2)))):
+        r, c = gated_assignment(x, y, cKDTree(y) if len(y) else None, 3.0)
+        assert len(r) == len(c) == 0
+
+
 def test_tactip_matcher_counts_every_pair_within_the_gate() -> None:
     """Out-of-gate pairs must not crowd out a pair within the gate: the earlier clipped-cost Hungarian
     (cost min(d, 10 gate)) paired 0->1 (3.8 px) and 1->0 (3.1 px), total 6.9 < 1.7 + 5.4, and so matched

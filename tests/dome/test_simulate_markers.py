@@ -84,6 +84,25 @@ def test_render_and_extract_reference(sim) -> None:
     assert 0 < g.x[:, 7].sum() < 331  # some but not all markers on the hull
 
 
+def test_uint8_statistics_path_equals_the_float_path(sim) -> None:
+    """8-bit frames take their percentiles and median from the histogram; the same frame as float32 goes
+    through np.partition. Both must find the same markers (as sets: split order is random) on a pressed frame,
+    a bright-on-dark (inverted) frame and a low-contrast one."""
+    from scipy.spatial import cKDTree
+
+    from vtrack.dome.simulate import make_dataset
+
+    rng = np.random.default_rng(3)
+    pressed = make_dataset(3, 5, sim.cfg, cache=False)["image"]
+    frames = [*pressed, 255 - sim.reference_image()]
+    low = (sim.reference_image().astype(np.float64) * 0.25 + 60 + rng.normal(0, 1.0, (sim.cfg.image_size,) * 2))
+    frames.append(np.clip(low, 0, 255).astype(np.uint8))
+    for f in frames:
+        a, b = extract_markers(f), extract_markers(f.astype(np.float32))
+        assert len(a) == len(b) > 100
+        assert cKDTree(b.centers).query(a.centers)[0].max() < 1e-6
+
+
 def test_merged_blobs_are_split() -> None:
     import cv2
 

@@ -13,21 +13,25 @@ EVAL_KEYS = ("cd_coarse", "cd_fine", "hd95", "f2mm", "contact_l2", "force_mae", 
 def time_end_to_end(
     method: str, weights: Path, images: np.ndarray, pressures: np.ndarray, dense_rest: np.ndarray | None = None
 ) -> tuple[float, float]:
-    """Median (wall ms, CPU ms) per frame for image -> (marker graph ->) dense surface + force, one frame
-    at a time, 1 thread. CPU time (``time.process_time``) is reported too because wall time on a shared
-    machine includes waiting for the core."""
+    """Median (wall ms, CPU ms) per frame of ``DomeReconstructor.reconstruct`` (the public call: input checks,
+    marker extraction, (graph ->) dense surface + force, and the marker-match validity check), one frame at a
+    time, every thread pool (torch, OpenCV, BLAS) capped at one thread. CPU time (``time.process_time``) is
+    reported too because wall time on a shared machine includes waiting for the core; with one thread it
+    should not exceed the wall time."""
     from vtrack.dome.reconstruct import DomeReconstructor
+    from vtrack.threads import limit_threads
 
+    limit_threads(1)
     rec = DomeReconstructor(method, weights)
     if dense_rest is not None:
         rec.model.decoder.set_dense(dense_rest)
     for p in pressures:  # a session's reference frame is prepared once, before its frames arrive
         rec.reference(float(p))
-    rec._run(images[0], float(pressures[0]))  # warm-up
+    rec.reconstruct(images[0], float(pressures[0]))  # warm-up
     ts, cs = [], []
     for img, p in zip(images, pressures, strict=True):
         t0, c0 = time.perf_counter(), time.process_time()
-        rec._run(img, float(p))
+        rec.reconstruct(img, float(p))
         ts.append((time.perf_counter() - t0) * 1e3)
         cs.append((time.process_time() - c0) * 1e3)
     return float(np.median(ts)), float(np.median(cs))

@@ -35,22 +35,36 @@ def gated_assignment(a: np.ndarray, b: np.ndarray, tree_b, gate: float) -> tuple
     from scipy.sparse.csgraph import connected_components
 
     n, m = len(a), len(b)
+    if n == 0 or m == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     if not np.isfinite(gate):
         d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
         return linear_sum_assignment(d)
-    lists = tree_b.query_ball_point(a, r=gate)
-    ii = np.fromiter((i for i, lst in enumerate(lists) for _ in lst), np.int64)
-    jj = np.fromiter((j for lst in lists for j in lst), np.int64)
-    if len(ii) == 0:
+    # all pairs within the gate, vectorised: k nearest with an upper bound, k doubled until no row is full
+    k = min(4, m)
+    while True:
+        dk, jk = tree_b.query(a, k=k, distance_upper_bound=gate)
+        dk, jk = dk.reshape(n, k), jk.reshape(n, k)
+        if k >= m or not np.isfinite(dk[:, -1]).any():
+            break
+        k = min(2 * k, m)
+    within = np.isfinite(dk)
+    if not within.any():
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    dist = np.linalg.norm(a[ii] - b[jj], axis=1)
-    # bipartite graph: nodes 0..n-1 detections, n..n+m-1 reference markers
-    g = coo_matrix((np.ones(len(ii)), (ii, n + jj)), shape=(n + m, n + m))
-    _, comp = connected_components(g, directed=False)
-    ec = comp[ii]  # component of each candidate pair
-    sizes = np.bincount(ec, minlength=comp.max() + 1)
-    single = sizes[ec] == 1  # the component is exactly this one pair
+    ii = np.nonzero(within)[0].astype(np.int64)
+    jj = jk[within].astype(np.int64)
+    dist = dk[within]
+    # a pair whose two ends have no other candidate is its own component: no solver needed
+    single = (np.bincount(ii, minlength=n)[ii] == 1) & (np.bincount(jj, minlength=m)[jj] == 1)
     rows, cols = [ii[single]], [jj[single]]
+    if single.all():
+        return np.concatenate(rows), np.concatenate(cols)
+    # bipartite graph of the remaining pairs: nodes 0..n-1 detections, n..n+m-1 reference markers
+    ii_, jj_ = ii[~single], jj[~single]
+    g = coo_matrix((np.ones(len(ii_)), (ii_, n + jj_)), shape=(n + m, n + m))
+    _, comp = connected_components(g, directed=False)
+    ec = np.full(len(ii), -1, np.int64)
+    ec[~single] = comp[ii_]  # component of each ambiguous candidate pair
     big = 1e6
     for c in np.unique(ec[~single]):
         sel = ec == c
@@ -71,13 +85,19 @@ def _match(ms: MarkerSet, ref: MarkerSet, half: float) -> tuple[np.ndarray, np.n
     from scipy.spatial import cKDTree
 
     n, m = len(ms), len(ref)
-    tree = cKDTree(ref.centers)
-    if m >= 2:
-        nn_d, _ = tree.query(ref.centers, k=2)
-        spacing = max(float(np.median(nn_d[:, 1])), 1e-6)
-        gate = 0.75 * spacing
+    # the reference is fixed for a session: build its tree and spacing once (keyed on the centres array)
+    cached = getattr(ref, "_index", None)
+    if cached is not None and cached[0] is ref.centers and cached[1] == half:
+        tree, spacing, gate = cached[2:]
     else:
-        spacing, gate = half, np.inf
+        tree = cKDTree(ref.centers)
+        if m >= 2:
+            nn_d, _ = tree.query(ref.centers, k=2)
+            spacing = max(float(np.median(nn_d[:, 1])), 1e-6)
+            gate = 0.75 * spacing
+        else:
+            spacing, gate = half, np.inf
+        ref._index = (ref.centers, half, tree, spacing, gate)
     partner = tree.query(ms.centers, k=1)[1].astype(np.int64).reshape(n)
     rows, cols = gated_assignment(ms.centers, ref.centers, tree, gate)
     matched = np.zeros(n, bool)
@@ -151,14 +171,17 @@ def _as_reference(ref: MarkerSet | np.ndarray) -> MarkerSet:
     return MarkerSet(c, np.full(len(c), np.nan), np.zeros((len(c), 2)), np.zeros(len(c)), (0, 0))
 
 
-def graph_arrays(image: np.ndarray, ref: MarkerSet | np.ndarray, geo: DomeGeometry) -> dict[str, np.ndarray]:
+def graph_arrays(
+    image: np.ndarray, ref: MarkerSet | np.ndarray, geo: DomeGeometry, markers: MarkerSet | None = None
+) -> dict[str, np.ndarray]:
     """Marker graph of one image as arrays: x (n, 13), edge_index (2, m), edge_attr (m, 8) (S5 edge attributes +
     :func:`edge_strain`), pos (n, 3).
 
     ``ref`` is the reference (no-contact) frame's markers (``reference_markers``) or its bare centres; the
     reference is captured at the frame's operating pressure when ``geo.cfg.reference_at_pressure``.
+    ``markers``: the image's markers when the caller already extracted them.
     """
-    ms = extract_markers(image)
+    ms = markers if markers is not None else extract_markers(image)
     g = build_graph(ms)
     n = len(ms)
     half = geo.cfg.image_size / 2.0

@@ -101,16 +101,30 @@ def extract_markers(
     """
     import cv2
 
-    g = check_image(image).astype(np.float32)
+    g0 = check_image(image)
+    g = g0.astype(np.float32)
     H, W = g.shape
-    lo, hi = np.percentile(g, [1, 99.7])
-    gmax = float(g.max())
+    # order statistics (1st / 99.7th percentile, max, the two middle values): from the 256-bin histogram
+    # for 8-bit frames (exact, ~10x cheaper than np.percentile + np.median on the float image)
+    qs = np.array([0.01 * (g.size - 1), 0.997 * (g.size - 1), g.size - 1, (g.size - 1) // 2, g.size // 2])
+    if g0.dtype == np.uint8:
+        cum = np.cumsum(np.bincount(g0.ravel(), minlength=256))
+        fl = np.floor(qs).astype(np.int64)
+        v0 = np.searchsorted(cum, fl, side="right").astype(np.float64)
+        v1 = np.searchsorted(cum, np.minimum(fl + 1, g.size - 1), side="right").astype(np.float64)
+        stats = v0 + (qs - fl) * (v1 - v0)
+    else:
+        srt = np.partition(g.ravel(), np.unique(np.concatenate([np.floor(qs), np.ceil(qs)]).astype(np.int64)))
+        fl = np.floor(qs).astype(np.int64)
+        stats = srt[fl] + (qs - fl) * (srt[np.minimum(fl + 1, g.size - 1)] - srt[fl])
+    lo, hi, gmax = float(stats[0]), float(stats[1]), float(stats[2])
     if hi - lo < 0.25 * (gmax - lo):  # very few marker pixels (a handful of markers): use the maximum
         hi = gmax
     if hi - lo < 1e-6:  # flat image: nothing to find
         return _empty(H, W)
     g = np.clip((g - lo) / (hi - lo), 0, 1)
-    if polarity == "dark" or (polarity == "auto" and np.median(g) > 0.5):
+    median = float(np.mean(np.clip((stats[3:] - lo) / (hi - lo), 0, 1)))  # median of the normalised image
+    if polarity == "dark" or (polarity == "auto" and median > 0.5):
         g = 1.0 - g
     g = g**gamma
     # top-hat with a kernel larger than a marker: removes vignetting and smooth background

@@ -167,6 +167,22 @@ class CoarseToFineDecoder(nn.Module):
         return {"contact_logit": logit, "coarse": coarse, "dense": dense, "hidden": h, "disp_coarse": disp_c}
 
 
+def gine(conv: nn.Module, x: torch.Tensor, edge_index: torch.Tensor, edge_attr: torch.Tensor) -> torch.Tensor:
+    """``torch_geometric.nn.GINEConv.forward`` (sum aggregation, source -> target flow) with its own weights:
+    ``nn((1 + eps) x_i + sum_{j -> i} ReLU(x_j + lin(e_ji)))``.
+
+    Why not ``conv(x, edge_index, edge_attr)``: on one small graph (331 markers, 1860 edges) the generic
+    ``propagate`` machinery (input inspection, ``scatter`` with an expanded index) cost ~0.35 ms of a layer's
+    ~0.5 ms, and the encoders run six layers a frame within a 16 ms budget. Same function, same parameters,
+    so bundles trained with either path load unchanged (outputs agree to float rounding, tested).
+    """
+    src, dst = edge_index[0], edge_index[1]
+    msg = x.index_select(0, src)
+    msg = torch.relu(msg + conv.lin(edge_attr) if conv.lin is not None else msg + edge_attr)
+    agg = torch.zeros_like(x).index_add_(0, dst, msg)
+    return conv.nn(agg + (1 + conv.eps) * x)
+
+
 class GraphEncoder(nn.Module):
     """Marker-graph encoder: node MLP + GINE message passing with edge attributes (torch_geometric)."""
 
@@ -183,7 +199,7 @@ class GraphEncoder(nn.Module):
         h = self.inp(x)
         edge_attr = edge_attr[:, : self.edge_dim]  # graphs carry strain columns a model may not use
         for conv in self.convs:
-            h = h + torch.relu(conv(h, edge_index, edge_attr))
+            h = h + torch.relu(gine(conv, h, edge_index, edge_attr))
         F = h.shape[1]
         mean = torch.zeros(n_graphs, F).index_add_(0, batch, h)
         cnt = torch.zeros(n_graphs).index_add_(0, batch, torch.ones_like(batch, dtype=torch.float32))

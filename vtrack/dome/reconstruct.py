@@ -187,8 +187,11 @@ class DomeReconstructor:
                 expected=f"0 <= P <= {self.cfg.pressure_max_kpa} kPa",
                 got=pressure_kpa,
             )
-        res = self._run(img, p)
-        ok, reason = self.marker_match(img, p)
+        from vtrack.dome.markers import extract_markers
+
+        found = extract_markers(img)  # one detection feeds the marker graph (GNN) and the validity check
+        res = self._run(img, p, found)
+        ok, reason = self.marker_match(img, p, found)
         res.info["valid"] = ok
         if not ok:
             res.info["invalid_reason"] = reason
@@ -197,20 +200,21 @@ class DomeReconstructor:
     #: fraction of the reference markers that must be found near their rest position for a frame to be read
     MIN_MATCHED_FRACTION = 0.6
 
-    def marker_match(self, img: np.ndarray, pressure_kpa: float = 0.0) -> tuple[bool, str]:
+    def marker_match(self, img: np.ndarray, pressure_kpa: float = 0.0, found=None) -> tuple[bool, str]:
         """Is ``img`` a frame of this sensor? (validity, reason if not).
 
         A real press moves markers by well under one marker spacing except inside the contact, so most
         reference (no-contact) markers have a detected marker within half a spacing. Random noise,
         blank images, other sensors and the un-rectified fisheye frames find few (measured: simulated
         presses 100 %, noise 1 %, black 0 %, the real DiffTactile frames resized 4 % and 23 %).
+        ``found``: the markers of ``img`` when already detected (``markers.extract_markers``).
         """
         from scipy.spatial import cKDTree
 
         from vtrack.dome.markers import extract_markers
 
         ref = self.reference(pressure_kpa)[1].centers
-        found = extract_markers(img).centers
+        found = (found if found is not None else extract_markers(img)).centers
         if len(ref) < 3:
             return False, "the reference image has fewer than 3 markers"
         spacing = float(np.median(cKDTree(ref).query(ref, k=2)[0][:, 1]))
@@ -223,7 +227,8 @@ class DomeReconstructor:
             )
         return True, ""
 
-    def _run(self, img: np.ndarray, p: float) -> DomeResult:
+    def _run(self, img: np.ndarray, p: float, markers=None) -> DomeResult:
+        """Network pass on a checked frame; ``markers``: its detected markers when already extracted."""
         torch = self._torch
         from vtrack.dome.features import collate_graphs, graph_arrays, image_batch
 
@@ -233,7 +238,7 @@ class DomeReconstructor:
         infl = torch.tensor([float(self.geo.reference_inflation_mm(p))], dtype=torch.float32)
         with torch.no_grad():
             if self.method == "gnn":
-                g = graph_arrays(img, ref_markers, self.geo)
+                g = graph_arrays(img, ref_markers, self.geo, markers)
                 n_markers, method = len(g["x"]), g["method"]
                 batch = collate_graphs([g])
             else:
