@@ -95,7 +95,7 @@ def test_uint8_statistics_path_equals_the_float_path(sim) -> None:
     rng = np.random.default_rng(3)
     pressed = make_dataset(3, 5, sim.cfg, cache=False)["image"]
     frames = [*pressed, 255 - sim.reference_image()]
-    low = (sim.reference_image().astype(np.float64) * 0.25 + 60 + rng.normal(0, 1.0, (sim.cfg.image_size,) * 2))
+    low = sim.reference_image().astype(np.float64) * 0.25 + 60 + rng.normal(0, 1.0, (sim.cfg.image_size,) * 2)
     frames.append(np.clip(low, 0, 255).astype(np.uint8))
     for f in frames:
         a, b = extract_markers(f), extract_markers(f.astype(np.float32))
