@@ -76,8 +76,9 @@ def run(quick: bool = False) -> BenchTable:
         "`force_mae` uses the shipped force net with the pressure input (GNN: GNN + marker patches, CNN: FiLM "
         "on the feature map; FusionTouch S18-S23, `vtrack.dome.force`), `force_mae_nop` the same net trained "
         "without pressure.",
-        "ms = median wall time per frame, one frame at a time, 1 thread: image -> marker extraction -> Delaunay "
-        "graph -> GNN (or image -> CNN) -> dense surface + force. On a machine shared with other jobs "
+        "ms = median wall time per frame of `DomeReconstructor.reconstruct`, one frame at a time, every thread pool "
+        "(torch, OpenCV, BLAS) at 1 thread: input checks -> marker extraction -> Delaunay graph -> GNN (or image -> "
+        "CNN) -> dense surface + force -> marker-match validity check. On a machine shared with other jobs "
         "wall times are noisy upper bounds; `cpu_ms` is the process CPU time per frame (what one free core needs).",
         "`template` = predicting the no-contact reference state (the rest dome inflated by the known "
         "pressure): ~80 % of the dome does not move, so whole-surface metrics (CD, HD95, F-scores) start low "
