@@ -120,8 +120,17 @@ def test_degenerate_tracks_give_finite_poses():
         {"colour_drop_motion": 0.0},
         {"colour_drop_motion": float("inf")},
         {"robust_colour": "tukey"},
+        {"colour_drop_keep": -1},
     ],
 )
 def test_bad_lag_options_are_input_errors(bad):
     with pytest.raises(InputError):
         TrackerOptions.from_dict(bad)
+
+
+def test_keep_bounds_the_drops():
+    frames = _frames(24, 8, noise=2e-4)
+    _, tr = _run(frames, colour_drop_lag=0.5, colour_drop_motion=0.003, colour_drop_keep=30)
+    # 32 tracks, at most 2 may go per frame: some of the live light-fixed ones stay anchored
+    assert 0 < len(tr._colour_dropped) <= 2
+    assert any(a >= 1000 for a in tr._anchors)

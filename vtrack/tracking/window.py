@@ -197,6 +197,9 @@ class TrackerOptions:
     #: ~10-15 % of the tracks lag 0.9-1.0 of the motion (docs/benchmarks/slam_5s_lag.md)
     colour_drop_lag: float = 0.0
     colour_drop_motion: float = 0.002  #: m of anchor motion before the lag test of ``colour_drop_lag`` applies
+    #: the lag test never leaves fewer than this many anchored tracks (the most lagging go first): with few tracks
+    #: a drop flips the few-track guard on and off (the 5 s banana at medium occlusion)
+    colour_drop_keep: int = 0
     #: robust kernel of the colour term (``huber`` | ``cauchy`` | ``none``; empty: ``robust``, the other terms')
     robust_colour: str = ""
 
@@ -274,14 +277,16 @@ class TrackerOptions:
             raise InputError(
                 "unknown robust kernel", field="robust_colour", expected="huber|cauchy|none|''", got=o.robust_colour
             )
-        if not (o.colour_drop_lag >= 0 and np.isfinite(o.colour_drop_lag)) or not (
-            o.colour_drop_motion > 0 and np.isfinite(o.colour_drop_motion)
+        if (
+            not (o.colour_drop_lag >= 0 and np.isfinite(o.colour_drop_lag))
+            or not (o.colour_drop_motion > 0 and np.isfinite(o.colour_drop_motion))
+            or o.colour_drop_keep < 0
         ):
             raise InputError(
                 "colour lag rejection out of range",
                 field="colour_drop_lag",
-                expected="colour_drop_lag >= 0 (0: off), colour_drop_motion > 0 (m)",
-                got=(o.colour_drop_lag, o.colour_drop_motion),
+                expected="colour_drop_lag >= 0 (0: off), colour_drop_motion > 0 (m), colour_drop_keep >= 0",
+                got=(o.colour_drop_lag, o.colour_drop_motion, o.colour_drop_keep),
             )
         return o
 
@@ -674,7 +679,9 @@ class WindowTracker:
             m = m - d * np.sum(d * m, axis=1, keepdims=True)
         ne, nm = np.linalg.norm(e, axis=1), np.linalg.norm(m, axis=1)
         bad = np.isfinite(ne) & np.isfinite(nm) & (nm > o.colour_drop_motion) & (ne > o.colour_drop_lag * nm)
-        for k in np.flatnonzero(bad):
+        idx = np.flatnonzero(bad)
+        idx = idx[np.argsort(-ne[idx] / nm[idx], kind="stable")][: max(len(keep) - o.colour_drop_keep, 0)]
+        for k in idx:
             a = ids[rows[k]]
             keep.pop(a, None)
             self._colour_dropped.add(a)
