@@ -13,7 +13,7 @@ import pytest
 from vtrack.errors import InputError
 from vtrack.geometry import se3
 from vtrack.tracking.frame import TrackingFrame
-from vtrack.tracking.slam import SLAMOptions
+from vtrack.tracking.slam import SLAM_COLOUR_DROP_KEEP, SLAM_COLOUR_DROP_LAG, SLAM_COLOUR_DROP_MOTION, SLAMOptions
 from vtrack.tracking.window import TrackerOptions, WindowTracker
 
 CENTRE = np.array([0.0, 0.0, 0.4])  # camera = world frame, m
@@ -70,7 +70,9 @@ def _spin(T: np.ndarray) -> float:
 
 
 def _run(frames: list[TrackingFrame], **over) -> tuple[np.ndarray, WindowTracker]:
-    _, _, opts = SLAMOptions.split({"object_radius": RADIUS, **over})
+    """SLAM's tracker options with the lag test off unless ``over`` turns it on (its own thresholds here: this scene's
+    32 tracks are fewer than SLAM's ``colour_drop_keep``)."""
+    _, _, opts = SLAMOptions.split({"object_radius": RADIUS, "colour_drop_lag": 0.0, "colour_drop_keep": 0, **over})
     tr = WindowTracker(_CylinderSDF(), _pose(0.0), opts)
     return np.array([tr.step(f) for f in frames]), tr
 
@@ -126,6 +128,16 @@ def test_degenerate_tracks_give_finite_poses():
 def test_bad_lag_options_are_input_errors(bad):
     with pytest.raises(InputError):
         TrackerOptions.from_dict(bad)
+
+
+def test_slam_defaults_turn_the_lag_test_on():
+    o = SLAMOptions.split({})[2]
+    assert (o.colour_drop_lag, o.colour_drop_motion, o.colour_drop_keep) == (
+        SLAM_COLOUR_DROP_LAG,
+        SLAM_COLOUR_DROP_MOTION,
+        SLAM_COLOUR_DROP_KEEP,
+    )
+    assert TrackerOptions().colour_drop_lag == 0.0  # the tracker's own default stays off
 
 
 def test_keep_bounds_the_drops():
