@@ -192,9 +192,9 @@ class TrackerOptions:
     #: > 0: per-track lag rejection of the colour term. After each tracked frame, a track whose anchor has moved
     #: (at the committed pose, laterally to its viewing ray) by more than ``colour_drop_motion`` since it was
     #: anchored and whose residual (anchor against its observation) exceeds this fraction of that motion is dropped
-    #: for the rest of its life: it follows the light or the hand, not the object (an object-fixed track's residual
+    #: for the rest of its life: it does not follow the object (an object-fixed track's residual
     #: stays at the noise, a world-fixed one's grows with the motion: lag 1). On the 5 s medium potted meat / mug
-    #: ~10-15 % of the tracks lag 0.9-1.0 of the motion (docs/benchmarks/slam_5s_lag.md)
+    #: 4-14 % of the tracks lag 0.9-1.0 of the motion (docs/benchmarks/slam_5s_lag.md)
     colour_drop_lag: float = 0.0
     colour_drop_motion: float = 0.002  #: m of anchor motion before the lag test of ``colour_drop_lag`` applies
     #: the lag test never leaves fewer than this many anchored tracks (the most lagging go first): with few tracks
