@@ -189,6 +189,19 @@ class TrackerOptions:
     #: frame). With ``prediction`` the accepted contacts bend the prediction itself, so sliding contacts that hold the
     #: object still pass
     stick_reference: str = "prediction"
+    #: > 0: per-track lag rejection of the colour term. After each tracked frame, a track whose anchor has moved
+    #: (at the committed pose, laterally to its viewing ray) by more than ``colour_drop_motion`` since it was
+    #: anchored and whose residual (anchor against its observation) exceeds this fraction of that motion is dropped
+    #: for the rest of its life: it does not follow the object (an object-fixed track's residual
+    #: stays at the noise, a world-fixed one's grows with the motion: lag 1). On the 5 s medium potted meat / mug
+    #: 4-14 % of the tracks lag 0.9-1.0 of the motion (docs/benchmarks/slam_5s_lag.md)
+    colour_drop_lag: float = 0.0
+    colour_drop_motion: float = 0.002  #: m of anchor motion before the lag test of ``colour_drop_lag`` applies
+    #: the lag test never leaves fewer than this many anchored tracks (the most lagging go first): with few tracks
+    #: a drop flips the few-track guard on and off (the 5 s banana at medium occlusion)
+    colour_drop_keep: int = 0
+    #: robust kernel of the colour term (``huber`` | ``cauchy`` | ``none``; empty: ``robust``, the other terms')
+    robust_colour: str = ""
 
     @classmethod
     def from_dict(cls, opts: dict) -> TrackerOptions:
@@ -260,6 +273,21 @@ class TrackerOptions:
             )
         if o.robust not in ("huber", "cauchy", "none"):
             raise InputError("unknown robust kernel", field="robust", expected="huber|cauchy|none", got=o.robust)
+        if o.robust_colour not in ("", "huber", "cauchy", "none"):
+            raise InputError(
+                "unknown robust kernel", field="robust_colour", expected="huber|cauchy|none|''", got=o.robust_colour
+            )
+        if (
+            not (o.colour_drop_lag >= 0 and np.isfinite(o.colour_drop_lag))
+            or not (o.colour_drop_motion > 0 and np.isfinite(o.colour_drop_motion))
+            or o.colour_drop_keep < 0
+        ):
+            raise InputError(
+                "colour lag rejection out of range",
+                field="colour_drop_lag",
+                expected="colour_drop_lag >= 0 (0: off), colour_drop_motion > 0 (m), colour_drop_keep >= 0",
+                got=(o.colour_drop_lag, o.colour_drop_motion, o.colour_drop_keep),
+            )
         return o
 
 
@@ -463,6 +491,8 @@ class WindowTracker:
         self._t_vision: float | None = None  # time of the last frame with segmented vision points
         self._anchors: dict[int, np.ndarray] = {}  # colour track id -> object-frame anchor (m)
         self._anchor_frame: dict[int, int] = {}  # colour track id -> frame count when anchored
+        self._anchor_world: dict[int, np.ndarray] = {}  # colour track id -> its world point when anchored (m)
+        self._colour_dropped: set[int] = set()  # colour track ids rejected by the lag test (colour_drop_lag)
         self._stick_anchors: dict[int, np.ndarray] = {}  # sticking-contact id -> object-frame anchor (m)
         self._stick_last: dict[int, np.ndarray] = {}  # sticking-contact id -> its world point in the last frame
         self._stick_reanchor: set[int] = set()  # ids that failed the slip test this frame
@@ -476,6 +506,8 @@ class WindowTracker:
         self.t_last = None
         self._anchors.clear()
         self._anchor_frame.clear()
+        self._anchor_world.clear()
+        self._colour_dropped.clear()
         self._stick_anchors.clear()
         self._stick_last.clear()
 
@@ -581,13 +613,19 @@ class WindowTracker:
         if ids is None or P is None:
             self._anchors.clear()
             self._anchor_frame.clear()
+            self._anchor_world.clear()
+            self._colour_dropped.clear()
             return
         ids = np.asarray(ids).tolist()
+        # a rejected track stays rejected while it lives (ids are not reused; forget the ended ones)
+        self._colour_dropped &= set(ids)
         keep = {a: self._anchors[a] for a in ids if a in self._anchors}
         if ok and np.all(np.isfinite(T)):
             P = np.asarray(P, np.float64)
             Ti = _inv(T)
             Q = P @ Ti[:3, :3].T + Ti[:3, 3]
+            if o.colour_drop_lag > 0 and keep:
+                self._colour_drop(fr, ids, P, T, keep)
             renew = np.zeros(len(ids), bool)
             if o.colour_max_age > 0:
                 renew |= np.array(
@@ -605,11 +643,48 @@ class WindowTracker:
                     e = e - d * np.sum(d * e, axis=1, keepdims=True)
                 renew |= has & (np.linalg.norm(e, axis=1) > o.colour_reanchor)
             for k, (a, q) in enumerate(zip(ids, Q, strict=True)):
+                if a in self._colour_dropped:
+                    continue
                 if (a not in keep or renew[k]) and np.all(np.isfinite(q)):
                     keep[a] = q
                     self._anchor_frame[a] = self._frame_count
+                    self._anchor_world[a] = P[k].copy()
         self._anchors = keep
         self._anchor_frame = {a: self._anchor_frame.get(a, self._frame_count) for a in keep}
+        self._anchor_world = {a: self._anchor_world[a] for a in keep if a in self._anchor_world}
+
+    def _colour_drop(self, fr: TrackingFrame, ids: list[int], P: np.ndarray, T: np.ndarray, keep: dict) -> None:
+        """Per-track lag test (``colour_drop_lag``): remove from ``keep`` (and remember) the anchored tracks whose
+        residual at the committed pose ``T`` exceeds ``colour_drop_lag`` times their anchor's motion since it was
+        anchored, once that motion exceeds ``colour_drop_motion``; both lateral to the track's viewing ray (m).
+
+        The residual of a track that slips behind the object grows with the motion in proportion to its lag (0:
+        object-fixed, 1: world-fixed); the pose ``T`` is the one the tracks helped set, so a lag that all tracks
+        share stays unseen, but the tracks that follow the light or the hand (lag ~1) stand out of the rest."""
+        o = self.opts
+        rows = [k for k, a in enumerate(ids) if a in keep and a in self._anchor_world]
+        if not rows:
+            return
+        Pk = P[rows]
+        Qa = np.array([keep[ids[k]] for k in rows])
+        P0 = np.array([self._anchor_world[ids[k]] for k in rows])
+        A = Qa @ T[:3, :3].T + T[:3, 3]  # anchors in the world now
+        e = A - Pk  # residual
+        m = A - P0  # the anchor's motion since it was anchored
+        C = self._colour_centres(fr, P)
+        if C is not None:
+            d = Pk - C[rows]
+            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            e = e - d * np.sum(d * e, axis=1, keepdims=True)
+            m = m - d * np.sum(d * m, axis=1, keepdims=True)
+        ne, nm = np.linalg.norm(e, axis=1), np.linalg.norm(m, axis=1)
+        bad = np.isfinite(ne) & np.isfinite(nm) & (nm > o.colour_drop_motion) & (ne > o.colour_drop_lag * nm)
+        idx = np.flatnonzero(bad)
+        idx = idx[np.argsort(-ne[idx] / nm[idx], kind="stable")][: max(len(keep) - o.colour_drop_keep, 0)]
+        for k in idx:
+            a = ids[rows[k]]
+            keep.pop(a, None)
+            self._colour_dropped.add(a)
 
     @staticmethod
     def _colour_centres(fr: TrackingFrame, P: np.ndarray) -> np.ndarray | None:
@@ -663,7 +738,9 @@ class WindowTracker:
             J[:, 0, 4], J[:, 0, 5] = -q[:, 2], q[:, 1]  # hat(q)
             J[:, 1, 3], J[:, 1, 5] = q[:, 2], -q[:, 0]
             J[:, 2, 3], J[:, 2, 4] = -q[:, 1], q[:, 0]
-        w, rho = _robust_weights(np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust, o.kernel_colour)
+        w, rho = _robust_weights(
+            np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust_colour or o.robust, o.kernel_colour
+        )
         w = w / o.sigma_colour**2
         H = np.einsum("n,nki,nkj->ij", w, J, J)
         b = np.einsum("n,nki,nk->i", w, J, r)
@@ -696,7 +773,9 @@ class WindowTracker:
         R = np.stack([slots[i].T[:3, :3] for i in batch])[k]  # (N, 3, 3) each correspondence's slot rotation
         t = np.stack([slots[i].T[:3, 3] for i in batch])[k]
         r, J = _ray_residuals(R, t, P, Q, C)  # the per-slot algebra of _colour_terms, row by row
-        w, rho = _robust_weights(np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust, o.kernel_colour)
+        w, rho = _robust_weights(
+            np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust_colour or o.robust, o.kernel_colour
+        )
         w = w / o.sigma_colour**2
         # per slot, the normal equations as two BLAS products on its (3 n, 6) Jacobian (a third of the einsum's time)
         Jw = (J * w[:, None, None]).reshape(-1, 6)
