@@ -345,6 +345,9 @@ def track_session(
         else None
     )
     cpu_read = np.zeros(n)
+    # SLAM's second pass (offline) re-tracks the session start against the final map: keep those tracking frames
+    second_s = float(getattr(tracker, "second_pass_s", 0.0) or 0.0)
+    early: list = []
     sticker = None
     if "touch" in modalities and float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
         from vtrack.tracking.stick import StickingContacts
@@ -369,10 +372,17 @@ def track_session(
         ms_prep[i] = (t1 - t0) * 1e3
         cpu_ms[i] = (time.process_time() - c0) * 1e3
         status.append(st)
+        if second_s > 0 and frames.times[i] - frames.times[0] <= second_s:
+            early.append(tf)
         if keep_frames is not None and i % max(1, int(keep_step)) == 0:
             keep_frames["built"].append((i, fr))
     if not np.all(np.isfinite(est)):
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
+    second: dict[str, Any] = {}
+    if len(early) >= 2:
+        c0 = time.process_time()
+        est[: len(early)] = tracker.retrack_start(early, est[: len(early)])
+        second = {"second_pass_frames": len(early), "second_pass_cpu_s": time.process_time() - c0}
     est_front = None
     backend: dict[str, Any] = {}
     if hasattr(tracker, "refine_poses"):
@@ -416,6 +426,7 @@ def track_session(
         "status_counts": {s: status.count(s) for s in sorted(set(status))},
         **({"reloc_attempts": reloc.attempts, "reloc_successes": reloc.successes} if reloc is not None else {}),
         "session": str(Path(session_dir)),
+        **second,
         **backend,
     }
     errors = None

@@ -22,7 +22,7 @@ sensors' (outward object normals).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -180,6 +180,10 @@ class SLAMOptions:
     train_ms: float = 40.0  #: neural mapper training budget per frame, ms
     touch_map_weight: float = 1.0  #: weight of a contact point in the map (a depth point weighs 1)
     box_margin: float = 0.03  #: room around the points when the map box is sized or grown, m
+    #: second pass (offline): the first ``second_pass_s`` seconds are tracked again, backwards from the last of them,
+    #: against the map as it is after the last frame (frozen), and replace the first pass's poses there; 0 = off
+    second_pass_s: float = 0.0
+    second_pass_colour: bool = True  #: the colour term in the second pass (its tracks are anchored backwards)
 
     @staticmethod
     def split(opts: dict) -> tuple[SLAMOptions, BackendOptions, TrackerOptions]:
@@ -187,6 +191,13 @@ class SLAMOptions:
         names = {f.name for f in fields(SLAMOptions)}
         bnames = {f.name for f in fields(BackendOptions)}
         so = SLAMOptions(**{k: v for k, v in opts.items() if k in names})
+        if not np.isfinite(float(so.second_pass_s)) or float(so.second_pass_s) < 0:
+            raise InputError(
+                "second pass length must be a finite number of seconds >= 0",
+                field="second_pass_s",
+                expected=">= 0 (0 = off)",
+                got=so.second_pass_s,
+            )
         if so.mapper not in ("surfel", "neural"):
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=so.mapper)
         bo = BackendOptions.from_dict({k: v for k, v in opts.items() if k in bnames})
@@ -406,6 +417,45 @@ class SLAMTracker(WindowTracker):
             self.kf_graph = self.kf_graph[:1] + old[1::2] + recent
             self.kf_thinned += len(old) - len(old[1::2])
         self.kf_graph.append(Keyframe(t=float(t), T=T.copy(), points=V.copy(), normals=Nw.copy()))
+
+    @property
+    def second_pass_s(self) -> float:
+        """Seconds of the session start that :meth:`retrack_start` re-estimates (0 = no second pass)."""
+        return float(self.slam_opts.second_pass_s)
+
+    def retrack_start(self, frames: list[TrackingFrame], poses: np.ndarray) -> np.ndarray:
+        """Second pass over the start of a session against the matured map; returns the corrected ``poses``.
+
+        The object frame and the first poses are set while the map is young (a few views, fused with poses that
+        were tracked against even fewer): an error made then (an offset and tilt of a soup can's centre in its
+        first 0.5 s) is fused into the map and carried for the rest of the session. Every motion error is measured
+        from the first frame, so that frame's pose matters most. Here the frames are tracked again, newest first
+        (their timestamps mirrored so the motion prior runs backwards), from the first pass's pose of the last
+        of them, against the map after the last frame (frozen: nothing is fused). The last frame keeps its pose
+        (the junction with the rest of the trajectory); a frame the second pass loses keeps its first-pass pose.
+
+        Args:
+            frames: the tracking frames of the session start, in time order (world frame, s).
+            poses: (len(frames), 4, 4) first-pass ``T_world_object``.
+
+        Returns:
+            (len(frames), 4, 4) poses, finite.
+        """
+        P = np.asarray(poses, np.float64)
+        out = P.copy()
+        n = len(frames)
+        if n < 2 or len(self.map) < 10 or P.shape != (n, 4, 4) or not np.all(np.isfinite(P)):
+            return out
+        opts = self.opts if self.slam_opts.second_pass_colour else replace(self.opts, sigma_colour=0.0)
+        tr = WindowTracker(self.sdf, P[-1], opts)
+        t_end = float(frames[-1].t)
+        for k in range(n - 1, -1, -1):
+            f = frames[k]
+            T = tr.step(replace(f, t=2.0 * t_end - float(f.t)))
+            st = tr.last_info.status if tr.last_info else "no_data"
+            if k < n - 1 and st not in ("lost", "no_data") and np.all(np.isfinite(T)):
+                out[k] = T
+        return out
 
     def refine_poses(self, times: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The trajectory ``poses`` (N, 4, 4) at ``times`` corrected by the keyframe pose graph
