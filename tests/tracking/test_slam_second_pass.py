@@ -70,12 +70,42 @@ def test_second_pass_degenerate_input_keeps_the_poses(mustard_seq, matured):
     np.testing.assert_array_equal(fresh.retrack_start(mustard_seq.frames[:5], E[:5]), E[:5])
 
 
-@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"second_pass_s": -0.1},
+        {"second_pass_s": float("nan")},
+        {"second_pass_s": float("inf")},
+        {"second_pass_blend": 1.5},
+        {"second_pass_blend": float("nan")},
+    ],
+)
 def test_bad_second_pass_option_is_an_input_error(bad):
     from vtrack.tracking.slam import SLAMTracker
 
     with pytest.raises(InputError, match="second pass"):
-        SLAMTracker(np.eye(4), second_pass_s=bad)
+        SLAMTracker(np.eye(4), **bad)
+
+
+def test_second_pass_blend_interpolates(mustard_seq, matured):
+    """Blend 0 gives the first pass back, 0.5 the midway pose (centre halfway between the two passes)."""
+    from dataclasses import replace
+
+    tr, E, _ = matured
+    n = 8
+    P = E[:n].copy()
+    P[:-1, 0, 3] += 2e-3  # first-pass poses off by 2 mm
+    full = tr.retrack_start(mustard_seq.frames[:n], P)
+    so = tr.slam_opts
+    try:
+        tr.slam_opts = replace(so, second_pass_blend=0.0)
+        np.testing.assert_allclose(tr.retrack_start(mustard_seq.frames[:n], P), P, atol=1e-12)
+        tr.slam_opts = replace(so, second_pass_blend=0.5)
+        half = tr.retrack_start(mustard_seq.frames[:n], P)
+    finally:
+        tr.slam_opts = so
+    np.testing.assert_allclose(half[:, :3, 3], 0.5 * (P[:, :3, 3] + full[:, :3, 3]), atol=1e-9)
+    assert np.abs(full[:-1, 0, 3] - P[:-1, 0, 3]).max() > 1e-3  # the second pass did move them
 
 
 def test_track_session_runs_the_second_pass(tiny_session):

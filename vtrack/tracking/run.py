@@ -263,7 +263,8 @@ def track_session(
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
             ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing;
             for SLAM also ``poses_frontend`` (the poses before the back end's refinement, an ablation); and
-            ``tracker`` (the tracker after the last frame, e.g. its keyframes).
+            ``tracker`` (the tracker after the last frame, e.g. its keyframes); with SLAM's second pass also
+            ``second_pass_frames`` (the tracking frames it re-tracked) and ``poses_first_pass``.
         depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
             working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
             4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
@@ -380,6 +381,8 @@ def track_session(
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
     second: dict[str, Any] = {}
     if len(early) >= 2:
+        if keep_frames is not None:
+            keep_frames.update(second_pass_frames=early, poses_first_pass=est.copy())
         c0 = time.process_time()
         est[: len(early)] = tracker.retrack_start(early, est[: len(early)])
         second = {"second_pass_frames": len(early), "second_pass_cpu_s": time.process_time() - c0}

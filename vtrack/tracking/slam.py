@@ -184,6 +184,10 @@ class SLAMOptions:
     #: against the map as it is after the last frame (frozen), and replace the first pass's poses there; 0 = off
     second_pass_s: float = 0.0
     second_pass_colour: bool = True  #: the colour term in the second pass (its tracks are anchored backwards)
+    #: weight of the second pass's pose against the first pass's (SE(3) interpolation; 1 = replace, 0.5 = midway: a
+    #: lag of the forward pass and the opposite lag of the backward one cancel)
+    second_pass_blend: float = 1.0
+    second_pass_touch_only: bool = True  #: frames without depth points take the second pass's pose too
 
     @staticmethod
     def split(opts: dict) -> tuple[SLAMOptions, BackendOptions, TrackerOptions]:
@@ -197,6 +201,13 @@ class SLAMOptions:
                 field="second_pass_s",
                 expected=">= 0 (0 = off)",
                 got=so.second_pass_s,
+            )
+        if not 0.0 <= float(so.second_pass_blend) <= 1.0:
+            raise InputError(
+                "second pass blend weight must be in [0, 1]",
+                field="second_pass_blend",
+                expected="0..1 (1 = the second pass's poses)",
+                got=so.second_pass_blend,
             )
         if so.mapper not in ("surfel", "neural"):
             raise InputError("unknown SLAM mapper", field="mapper", expected="surfel|neural", got=so.mapper)
@@ -446,15 +457,19 @@ class SLAMTracker(WindowTracker):
         n = len(frames)
         if n < 2 or len(self.map) < 10 or P.shape != (n, 4, 4) or not np.all(np.isfinite(P)):
             return out
-        opts = self.opts if self.slam_opts.second_pass_colour else replace(self.opts, sigma_colour=0.0)
+        so = self.slam_opts
+        opts = self.opts if so.second_pass_colour else replace(self.opts, sigma_colour=0.0)
         tr = WindowTracker(self.sdf, P[-1], opts)
         t_end = float(frames[-1].t)
         for k in range(n - 1, -1, -1):
             f = frames[k]
             T = tr.step(replace(f, t=2.0 * t_end - float(f.t)))
             st = tr.last_info.status if tr.last_info else "no_data"
-            if k < n - 1 and st not in ("lost", "no_data") and np.all(np.isfinite(T)):
-                out[k] = T
+            if k == n - 1 or st in ("lost", "no_data") or not np.all(np.isfinite(T)):
+                continue
+            if not so.second_pass_touch_only and tr.last_info.n_vision == 0:
+                continue
+            out[k] = T if so.second_pass_blend >= 1.0 else se3.interpolate(P[k], T, float(so.second_pass_blend))
         return out
 
     def refine_poses(self, times: np.ndarray, poses: np.ndarray) -> np.ndarray:
