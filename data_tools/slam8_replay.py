@@ -6,7 +6,8 @@ second or two instead of a re-track). A variant's ``second_pass_s`` limits the r
 ``track_session``. Scores: the record's ``motion_err_mm`` and, for symmetric objects, a dense ADD-S (40000 model
 samples, see data_tools/slam8_sweep.py).
 
-Usage: python data_tools/slam8_replay.py SECONDS "obj|occ,..." '[{second-pass opts}, ...]' OUT.json"""
+Usage: python data_tools/slam8_replay.py SECONDS "obj|occ,..." '[{second-pass opts}, ...]' OUT.json ['{kw}']
+  kw: extra track_session keyword arguments of the first pass (e.g. '{"modalities": ["vision"]}')"""
 
 import json
 import sys
@@ -26,6 +27,7 @@ secs = float(sys.argv[1])
 cases = [c.split("|") for c in sys.argv[2].split(",")]
 variants = json.loads(sys.argv[3])
 out = sys.argv[4]
+extra = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
 res: dict = {}
 
 
@@ -45,7 +47,7 @@ def score(gt, times, G, tree, Q, T: np.ndarray) -> dict:
 for o, occ in cases:
     path = ycb_session(o, occ, secs)
     kept: dict = {}
-    track_session(path, "", shape="slam", write=False, keep_frames=kept, second_pass_s=1e3)
+    track_session(path, "", shape="slam", write=False, keep_frames=kept, second_pass_s=1e3, **extra)
     tr, early, P1 = kept["tracker"], kept["second_pass_frames"], kept["poses_first_pass"]
     times = kept["frames"].times
     gt = SessionGroundTruth.load(path)
@@ -64,9 +66,14 @@ for o, occ in cases:
         c0 = time.process_time()
         T = P1.copy()
         T[:n] = tr.retrack_start(early[:n], P1[:n])
-        rows[json.dumps(v)] = {**score(gt, times, G, tree, Q, T), "cpu_s": time.process_time() - c0}
+        rows[json.dumps(v)] = {
+            **score(gt, times, G, tree, Q, T),
+            "cpu_s": time.process_time() - c0,
+            "max_move_mm": tr.second_pass_report["max_move_mm"],
+            "rejected": tr.second_pass_report["rejected"],
+        }
     res[f"{o}|{occ}"] = rows
     for k, r in rows.items():
-        print(o, occ, k, {a: round(b, 3) for a, b in r.items()}, flush=True)
+        print(o, occ, k, {a: round(b, 3) if isinstance(b, float) else b for a, b in r.items()}, flush=True)
     with open(out, "w") as fh:
         json.dump({"secs": secs, "res": res}, fh, indent=1)

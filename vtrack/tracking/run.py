@@ -385,7 +385,13 @@ def track_session(
             keep_frames.update(second_pass_frames=early, poses_first_pass=est.copy())
         c0 = time.process_time()
         est[: len(early)] = tracker.retrack_start(early, est[: len(early)])
-        second = {"second_pass_frames": len(early), "second_pass_cpu_s": time.process_time() - c0}
+        rep = tracker.second_pass_report
+        second = {
+            "second_pass_frames": len(early),
+            "second_pass_cpu_s": time.process_time() - c0,
+            "second_pass_max_move_mm": float(rep.get("max_move_mm", 0.0)),
+            "second_pass_rejected": bool(rep.get("rejected", False)),
+        }
     est_front = None
     backend: dict[str, Any] = {}
     if hasattr(tracker, "refine_poses"):
