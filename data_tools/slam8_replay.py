@@ -70,6 +70,7 @@ for o, occ in cases:
             **score(gt, times, G, tree, Q, T),
             "cpu_s": time.process_time() - c0,
             "max_move_mm": tr.second_pass_report["max_move_mm"],
+            "max_rms_move_mm": tr.second_pass_report["max_rms_move_mm"],
             "rejected": tr.second_pass_report["rejected"],
         }
     res[f"{o}|{occ}"] = rows
