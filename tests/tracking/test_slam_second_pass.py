@@ -127,8 +127,8 @@ def test_track_session_runs_the_second_pass(tiny_session):
 
 
 def test_second_pass_gate_drops_a_large_correction(mustard_seq, matured):
-    """A correction beyond ``second_pass_max_move`` (4 mm; here a 12 mm start offset) means the pass lost the object: the
-    first pass's poses come back whole; with the gate off the correction is applied."""
+    """A correction beyond ``second_pass_max_move`` (4 mm; here a 12 mm start offset) means the pass lost the object:
+    the first pass's poses come back whole; with the gate off the correction is applied."""
     from dataclasses import replace
 
     tr, E, _ = matured
