@@ -32,6 +32,7 @@ for case in sys.argv[1].split(","):
             o,
             occ,
             name,
-            f"map surfels {len(S)}: distance to GT surface median {np.median(d):.2f} p90 {np.percentile(d, 90):.2f} mean {d.mean():.2f} mm",
+            f"map surfels {len(S)}: distance to GT surface median {np.median(d):.2f}",
+            f"p90 {np.percentile(d, 90):.2f} mean {d.mean():.2f} mm",
             flush=True,
         )
