@@ -263,7 +263,8 @@ def track_session(
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
             ``keep_step``-th ``(index, Frame)``), so a reconstruction reuses them instead of recomputing;
             for SLAM also ``poses_frontend`` (the poses before the back end's refinement, an ablation); and
-            ``tracker`` (the tracker after the last frame, e.g. its keyframes).
+            ``tracker`` (the tracker after the last frame, e.g. its keyframes); with SLAM's second pass also
+            ``second_pass_frames`` (the tracking frames it re-tracked) and ``poses_first_pass``.
         depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
             working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
             4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
@@ -345,6 +346,9 @@ def track_session(
         else None
     )
     cpu_read = np.zeros(n)
+    # SLAM's second pass (offline) re-tracks the session start against the final map: keep those tracking frames
+    second_s = float(getattr(tracker, "second_pass_s", 0.0) or 0.0)
+    early: list = []
     sticker = None
     if "touch" in modalities and float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
         from vtrack.tracking.stick import StickingContacts
@@ -369,10 +373,25 @@ def track_session(
         ms_prep[i] = (t1 - t0) * 1e3
         cpu_ms[i] = (time.process_time() - c0) * 1e3
         status.append(st)
+        if second_s > 0 and frames.times[i] - frames.times[0] <= second_s:
+            early.append(tf)
         if keep_frames is not None and i % max(1, int(keep_step)) == 0:
             keep_frames["built"].append((i, fr))
     if not np.all(np.isfinite(est)):
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
+    second: dict[str, Any] = {}
+    if len(early) >= 2:
+        if keep_frames is not None:
+            keep_frames.update(second_pass_frames=early, poses_first_pass=est.copy())
+        c0 = time.process_time()
+        est[: len(early)] = tracker.retrack_start(early, est[: len(early)])
+        rep = tracker.second_pass_report
+        second = {
+            "second_pass_frames": len(early),
+            "second_pass_cpu_s": time.process_time() - c0,
+            "second_pass_max_move_mm": float(rep.get("max_move_mm", 0.0)),
+            "second_pass_rejected": bool(rep.get("rejected", False)),
+        }
     est_front = None
     backend: dict[str, Any] = {}
     if hasattr(tracker, "refine_poses"):
@@ -416,6 +435,7 @@ def track_session(
         "status_counts": {s: status.count(s) for s in sorted(set(status))},
         **({"reloc_attempts": reloc.attempts, "reloc_successes": reloc.successes} if reloc is not None else {}),
         "session": str(Path(session_dir)),
+        **second,
         **backend,
     }
     errors = None

@@ -28,6 +28,12 @@ def register(app: typer.Typer) -> None:
         online: bool = typer.Option(False, "--online", help="neural SDF: frame-by-frame with a time budget"),
         iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = OFFLINE_ITERS)"),
         voxel_mm: float = typer.Option(0.0, "--voxel-mm", help="TSDF voxel size in mm (0 = TSDFConfig default)"),
+        second_pass: float = typer.Option(
+            0.0,
+            "--second-pass",
+            help="--poses track with SLAM: track the first SECONDS again, backwards, against the final map before "
+            "fusing (0 = off)",
+        ),
         no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
     ) -> None:
@@ -35,6 +41,14 @@ def register(app: typer.Typer) -> None:
         from vtrack.fusion.reconstruct import reconstruct_session
         from vtrack_apps.output import report
 
+        if second_pass and (mesh is not None or poses != "track"):
+            from vtrack.errors import InputError
+
+            raise InputError(
+                "--second-pass re-tracks against SLAM's map",
+                field="--second-pass",
+                expected="--poses track without --mesh",
+            )
         opts = {}
         if iters > 0:
             opts["n_iters"] = iters
@@ -52,6 +66,7 @@ def register(app: typer.Typer) -> None:
             segmentation=segmentation,
             online=online,
             screenshot=not no_screenshot,
+            track_opts={"second_pass_s": second_pass} if second_pass else None,
             **opts,
         )
         keys = (

@@ -45,6 +45,12 @@ def register(app: typer.Typer) -> None:
             help="SLAM: colour term, KLT feature tracks on the object's pixels (observes a spin about a symmetry "
             "axis that depth and touch do not see; needs the camera's RGB and surface texture; about 3 % more CPU)",
         ),
+        second_pass: float = typer.Option(
+            0.0,
+            "--second-pass",
+            help="SLAM, offline: track the first SECONDS again, backwards, against the final map (0 = off; a "
+            "value >= the session's length re-tracks it all; docs/benchmarks/slam_5s_second_pass.md)",
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -84,6 +90,8 @@ def register(app: typer.Typer) -> None:
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
                 opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure, spin_search=spin_search)
+                if second_pass:
+                    opts["second_pass_s"] = second_pass
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
 

@@ -1,0 +1,80 @@
+"""SLAM's second pass under option variants, replayed on one first pass per session (GT for scoring only).
+
+Runs the first pass once (``track_session(..., second_pass_s=1e3, keep_frames=...)`` keeps every tracking frame and
+the first pass's poses), then re-runs only :meth:`~vtrack.tracking.slam.SLAMTracker.retrack_start` per variant (a
+second or two instead of a re-track). A variant's ``second_pass_s`` limits the re-tracked frames as in
+``track_session``. Scores: the record's ``motion_err_mm`` and, for symmetric objects, a dense ADD-S (40000 model
+samples, see data_tools/slam8_sweep.py).
+
+Usage: python data_tools/slam8_replay.py SECONDS "obj|occ,..." '[{second-pass opts}, ...]' OUT.json ['{kw}']
+  kw: extra track_session keyword arguments of the first pass (e.g. '{"modalities": ["vision"]}')"""
+
+import json
+import sys
+import time
+from dataclasses import replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vtrack.eval.pose_metrics import sample_model_points
+from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
+from vtrack.geometry import se3
+from vtrack.testing.sim import ycb_session
+from vtrack.tracking.run import track_session
+
+secs = float(sys.argv[1])
+cases = [c.split("|") for c in sys.argv[2].split(",")]
+variants = json.loads(sys.argv[3])
+out = sys.argv[4]
+extra = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
+res: dict = {}
+
+
+def score(gt, times, G, tree, Q, T: np.ndarray) -> dict:
+    """The record's motion error and, with ``tree`` (dense model samples), the dense ADD-S (mm)."""
+    r = {"motion_err_mm": score_trajectory(gt, times, T)[0]["motion_err_mm"]}
+    if tree is not None:
+        Tm = T @ se3.invert(T[0]) @ G[0]
+        r["dense_add_s_mm"] = 1e3 * float(
+            np.mean(
+                [tree.query(se3.transform_points(se3.invert(A) @ B, Q))[0].mean() for A, B in zip(Tm, G, strict=True)]
+            )
+        )
+    return r
+
+
+for o, occ in cases:
+    path = ycb_session(o, occ, secs)
+    kept: dict = {}
+    track_session(path, "", shape="slam", write=False, keep_frames=kept, second_pass_s=1e3, **extra)
+    tr, early, P1 = kept["tracker"], kept["second_pass_frames"], kept["poses_first_pass"]
+    times = kept["frames"].times
+    gt = SessionGroundTruth.load(path)
+    G = gt.poses_at(times)
+    tree = Q = None
+    if gt.symmetric:
+        V, F = gt.model()
+        P = sample_model_points(V, F, 40000, seed=0)
+        tree, Q = cKDTree(P), P[::40]
+
+    base_opts = tr.slam_opts
+    rows = {"first pass": score(gt, times, G, tree, Q, P1)}
+    for v in variants:
+        tr.slam_opts = replace(base_opts, **v)
+        n = int(np.sum(times - times[0] <= tr.slam_opts.second_pass_s))
+        c0 = time.process_time()
+        T = P1.copy()
+        T[:n] = tr.retrack_start(early[:n], P1[:n])
+        rows[json.dumps(v)] = {
+            **score(gt, times, G, tree, Q, T),
+            "cpu_s": time.process_time() - c0,
+            "max_move_mm": tr.second_pass_report["max_move_mm"],
+            "max_rms_move_mm": tr.second_pass_report["max_rms_move_mm"],
+            "rejected": tr.second_pass_report["rejected"],
+        }
+    res[f"{o}|{occ}"] = rows
+    for k, r in rows.items():
+        print(o, occ, k, {a: round(b, 3) if isinstance(b, float) else b for a, b in r.items()}, flush=True)
+    with open(out, "w") as fh:
+        json.dump({"secs": secs, "res": res}, fh, indent=1)

@@ -1,0 +1,148 @@
+"""SLAM's second pass: the session start re-tracked backwards against the matured (frozen) map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vtrack.errors import InputError
+from vtrack.geometry import se3
+
+
+def _centre_err(seq, T: np.ndarray) -> np.ndarray:
+    """Per-frame error of the object centre (m) against the synthetic ground truth."""
+    c = seq.centre[None]
+    return np.linalg.norm(se3.transform_points(T, c)[:, 0] - se3.transform_points(seq.gt[: len(T)], c)[:, 0], axis=1)
+
+
+@pytest.fixture(scope="module")
+def matured(mustard_seq):
+    """A SLAM run over the whole sequence (its map after the last frame) and its poses."""
+    from vtrack.testing.sequences import run_sequence
+    from vtrack.tracking.slam import SLAMTracker
+
+    tr = SLAMTracker(mustard_seq.gt[0], second_pass_s=0.5)
+    E, err = run_sequence(tr, mustard_seq)
+    return tr, E, err
+
+
+def test_second_pass_removes_a_start_offset(mustard_seq, matured):
+    """Start poses 2 mm and 2 deg off (an error a young map lets through, fading to nothing at the junction frame)
+    are pulled back onto the matured map; the junction frame keeps its pose."""
+    tr, E, err = matured
+    n = 15
+    assert err[:n].max() < 1.2e-3  # the first pass itself tracked this clean sequence (to ~1 mm)
+    P = E[:n].copy()
+    for k in range(n - 1):
+        f = 1.0 - k / (n - 1)
+        off = se3.make_transform(se3.so3_exp(np.array([0.0, np.radians(2.0) * f, 0.0])), np.array([2e-3 * f, 0, 0]))
+        c = se3.transform_points(E[k], mustard_seq.centre[None])[0]
+        P[k] = se3.make_transform(np.eye(3), c) @ off @ se3.make_transform(np.eye(3), -c) @ E[k]
+    e_before = _centre_err(mustard_seq, P)
+    assert e_before[0] > 1.8e-3
+    Q = tr.retrack_start(mustard_seq.frames[:n], P)
+    e_after = _centre_err(mustard_seq, Q)
+    assert np.all(np.isfinite(Q))
+    np.testing.assert_array_equal(Q[-1], P[-1])  # the junction with the rest of the trajectory
+    assert e_after[: n - 1].max() < 1.0e-3, e_after
+    assert not tr.second_pass_report["rejected"] and 0.5 < tr.second_pass_report["max_move_mm"] < 4.0
+    # the tilt too: the rotation error of the first frame back under a degree
+    R_err = Q[0][:3, :3] @ mustard_seq.gt[0][:3, :3].T
+    assert np.degrees(np.arccos(np.clip((np.trace(R_err) - 1) / 2, -1, 1))) < 1.0
+
+
+def test_second_pass_degenerate_input_keeps_the_poses(mustard_seq, matured):
+    """Frames with no data, a single frame, non-finite poses or an empty map: the first-pass poses come back, finite."""
+    from vtrack.tracking.frame import TrackingFrame
+    from vtrack.tracking.slam import SLAMTracker
+
+    tr, E, _ = matured
+    empty = [TrackingFrame(t=0.1 * k) for k in range(4)]
+    np.testing.assert_array_equal(tr.retrack_start(empty, E[:4]), E[:4])
+    np.testing.assert_array_equal(tr.retrack_start(mustard_seq.frames[:1], E[:1]), E[:1])
+    bad = E[:4].copy()
+    bad[1, 0, 3] = np.nan
+    out = tr.retrack_start(mustard_seq.frames[:4], bad)
+    assert out.shape == (4, 4, 4) and np.isnan(out[1, 0, 3])  # returned as given, not tracked from garbage
+    nan_frames = [TrackingFrame(t=f.t, vision_points=np.full((50, 3), np.nan)) for f in mustard_seq.frames[:5]]
+    out = tr.retrack_start(nan_frames, E[:5])
+    assert np.all(np.isfinite(out))
+    fresh = SLAMTracker(mustard_seq.gt[0])
+    np.testing.assert_array_equal(fresh.retrack_start(mustard_seq.frames[:5], E[:5]), E[:5])
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"second_pass_s": -0.1},
+        {"second_pass_s": float("nan")},
+        {"second_pass_s": float("inf")},
+        {"second_pass_blend": 1.5},
+        {"second_pass_blend": float("nan")},
+        {"second_pass_max_move": -0.001},
+        {"second_pass_max_move": float("nan")},
+    ],
+)
+def test_bad_second_pass_option_is_an_input_error(bad):
+    from vtrack.tracking.slam import SLAMTracker
+
+    with pytest.raises(InputError, match="second pass"):
+        SLAMTracker(np.eye(4), **bad)
+
+
+def test_second_pass_blend_interpolates(mustard_seq, matured):
+    """Blend 0 gives the first pass back, 0.5 the midway pose (centre halfway between the two passes)."""
+    from dataclasses import replace
+
+    tr, E, _ = matured
+    n = 8
+    P = E[:n].copy()
+    P[:-1, 0, 3] += 2e-3  # first-pass poses off by 2 mm
+    full = tr.retrack_start(mustard_seq.frames[:n], P)
+    so = tr.slam_opts
+    try:
+        tr.slam_opts = replace(so, second_pass_blend=0.0)
+        np.testing.assert_allclose(tr.retrack_start(mustard_seq.frames[:n], P), P, atol=1e-12)
+        tr.slam_opts = replace(so, second_pass_blend=0.5)
+        half = tr.retrack_start(mustard_seq.frames[:n], P)
+    finally:
+        tr.slam_opts = so
+    np.testing.assert_allclose(half[:, :3, 3], 0.5 * (P[:, :3, 3] + full[:, :3, 3]), atol=1e-9)
+    assert np.abs(full[:-1, 0, 3] - P[:-1, 0, 3]).max() > 1e-3  # the second pass did move them
+
+
+def test_track_session_runs_the_second_pass(tiny_session):
+    """``track_session(..., second_pass_s=...)`` re-tracks the start and reports it; off by default."""
+    from vtrack.tracking.run import track_session
+
+    m0, (_, T0) = track_session(tiny_session, "", shape="slam", write=False, return_poses=True)
+    m1, (t1, T1) = track_session(tiny_session, "", shape="slam", write=False, return_poses=True, second_pass_s=0.2)
+    assert "second_pass_frames" not in m0
+    k = m1["second_pass_frames"]
+    assert k == int(np.sum(t1 - t1[0] <= 0.2)) and k >= 2
+    assert np.all(np.isfinite(T1)) and np.isfinite(m1["motion_err_mm"])
+    np.testing.assert_array_equal(T1[k - 1 :], T0[k - 1 :])  # only the start changes
+    assert not np.array_equal(T1[: k - 1], T0[: k - 1])
+    assert m1["motion_err_mm"] < 6.0
+
+
+def test_second_pass_gate_drops_a_large_correction(mustard_seq, matured):
+    """A correction beyond ``second_pass_max_move`` (4 mm; here a 12 mm start offset) means the pass lost the object:
+    the first pass's poses come back whole; with the gate off the correction is applied."""
+    from dataclasses import replace
+
+    tr, E, _ = matured
+    n = 10
+    P = E[:n].copy()
+    P[:-1, 1, 3] += np.linspace(12e-3, 1.3e-3, n - 1)
+    so = tr.slam_opts
+    try:
+        out = tr.retrack_start(mustard_seq.frames[:n], P)
+        assert tr.second_pass_report["rejected"] and tr.second_pass_report["max_move_mm"] > 4.0
+        np.testing.assert_array_equal(out, P)
+        tr.slam_opts = replace(so, second_pass_max_move=0.0)
+        out = tr.retrack_start(mustard_seq.frames[:n], P)
+        assert not tr.second_pass_report["rejected"]
+        assert _centre_err(mustard_seq, out)[: n - 1].max() < 1.5e-3
+    finally:
+        tr.slam_opts = so
