@@ -55,13 +55,31 @@ def symmetry_axis(points: np.ndarray, weights: np.ndarray | None = None) -> np.n
     return U[:, k] / np.linalg.norm(U[:, k])
 
 
-def add_s(T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray) -> np.ndarray:
-    """ADD-S (m) per frame for (N, 4, 4) pose arrays."""
+#: surface samples ADD-S takes the closest point among when scoring sessions (:func:`dense_surface_points`)
+ADD_S_DENSE_POINTS = 200_000
+
+
+def dense_surface_points(vertices: np.ndarray, faces: np.ndarray, n: int = ADD_S_DENSE_POINTS) -> np.ndarray:
+    """Dense area-weighted surface samples (n, 3) m, the target set of :func:`add_s` (fixed seed)."""
+    return sample_model_points(vertices, faces, n, seed=1)
+
+
+def add_s(
+    T_est: np.ndarray, T_gt: np.ndarray, model_points: np.ndarray, surface_points: np.ndarray | None = None
+) -> np.ndarray:
+    """ADD-S (m) per frame for (N, 4, 4) pose arrays: the mean over ``model_points`` of the distance to the
+    closest point of the estimated model.
+
+    ``surface_points``: a dense sample of the model surface to take that closest point from
+    (:func:`dense_surface_points`); default ``model_points`` themselves, the textbook discrete form. Why dense:
+    with 1000 samples of a soup can (~28 cm^2, one sample per ~5 mm) a pure spin about its axis - which ADD-S is
+    meant to ignore - scored 2.1-2.8 mm, the samples' own spacing; with 200 000 it scores ~0.2 mm.
+    """
     from scipy.spatial import cKDTree
 
     T_est, T_gt = _pair(T_est, T_gt)
     P = np.asarray(model_points, dtype=np.float64)
-    tree = cKDTree(P)
+    tree = cKDTree(P if surface_points is None else np.asarray(surface_points, dtype=np.float64))
     out = np.empty(len(T_est))
     for i, (A, B) in enumerate(zip(T_est, T_gt, strict=True)):
         # closest estimated point to each true point == closest model point to A^-1 B p
@@ -130,10 +148,11 @@ def trajectory_errors(
     symmetric: bool = False,
     centre: np.ndarray | None = None,
     axis: np.ndarray | None = None,
+    surface_points: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-frame errors: ``pos`` (centre, m), ``origin`` (m), ``rot`` (rad, symmetry-aware if
     ``symmetric``, about ``axis`` or the PCA axis of the model points), ``rot_full`` (rad),
-    ``add_s`` and ``add`` (m)."""
+    ``add_s`` and ``add`` (m); ``surface_points``: dense target set of :func:`add_s`."""
     T_est, T_gt = _pair(T_est, T_gt)
     P = np.asarray(model_points, dtype=np.float64)
     c = 0.5 * (P.min(0) + P.max(0)) if centre is None else np.asarray(centre, dtype=np.float64)
@@ -151,7 +170,7 @@ def trajectory_errors(
         "origin": origin,
         "rot": rot,
         "rot_full": rot_full,
-        "add_s": add_s(T_est, T_gt, P),
+        "add_s": add_s(T_est, T_gt, P, surface_points),
         "add": add(T_est, T_gt, P),
     }
 
