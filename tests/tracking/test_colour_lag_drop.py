@@ -130,14 +130,18 @@ def test_bad_lag_options_are_input_errors(bad):
         TrackerOptions.from_dict(bad)
 
 
-def test_slam_defaults_turn_the_lag_test_on():
+def test_slam_defaults_leave_the_lag_test_off_and_the_preset_turns_it_on():
+    from vtrack.tracking.slam import SLAM_COLOUR_DROP
+
     o = SLAMOptions.split({})[2]
     assert (o.colour_drop_lag, o.colour_drop_motion, o.colour_drop_keep) == (
         SLAM_COLOUR_DROP_LAG,
         SLAM_COLOUR_DROP_MOTION,
         SLAM_COLOUR_DROP_KEEP,
     )
-    assert TrackerOptions().colour_drop_lag == 0.0  # the tracker's own default stays off
+    assert SLAM_COLOUR_DROP_LAG == 0.0 and TrackerOptions().colour_drop_lag == 0.0  # off (see slam.py: why)
+    on = SLAMOptions.split(dict(SLAM_COLOUR_DROP))[2]
+    assert (on.colour_drop_lag, on.colour_drop_motion, on.colour_drop_keep) == (0.3, 0.003, 24)
 
 
 def test_keep_bounds_the_drops():
