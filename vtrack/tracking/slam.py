@@ -156,7 +156,8 @@ SLAM_COLOUR_FEW_MIN_VISION = 250
 SLAM_COLOUR_DROP_LAG = 0.0
 SLAM_COLOUR_DROP_MOTION = 0.003
 SLAM_COLOUR_DROP_KEEP = 24
-#: the lag rejection on, with the values measured in docs/benchmarks/slam_5s_lag.md (``track_session(..., **SLAM_COLOUR_DROP)``)
+#: the lag rejection on, with the values measured in docs/benchmarks/slam_5s_lag.md
+#: (``track_session(..., **SLAM_COLOUR_DROP)``)
 SLAM_COLOUR_DROP = {"colour_drop_lag": 0.3, "colour_drop_motion": SLAM_COLOUR_DROP_MOTION, "colour_drop_keep": 24}
 #: the colour term on (``track_session(..., **SLAM_COLOUR)``; SLAM's default) / off (``SLAM_NO_COLOUR``)
 SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}
