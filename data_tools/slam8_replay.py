@@ -1,4 +1,7 @@
-"""SLAM's second pass under option variants, replayed on one first pass per session (GT for scoring only).
+"""[Since 2026-11-26 ~20:00 UTC the record's ``motion_err_mm`` (``score_trajectory``) is itself a dense ADD-S
+(200 000 surface samples, docs/benchmarks/slam_adds_dense.md); this script's extra dense column predates that.]
+
+SLAM's second pass under option variants, replayed on one first pass per session (GT for scoring only).
 
 Runs the first pass once (``track_session(..., second_pass_s=1e3, keep_frames=...)`` keeps every tracking frame and
 the first pass's poses), then re-runs only :meth:`~vtrack.tracking.slam.SLAMTracker.retrack_start` per variant (a

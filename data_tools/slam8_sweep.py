@@ -1,4 +1,7 @@
-"""Blind SLAM motion error of chosen sessions under option variants, with a dense ADD-S beside the record's metric
+"""[Since 2026-11-26 ~20:00 UTC the record's ``motion_err_mm`` (``score_trajectory``) is itself a dense ADD-S
+(200 000 surface samples, docs/benchmarks/slam_adds_dense.md); this script's extra dense column predates that.]
+
+Blind SLAM motion error of chosen sessions under option variants, with a dense ADD-S beside the record's metric
 (GT for scoring only).
 
 The record's ``motion_err_mm`` is ADD-S (symmetric objects) over 1000 sampled model points: on a body of revolution
