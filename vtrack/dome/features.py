@@ -79,25 +79,33 @@ def gated_assignment(a: np.ndarray, b: np.ndarray, tree_b, gate: float) -> tuple
     return np.concatenate(rows), np.concatenate(cols)
 
 
+def reference_index(ref: MarkerSet, half: float) -> tuple:
+    """(KD-tree of the reference centres, median rest-marker spacing px, matching gate px) of a reference
+    marker set; ``half`` (px, half the image size) stands in for the spacing of a one-marker reference.
+
+    The reference is fixed for a session, so this is built once and cached on the set (keyed on its centres
+    array): every frame's matching and validity check read it."""
+    from scipy.spatial import cKDTree
+
+    cached = getattr(ref, "_index", None)
+    if cached is not None and cached[0] is ref.centers and cached[1] == half:
+        return cached[2:]
+    tree = cKDTree(ref.centers)
+    if len(ref) >= 2:
+        nn_d, _ = tree.query(ref.centers, k=2)
+        spacing = max(float(np.median(nn_d[:, 1])), 1e-6)
+        gate = 0.75 * spacing
+    else:
+        spacing, gate = half, np.inf
+    ref._index = (ref.centers, half, tree, spacing, gate)
+    return tree, spacing, gate
+
+
 def _match(ms: MarkerSet, ref: MarkerSet, half: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Partner rest marker of each detected marker (nearest when unmatched), matched flags, and the
     median rest-marker spacing (px) used as the unit of the relative features. Needs ``len(ref) >= 1``."""
-    from scipy.spatial import cKDTree
-
-    n, m = len(ms), len(ref)
-    # the reference is fixed for a session: build its tree and spacing once (keyed on the centres array)
-    cached = getattr(ref, "_index", None)
-    if cached is not None and cached[0] is ref.centers and cached[1] == half:
-        tree, spacing, gate = cached[2:]
-    else:
-        tree = cKDTree(ref.centers)
-        if m >= 2:
-            nn_d, _ = tree.query(ref.centers, k=2)
-            spacing = max(float(np.median(nn_d[:, 1])), 1e-6)
-            gate = 0.75 * spacing
-        else:
-            spacing, gate = half, np.inf
-        ref._index = (ref.centers, half, tree, spacing, gate)
+    n = len(ms)
+    tree, spacing, gate = reference_index(ref, half)
     partner = tree.query(ms.centers, k=1)[1].astype(np.int64).reshape(n)
     rows, cols = gated_assignment(ms.centers, ref.centers, tree, gate)
     matched = np.zeros(n, bool)

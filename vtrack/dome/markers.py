@@ -107,16 +107,15 @@ def extract_markers(
     # order statistics (1st / 99.7th percentile, max, the two middle values): from the 256-bin histogram
     # for 8-bit frames (exact, ~10x cheaper than np.percentile + np.median on the float image)
     qs = np.array([0.01 * (g.size - 1), 0.997 * (g.size - 1), g.size - 1, (g.size - 1) // 2, g.size // 2])
+    fl = np.floor(qs).astype(np.int64)
+    nx = np.minimum(fl + 1, g.size - 1)  # the order statistics interpolated between (numpy's "linear" method)
     if g0.dtype == np.uint8:
         cum = np.cumsum(np.bincount(g0.ravel(), minlength=256))
-        fl = np.floor(qs).astype(np.int64)
-        v0 = np.searchsorted(cum, fl, side="right").astype(np.float64)
-        v1 = np.searchsorted(cum, np.minimum(fl + 1, g.size - 1), side="right").astype(np.float64)
-        stats = v0 + (qs - fl) * (v1 - v0)
+        v0, v1 = (np.searchsorted(cum, k, side="right").astype(np.float64) for k in (fl, nx))
     else:
-        srt = np.partition(g.ravel(), np.unique(np.concatenate([np.floor(qs), np.ceil(qs)]).astype(np.int64)))
-        fl = np.floor(qs).astype(np.int64)
-        stats = srt[fl] + (qs - fl) * (srt[np.minimum(fl + 1, g.size - 1)] - srt[fl])
+        srt = np.partition(g.ravel(), np.unique(np.concatenate([fl, nx])))
+        v0, v1 = srt[fl].astype(np.float64), srt[nx].astype(np.float64)
+    stats = v0 + (qs - fl) * (v1 - v0)
     lo, hi, gmax = float(stats[0]), float(stats[1]), float(stats[2])
     if hi - lo < 0.25 * (gmax - lo):  # very few marker pixels (a handful of markers): use the maximum
         hi = gmax

@@ -211,13 +211,15 @@ class DomeReconstructor:
         """
         from scipy.spatial import cKDTree
 
+        from vtrack.dome.features import reference_index
         from vtrack.dome.markers import extract_markers
 
-        ref = self.reference(pressure_kpa)[1].centers
+        ref_markers = self.reference(pressure_kpa)[1]
+        ref = ref_markers.centers
         found = (found if found is not None else extract_markers(img)).centers
         if len(ref) < 3:
             return False, "the reference image has fewer than 3 markers"
-        spacing = float(np.median(cKDTree(ref).query(ref, k=2)[0][:, 1]))
+        spacing = reference_index(ref_markers, self.cfg.image_size / 2.0)[1]  # built once per reference
         frac = float((cKDTree(found).query(ref)[0] < 0.5 * spacing).mean()) if len(found) else 0.0
         if frac < self.MIN_MATCHED_FRACTION:
             return False, (

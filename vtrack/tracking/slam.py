@@ -158,7 +158,11 @@ SLAM_COLOUR_DROP_MOTION = 0.003
 SLAM_COLOUR_DROP_KEEP = 24
 #: the lag rejection on, with the values measured in docs/benchmarks/slam_5s_lag.md
 #: (``track_session(..., **SLAM_COLOUR_DROP)``)
-SLAM_COLOUR_DROP = {"colour_drop_lag": 0.3, "colour_drop_motion": SLAM_COLOUR_DROP_MOTION, "colour_drop_keep": 24}
+SLAM_COLOUR_DROP = {
+    "colour_drop_lag": 0.3,
+    "colour_drop_motion": SLAM_COLOUR_DROP_MOTION,
+    "colour_drop_keep": SLAM_COLOUR_DROP_KEEP,
+}
 #: the colour term on (``track_session(..., **SLAM_COLOUR)``; SLAM's default) / off (``SLAM_NO_COLOUR``)
 SLAM_COLOUR: dict[str, float] = {"sigma_colour": SLAM_COLOUR_SIGMA}
 SLAM_NO_COLOUR: dict[str, float] = {"sigma_colour": 0.0}
@@ -490,8 +494,8 @@ class SLAMTracker(WindowTracker):
         self.second_pass_report = {"frames": 0, "max_move_mm": 0.0, "rejected": False}
         if n < 2 or len(self.map) < 10 or P.shape != (n, 4, 4) or not np.all(np.isfinite(P)):
             return out
-        S = self.map.surfels()[0]
-        S = S[:: max(1, len(S) // 500)]  # 500 of the map's surfels (object frame), for the size of a correction
+        Sall = self.map.surfels()[0]
+        S = Sall[:: max(1, len(Sall) // 500)]  # 500 of the map's surfels (object frame), for the size of a correction
         so = self.slam_opts
         opts = self.opts if so.second_pass_colour else replace(self.opts, sigma_colour=0.0)
         tr = WindowTracker(self.sdf, P[-1], opts)
@@ -512,8 +516,7 @@ class SLAMTracker(WindowTracker):
         # (its map's centroid 10.4 mm: a half-seen can's centroid is off its axis)
         from scipy.spatial import cKDTree
 
-        Sall = self.map.surfels()[0]
-        tree = cKDTree(Sall)
+        tree = cKDTree(Sall)  # the map is frozen during the pass: the surfels read above
         moves, rms = [], []
         for k in range(n):
             D = se3.invert(P[k]) @ out[k]  # the correction in the object frame
