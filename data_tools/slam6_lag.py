@@ -11,6 +11,7 @@ import json
 import sys
 
 import numpy as np
+from track_lag_common import lateral_slip
 
 from vtrack.eval.session_gt import SessionGroundTruth
 from vtrack.frames.session import SessionFrames
@@ -41,12 +42,7 @@ for v in variants:
                     first[a] = (i, pw)
                     continue
                 i0, p0 = first[a]
-                ps = (G[i] @ se3.invert(G[i0]) @ np.r_[p0, 1.0])[:3]
-                ray = (ps - c) / np.linalg.norm(ps - c)
-                m = ps - p0
-                e = pw - ps
-                m -= ray * (ray @ m)
-                e -= ray * (ray @ e)
+                m, e, ray = lateral_slip(G, i, i0, p0, pw, c)
                 num -= e @ m
                 den += m @ m
                 lat.append(np.linalg.norm(e))

@@ -11,10 +11,10 @@ Usage: python data_tools/slam7_track_lag.py OBJ OCC [SECONDS]"""
 import sys
 
 import numpy as np
+from track_lag_common import lateral_slip
 
 from vtrack.eval.session_gt import SessionGroundTruth
 from vtrack.frames.session import SessionFrames
-from vtrack.geometry import se3
 from vtrack.testing.sim import ycb_session
 
 obj, occ = sys.argv[1], sys.argv[2]
@@ -32,11 +32,7 @@ for i in range(len(sf)):
             first[a] = (i, pw)
             continue
         i0, p0 = first[a]
-        ps = (G[i] @ se3.invert(G[i0]) @ np.r_[p0, 1.0])[:3]
-        ray = (ps - c) / np.linalg.norm(ps - c)
-        m, e = ps - p0, pw - ps
-        m -= ray * (ray @ m)
-        e -= ray * (ray @ e)
+        m, e, _ = lateral_slip(G, i, i0, p0, pw, c)
         obs.setdefault(a, []).append((float(-(e @ m)), float(m @ m)))
 rows = []
 for L in obs.values():

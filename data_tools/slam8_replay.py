@@ -1,13 +1,11 @@
-"""[Since 2026-11-26 ~20:00 UTC the record's ``motion_err_mm`` (``score_trajectory``) is itself a dense ADD-S
-(200 000 surface samples, docs/benchmarks/slam_adds_dense.md); this script's extra dense column predates that.]
-
-SLAM's second pass under option variants, replayed on one first pass per session (GT for scoring only).
+"""SLAM's second pass under option variants, replayed on one first pass per session (GT for scoring only).
 
 Runs the first pass once (``track_session(..., second_pass_s=1e3, keep_frames=...)`` keeps every tracking frame and
 the first pass's poses), then re-runs only :meth:`~vtrack.tracking.slam.SLAMTracker.retrack_start` per variant (a
 second or two instead of a re-track). A variant's ``second_pass_s`` limits the re-tracked frames as in
-``track_session``. Scores: the record's ``motion_err_mm`` and, for symmetric objects, a dense ADD-S (40000 model
-samples, see data_tools/slam8_sweep.py).
+``track_session``. Scores: ``score_trajectory``'s ``motion_err_mm`` (the record's metric: ADD-S against a dense
+surface sample for symmetric objects since 2026-11-26 ~20:00 UTC) and ``motion_add_s_1k_mm`` (the 1000-point ADD-S of
+the records before; this script's own 40000-sample column, which predated the fix, is gone).
 
 Usage: python data_tools/slam8_replay.py SECONDS "obj|occ,..." '[{second-pass opts}, ...]' OUT.json ['{kw}']
   kw: extra track_session keyword arguments of the first pass (e.g. '{"modalities": ["vision"]}')"""
@@ -18,11 +16,8 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from vtrack.eval.pose_metrics import sample_model_points
 from vtrack.eval.session_gt import SessionGroundTruth, score_trajectory
-from vtrack.geometry import se3
 from vtrack.testing.sim import ycb_session
 from vtrack.tracking.run import track_session
 
@@ -34,17 +29,10 @@ extra = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
 res: dict = {}
 
 
-def score(gt, times, G, tree, Q, T: np.ndarray) -> dict:
-    """The record's motion error and, with ``tree`` (dense model samples), the dense ADD-S (mm)."""
-    r = {"motion_err_mm": score_trajectory(gt, times, T)[0]["motion_err_mm"]}
-    if tree is not None:
-        Tm = T @ se3.invert(T[0]) @ G[0]
-        r["dense_add_s_mm"] = 1e3 * float(
-            np.mean(
-                [tree.query(se3.transform_points(se3.invert(A) @ B, Q))[0].mean() for A, B in zip(Tm, G, strict=True)]
-            )
-        )
-    return r
+def score(gt, times, T: np.ndarray) -> dict:
+    """The record's motion error and the former 1000-point ADD-S (mm), both from ``score_trajectory``."""
+    m = score_trajectory(gt, times, T)[0]
+    return {"motion_err_mm": m["motion_err_mm"], "add_s_1k_mm": m["motion_add_s_1k_mm"]}
 
 
 for o, occ in cases:
@@ -54,15 +42,9 @@ for o, occ in cases:
     tr, early, P1 = kept["tracker"], kept["second_pass_frames"], kept["poses_first_pass"]
     times = kept["frames"].times
     gt = SessionGroundTruth.load(path)
-    G = gt.poses_at(times)
-    tree = Q = None
-    if gt.symmetric:
-        V, F = gt.model()
-        P = sample_model_points(V, F, 40000, seed=0)
-        tree, Q = cKDTree(P), P[::40]
 
     base_opts = tr.slam_opts
-    rows = {"first pass": score(gt, times, G, tree, Q, P1)}
+    rows = {"first pass": score(gt, times, P1)}
     for v in variants:
         tr.slam_opts = replace(base_opts, **v)
         n = int(np.sum(times - times[0] <= tr.slam_opts.second_pass_s))
@@ -70,7 +52,7 @@ for o, occ in cases:
         T = P1.copy()
         T[:n] = tr.retrack_start(early[:n], P1[:n])
         rows[json.dumps(v)] = {
-            **score(gt, times, G, tree, Q, T),
+            **score(gt, times, T),
             "cpu_s": time.process_time() - c0,
             "max_move_mm": tr.second_pass_report["max_move_mm"],
             "max_rms_move_mm": tr.second_pass_report["max_rms_move_mm"],
