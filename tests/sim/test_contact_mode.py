@@ -81,3 +81,20 @@ def test_stick_mode_keeps_contacts_on_the_object():
     # the sliding default: the same object and motion, the contacts travel over the surface
     hk, rc, specs, slide = _plan("slide", 1.0)
     assert np.median([d for v in contact_drift_mm(hk, rc, slide, specs).values() for d in v]) > 5.0
+
+
+def test_ycb_session_seed_names_another_session_and_seed_0_keeps_the_benchmarks_key(monkeypatch):
+    # data_tools/slam_seeds.py repeats the SLAM benchmark on other seeds: the seed must reach the simulator's cache
+    # key (another session), and the default (0) must name the session every benchmark has used
+    seen = []
+    monkeypatch.setattr(tsim, "is_complete", lambda p: seen.append(p) or True)
+    from vtrack.paths import shared_data_dir
+
+    obj = "011_banana"
+    mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
+    if not mesh.exists():
+        pytest.skip("shared YCB meshes absent (../shared/data/objects/ycb)")
+    assert tsim.ycb_session(obj, "medium", 5.0) == tsim.tiny_session_path("medium", 5.0, object=mesh, seed=0)
+    s1, s2 = tsim.ycb_session(obj, "medium", 5.0, seed=1), tsim.ycb_session(obj, "medium", 5.0, seed=2)
+    assert len({seen[0], s1, s2}) == 3
+    assert s1 == tsim.tiny_session_path("medium", 5.0, object=mesh, seed=1)

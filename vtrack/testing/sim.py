@@ -98,10 +98,13 @@ def ycb_session(
     seconds: float = 2.0,
     depth_noise: float | None = None,
     contact_mode: str = "slide",
+    seed: int = 0,
 ) -> Path:
     """Cached session of the default scene holding the shared YCB object ``name`` (e.g. ``006_mustard_bottle``);
     the default object's sessions are the tests' ones. Used by the benchmarks. ``contact_mode``: the simulator's
-    ``sim.contact_mode`` (``slide`` default, ``stick``: fingers follow the object, see :mod:`vtrack.sim.grasp`)."""
+    ``sim.contact_mode`` (``slide`` default, ``stick``: fingers follow the object, see :mod:`vtrack.sim.grasp`).
+    ``seed``: the simulator's seed (the object's motion, the hand's plan, the sensor noise); 0 is every benchmark's
+    session, other seeds repeat a benchmark on other sessions of the same object and occlusion."""
     from vtrack.errors import InputError
     from vtrack.paths import shared_data_dir
 
@@ -114,4 +117,5 @@ def ycb_session(
         object=None if name == DEFAULT_OBJECT else mesh,
         depth_noise=depth_noise,
         contact_mode=contact_mode,
+        seed=seed,
     )
