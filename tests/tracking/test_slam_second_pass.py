@@ -215,3 +215,27 @@ def test_second_pass_gate_drops_a_large_correction(mustard_seq, matured):
         assert _centre_err(mustard_seq, out)[: n - 1].max() < 1.5e-3
     finally:
         tr.slam_opts = so
+
+
+def test_cli_second_pass_flag(tiny_session, tmp_path):
+    """``vtrack track --shape slam``: the second pass runs by default over the whole session, ``--second-pass S``
+    re-tracks the first S seconds, ``--second-pass 0`` turns it off, a negative value is an InputError."""
+    import json
+
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    def run(*extra: str) -> dict:
+        j = tmp_path / f"m{len(list(tmp_path.glob('m*.json')))}.json"
+        args = ["track", str(tiny_session), "--shape", "slam", "--max-frames", "12", "--out", str(tmp_path / "o")]
+        r = CliRunner().invoke(app, [*args, "--json", str(j), *extra])
+        assert r.exit_code == 0, r.output
+        return json.loads(j.read_text())
+
+    assert run()["second_pass_frames"] == 12
+    assert 2 <= run("--second-pass", "0.1")["second_pass_frames"] < 12
+    assert "second_pass_frames" not in run("--second-pass", "0")
+    bad = CliRunner().invoke(
+        app, ["track", str(tiny_session), "--shape", "slam", "--second-pass=-1", "--out", str(tmp_path)]
+    )
+    assert isinstance(bad.exception, InputError) and "second pass" in str(bad.exception)
