@@ -57,6 +57,7 @@ for o, occ in cases:
             "max_move_mm": tr.second_pass_report["max_move_mm"],
             "max_rms_move_mm": tr.second_pass_report["max_rms_move_mm"],
             "rejected": tr.second_pass_report["rejected"],
+            "degenerate_rise": tr.second_pass_report.get("degenerate_rise", 0.0),
         }
     res[f"{o}|{occ}"] = rows
     for k, r in rows.items():

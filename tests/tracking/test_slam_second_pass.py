@@ -76,11 +76,12 @@ def test_second_pass_degenerate_input_keeps_the_poses(mustard_seq, matured):
     [
         {"second_pass_s": -0.1},
         {"second_pass_s": float("nan")},
-        {"second_pass_s": float("inf")},
         {"second_pass_blend": 1.5},
         {"second_pass_blend": float("nan")},
         {"second_pass_max_move": -0.001},
         {"second_pass_max_move": float("nan")},
+        {"second_pass_max_degenerate_rise": -0.1},
+        {"second_pass_max_degenerate_rise": float("nan")},
     ],
 )
 def test_bad_second_pass_option_is_an_input_error(bad):
@@ -112,11 +113,17 @@ def test_second_pass_blend_interpolates(mustard_seq, matured):
 
 
 def test_track_session_runs_the_second_pass(tiny_session):
-    """``track_session(..., second_pass_s=...)`` re-tracks the start and reports it; off by default."""
+    """SLAM's ``track_session`` re-tracks the whole session by default and reports it; ``second_pass_s`` limits it
+    to the start, 0 turns it off. On this 1 s soup-can session the default pass is dropped by its confidence gate
+    (the whole can's final map leaves its spin free: 77 % of the frames degenerate backwards, none forwards)."""
     from vtrack.tracking.run import track_session
 
-    m0, (_, T0) = track_session(tiny_session, "", shape="slam", write=False, return_poses=True)
-    m1, (t1, T1) = track_session(tiny_session, "", shape="slam", write=False, return_poses=True, second_pass_s=0.2)
+    def run(**kw):
+        return track_session(tiny_session, "", shape="slam", write=False, return_poses=True, **kw)
+
+    m0, (_, T0) = run(second_pass_s=0)
+    m1, (t1, T1) = run(second_pass_s=0.2, second_pass_max_degenerate_rise=2.0)
+    md, (td, Td) = run()
     assert "second_pass_frames" not in m0
     k = m1["second_pass_frames"]
     assert k == int(np.sum(t1 - t1[0] <= 0.2)) and k >= 2
@@ -124,6 +131,68 @@ def test_track_session_runs_the_second_pass(tiny_session):
     np.testing.assert_array_equal(T1[k - 1 :], T0[k - 1 :])  # only the start changes
     assert not np.array_equal(T1[: k - 1], T0[: k - 1])
     assert m1["motion_err_mm"] < 6.0
+    assert md["second_pass_frames"] == len(td)  # the default: all of it
+    assert md["second_pass_rejected"] and md["second_pass_degenerate_rise"] > 0.5
+    np.testing.assert_array_equal(Td, T0)
+    mg, (_, Tg) = run(second_pass_max_degenerate_rise=2.0)  # without the gate it is applied (and helps here)
+    assert not mg["second_pass_rejected"] and not np.array_equal(Tg[:-1], T0[:-1])
+    assert mg["motion_err_mm"] < m0["motion_err_mm"] + 0.2
+
+
+def test_second_pass_ignores_contacts(mustard_seq, matured):
+    """Contacts are not used backwards (``second_pass_touch`` off, the default): frames carrying contacts 4 mm off
+    the surface give exactly the poses of the same frames without them; with the option on they move the poses."""
+    from dataclasses import replace
+
+    tr, E, _ = matured
+    n = 8
+    P = E[:n].copy()
+    P[:-1, 0, 3] += 1.5e-3
+    bare = [replace(f, touch_points=None, touch_normals=None, free_points=None) for f in mustard_seq.frames[:n]]
+    touched = []
+    for k, f in enumerate(bare):
+        c = se3.transform_points(mustard_seq.gt[k], mustard_seq.centre[None])[0]
+        V = np.asarray(f.vision_points)[:20]
+        d = (V - c) / np.linalg.norm(V - c, axis=1, keepdims=True)
+        touched.append(replace(f, touch_points=V + 4e-3 * d, touch_normals=d))  # 4 mm outside the surface
+    Q_bare = tr.retrack_start(bare, P)
+    Q_off = tr.retrack_start(touched, P)
+    np.testing.assert_array_equal(Q_off, Q_bare)
+    so = tr.slam_opts
+    try:
+        tr.slam_opts = replace(so, second_pass_touch=True)
+        Q_on = tr.retrack_start(touched, P)
+    finally:
+        tr.slam_opts = so
+    assert np.abs(Q_on[:-1, :3, 3] - Q_bare[:-1, :3, 3]).max() > 1e-4
+
+
+def test_second_pass_drops_a_pass_less_constrained_than_the_first(can_mesh):
+    """A soup can seen whole is free to spin: every frame of the second pass is degenerate. When the first pass
+    found them constrained (its record says ok, as a young map's edges make it), the final map constrains the motion
+    less than the growing one did: the pass is dropped whole; with the first pass's own record (degenerate too) or
+    the gate off it is kept."""
+    from dataclasses import replace
+
+    from vtrack.testing.sequences import make_sequence, run_sequence
+    from vtrack.tracking.slam import SLAMTracker
+
+    seq = make_sequence(can_mesh, n_frames=20, width=120, height=90, seed=1)
+    tr = SLAMTracker(seq.gt[0])
+    E, _ = run_sequence(tr, seq)
+    P = E.copy()
+    P[:-1, 0, 3] += 1.5e-3
+    out = tr.retrack_start(seq.frames, P)
+    rep = tr.second_pass_report
+    assert not rep["rejected"] and rep["degenerate_rise"] <= 0.2 and not np.array_equal(out, P)
+    for h in tr.history:
+        h.status = "ok"
+    out = tr.retrack_start(seq.frames, P)
+    assert tr.second_pass_report["rejected"] and tr.second_pass_report["degenerate_rise"] > 0.5
+    np.testing.assert_array_equal(out, P)
+    tr.slam_opts = replace(tr.slam_opts, second_pass_max_degenerate_rise=1.5)
+    out = tr.retrack_start(seq.frames, P)
+    assert not tr.second_pass_report["rejected"] and not np.array_equal(out, P)
 
 
 def test_second_pass_gate_drops_a_large_correction(mustard_seq, matured):
@@ -146,3 +215,27 @@ def test_second_pass_gate_drops_a_large_correction(mustard_seq, matured):
         assert _centre_err(mustard_seq, out)[: n - 1].max() < 1.5e-3
     finally:
         tr.slam_opts = so
+
+
+def test_cli_second_pass_flag(tiny_session, tmp_path):
+    """``vtrack track --shape slam``: the second pass runs by default over the whole session, ``--second-pass S``
+    re-tracks the first S seconds, ``--second-pass 0`` turns it off, a negative value is an InputError."""
+    import json
+
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    def run(*extra: str) -> dict:
+        j = tmp_path / f"m{len(list(tmp_path.glob('m*.json')))}.json"
+        args = ["track", str(tiny_session), "--shape", "slam", "--max-frames", "12", "--out", str(tmp_path / "o")]
+        r = CliRunner().invoke(app, [*args, "--json", str(j), *extra])
+        assert r.exit_code == 0, r.output
+        return json.loads(j.read_text())
+
+    assert run()["second_pass_frames"] == 12
+    assert 2 <= run("--second-pass", "0.1")["second_pass_frames"] < 12
+    assert "second_pass_frames" not in run("--second-pass", "0")
+    bad = CliRunner().invoke(
+        app, ["track", str(tiny_session), "--shape", "slam", "--second-pass=-1", "--out", str(tmp_path)]
+    )
+    assert isinstance(bad.exception, InputError) and "second pass" in str(bad.exception)

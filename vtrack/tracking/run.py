@@ -391,6 +391,7 @@ def track_session(
             "second_pass_cpu_s": time.process_time() - c0,
             "second_pass_max_move_mm": float(rep.get("max_move_mm", 0.0)),
             "second_pass_rejected": bool(rep.get("rejected", False)),
+            "second_pass_degenerate_rise": float(rep.get("degenerate_rise", 0.0)),
         }
     est_front = None
     backend: dict[str, Any] = {}

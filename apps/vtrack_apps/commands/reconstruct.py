@@ -29,10 +29,10 @@ def register(app: typer.Typer) -> None:
         iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = OFFLINE_ITERS)"),
         voxel_mm: float = typer.Option(0.0, "--voxel-mm", help="TSDF voxel size in mm (0 = TSDFConfig default)"),
         second_pass: float = typer.Option(
-            0.0,
+            None,
             "--second-pass",
             help="--poses track with SLAM: track the first SECONDS again, backwards, against the final map before "
-            "fusing (0 = off)",
+            "fusing (default: the whole session; 0 = off)",
         ),
         no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
@@ -66,7 +66,10 @@ def register(app: typer.Typer) -> None:
             segmentation=segmentation,
             online=online,
             screenshot=not no_screenshot,
-            track_opts={"second_pass_s": second_pass} if second_pass else None,
+            # SLAM's own default (the whole session) unless given; a known shape has no second pass
+            track_opts=None
+            if second_pass is None or mesh is not None or poses != "track"
+            else {"second_pass_s": second_pass},
             **opts,
         )
         keys = (

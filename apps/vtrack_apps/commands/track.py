@@ -46,10 +46,10 @@ def register(app: typer.Typer) -> None:
             "axis that depth and touch do not see; needs the camera's RGB and surface texture; about 3 % more CPU)",
         ),
         second_pass: float = typer.Option(
-            0.0,
+            None,
             "--second-pass",
-            help="SLAM, offline: track the first SECONDS again, backwards, against the final map (0 = off; a "
-            "value >= the session's length re-tracks it all; docs/benchmarks/slam_5s_second_pass.md)",
+            help="SLAM, offline: track the first SECONDS again, backwards, against the final map (default: the "
+            "whole session; 0 = off; docs/benchmarks/slam_second_pass_default.md)",
         ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
@@ -90,7 +90,7 @@ def register(app: typer.Typer) -> None:
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
                 opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure, spin_search=spin_search)
-                if second_pass:
+                if second_pass is not None:
                     opts["second_pass_s"] = second_pass
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
