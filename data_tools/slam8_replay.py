@@ -7,7 +7,7 @@ second or two instead of a re-track). A variant's ``second_pass_s`` limits the r
 surface sample for symmetric objects since 2026-11-26 ~20:00 UTC) and ``motion_add_s_1k_mm`` (the 1000-point ADD-S of
 the records before; this script's own 40000-sample column, which predated the fix, is gone).
 
-Usage: python data_tools/slam8_replay.py SECONDS "obj|occ,..." '[{second-pass opts}, ...]' OUT.json ['{kw}']
+Usage: python data_tools/slam8_replay.py SECONDS "obj|occ[|seed],..." '[{second-pass opts}, ...]' OUT.json ['{kw}']
   kw: extra track_session keyword arguments of the first pass (e.g. '{"modalities": ["vision"]}')"""
 
 import json
@@ -35,8 +35,8 @@ def score(gt, times, T: np.ndarray) -> dict:
     return {"motion_err_mm": m["motion_err_mm"], "add_s_1k_mm": m["motion_add_s_1k_mm"]}
 
 
-for o, occ in cases:
-    path = ycb_session(o, occ, secs)
+for o, occ, *seed in cases:
+    path = ycb_session(o, occ, secs, seed=int(seed[0]) if seed else 0)
     kept: dict = {}
     track_session(path, "", shape="slam", write=False, keep_frames=kept, second_pass_s=1e3, **extra)
     tr, early, P1 = kept["tracker"], kept["second_pass_frames"], kept["poses_first_pass"]
@@ -59,7 +59,7 @@ for o, occ in cases:
             "rejected": tr.second_pass_report["rejected"],
             "degenerate_rise": tr.second_pass_report.get("degenerate_rise", 0.0),
         }
-    res[f"{o}|{occ}"] = rows
+    res["|".join([o, occ, *seed])] = rows
     for k, r in rows.items():
         print(o, occ, k, {a: round(b, 3) if isinstance(b, float) else b for a, b in r.items()}, flush=True)
     with open(out, "w") as fh:

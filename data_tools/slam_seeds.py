@@ -53,4 +53,5 @@ for row in rows:
             v = [r["motion_err_mm"] for k, r in res.items() if k.startswith(f"{row}|{occ}|{s}|")]
             per_seed.append(float(np.mean(v)) if v else float("nan"))
         cells = " | ".join(f"{v:.3f}" for v in per_seed)
-        print(f"| {row} | {occ} | {cells} | {np.mean(per_seed):.3f} ± {np.std(per_seed, ddof=1):.3f} |")
+        sd = f"{np.std(per_seed, ddof=1):.3f}" if len(per_seed) > 1 else "n/a (one seed)"
+        print(f"| {row} | {occ} | {cells} | {np.mean(per_seed):.3f} ± {sd} |")

@@ -239,3 +239,31 @@ def test_cli_second_pass_flag(tiny_session, tmp_path):
         app, ["track", str(tiny_session), "--shape", "slam", "--second-pass=-1", "--out", str(tmp_path)]
     )
     assert isinstance(bad.exception, InputError) and "second pass" in str(bad.exception)
+
+
+def test_surface_move_sees_a_slide_along_an_elongated_body_but_not_a_spin_about_its_axis():
+    # the plausibility gate's statistic (75th percentile of the moved surface's distances to itself): a banana slid
+    # along its own length kept the median of those distances at 1.6-2.3 mm (the median gate let the pass through,
+    # 5 s medium: 2.77 -> 5.59 mm) while its ends left the surface
+    from scipy.spatial import cKDTree
+
+    from vtrack.tracking.slam import surface_move
+
+    rng = np.random.default_rng(0)
+    # a closed cylinder of radius 15 mm and length 60 mm along x (side and caps sampled densely)
+    u, h = rng.uniform(0, 2 * np.pi, 40000), rng.uniform(-0.03, 0.03, 40000)
+    side = np.stack([h, 0.015 * np.cos(u), 0.015 * np.sin(u)], 1)
+    r, a = 0.015 * np.sqrt(rng.uniform(0, 1, 8000)), rng.uniform(0, 2 * np.pi, 8000)
+    caps = np.stack([np.repeat([-0.03, 0.03], 4000), r * np.cos(a), r * np.sin(a)], 1)
+    surf = np.concatenate([side, caps])
+    tree = cKDTree(surf)
+    S = surf[::20]
+    slide = se3.make_transform(np.eye(3), np.array([0.02, 0.0, 0.0]))  # 20 mm along the axis
+    spin = se3.make_transform(se3.so3_exp(np.array([0.7, 0.0, 0.0])), np.zeros(3))  # 40 deg about it
+    tilt = se3.make_transform(se3.so3_exp(np.array([0.0, 0.0, 0.2])), np.zeros(3))  # 11 deg across it
+    median = float(np.median(tree.query(se3.transform_points(slide, S))[0]))
+    assert median < 4e-3  # what the median gate saw: a slide within the gate
+    assert surface_move(slide, S, tree) > 6e-3  # the ends off the surface
+    assert surface_move(spin, S, tree) < 1e-3  # a symmetry: onto itself
+    assert surface_move(tilt, S, tree) > 2e-3
+    assert surface_move(np.eye(4), S, tree) < 1e-3
