@@ -1,9 +1,10 @@
 """Blind SLAM motion error of the 6 YCB objects over simulator seeds (GT for scoring only).
 
 Seed 0 is the session every other benchmark uses; other seeds are new sessions of the same object and occlusion
-(another motion, hand plan and sensor noise: ``ycb_session(..., seed=k)``), so a mean that holds only on seed 0
-shows here. Rows: SLAM vision + touch (the default) and, with ``--vision``, SLAM vision only (the heavy-occlusion
-comparison of issue #20). ``OPTS`` are extra ``track_session`` keyword arguments of every run.
+(``ycb_session(..., seed=k)``: the same object trajectory, another pressure schedule of the fingers, hence other
+joints and contacts, and other joint / tactile / camera noise), so a mean that holds only on seed 0 shows here.
+Rows: SLAM vision + touch (the default) and, with ``--vision``, SLAM vision only (the heavy-occlusion comparison of
+issue #20). ``OPTS`` are extra ``track_session`` keyword arguments of every run.
 
 Usage: python data_tools/slam_seeds.py SECONDS OCC[,OCC] SEEDS OUT.json ['{opts}'] [--vision]
   e.g. python data_tools/slam_seeds.py 2 none,medium 0,1,2 /tmp/seeds.json

@@ -103,8 +103,9 @@ def ycb_session(
     """Cached session of the default scene holding the shared YCB object ``name`` (e.g. ``006_mustard_bottle``);
     the default object's sessions are the tests' ones. Used by the benchmarks. ``contact_mode``: the simulator's
     ``sim.contact_mode`` (``slide`` default, ``stick``: fingers follow the object, see :mod:`vtrack.sim.grasp`).
-    ``seed``: the simulator's seed (the object's motion, the hand's plan, the sensor noise); 0 is every benchmark's
-    session, other seeds repeat a benchmark on other sessions of the same object and occlusion."""
+    ``seed``: the simulator's seed (the fingers' pressure schedule, hence the joints and contacts, and the noise of
+    the joints, tactile images and camera; the object's trajectory is the scene's and does not change); 0 is every
+    benchmark's session, other seeds repeat a benchmark on other sessions of the same object and occlusion."""
     from vtrack.errors import InputError
     from vtrack.paths import shared_data_dir
 
