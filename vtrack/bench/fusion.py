@@ -104,14 +104,17 @@ def _quick(table: BenchTable) -> None:
             _operating_points(run, (0.0015, 0.003), (40, 200), mesh_cell_mm=2.5)
 
 
-def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np.ndarray, float, dict]:
+def _session_observations(
+    path: Path, blind: bool, track_opts: dict | None = None
+) -> tuple[list, np.ndarray, np.ndarray, float, dict]:
     """Observations of a simulator session and the GT mesh in the frame of their poses.
 
     Blind (default): SLAM poses refined by the keyframe pose graph (``--refine``; not the CLI default),
     segmentation and touch from the raw streams; the GT mesh is moved into the SLAM object frame by the
     first-frame alignment (scoring only); ``info["observations_frontend"]`` holds the same observations placed
     with the front end's poses (the ``slam (no refinement)`` row: what ``vtrack reconstruct`` does by default).
-    Oracle: GT poses, GT masks, GT height maps.
+    Oracle: GT poses, GT masks, GT height maps. ``track_opts``: extra ``track_session`` keyword arguments of the blind
+    SLAM run (``data_tools/fusion_frontend.py`` compares option variants with them).
     """
     from vtrack.eval.session_gt import SessionGroundTruth
     from vtrack.frames.session import SessionFrames
@@ -141,6 +144,7 @@ def _session_observations(path: Path, blind: bool) -> tuple[list, np.ndarray, np
             refine=True,
             touch_stride=TOUCH_STRIDE,
             touch_downsample=TOUCH_DOWNSAMPLE,
+            **(track_opts or {}),
         )
         info = {
             "motion_err_mm": m.get("motion_err_mm"),
