@@ -79,6 +79,34 @@ def _run(
     )
 
 
+def _frontend_row(
+    table: BenchTable,
+    info: dict,
+    Vg,
+    Fg,
+    *,
+    object_name: str,
+    occlusion: str,
+    load_s: float,
+    setting: str = "iters=400 slam (no refinement)",
+) -> None:
+    """The neural SDF (400 iterations, vision + touch) fused with the SLAM front end's poses
+    (``info["observations_frontend"]`` of :func:`_session_observations`): what `vtrack reconstruct` does."""
+    _run(
+        table,
+        info["observations_frontend"],
+        Vg,
+        Fg,
+        method="neural_sdf",
+        mods="vision+touch",
+        setting=setting,
+        object_name=object_name,
+        occlusion=occlusion,
+        load_s=load_s,
+        n_iters=400,
+    )
+
+
 def _operating_points(run, voxels: tuple[float, ...], iters: tuple[int, ...], **neural_opts: Any) -> None:
     """Visuo-tactile rows at other TSDF voxel sizes (m) and neural SDF iteration counts; ``run`` is
     :func:`_run` bound to one case (table, observations, GT mesh, object, occlusion, load time)."""
@@ -207,19 +235,7 @@ def _full(table: BenchTable, seconds: float) -> None:
                     run(method="neural_sdf", mods="vision+touch", setting=f"iters=400 prior={prior}" + tag, prior=prior)
             if blind and "observations_frontend" in info:
                 # ablation: the same fusion with the SLAM front end's poses (before the keyframe pose graph)
-                _run(
-                    table,
-                    info["observations_frontend"],
-                    Vg,
-                    Fg,
-                    method="neural_sdf",
-                    mods="vision+touch",
-                    setting="iters=400 slam (no refinement)",
-                    object_name=short,
-                    occlusion=occ,
-                    load_s=load_s,
-                    n_iters=400,
-                )
+                _frontend_row(table, info, Vg, Fg, object_name=short, occlusion=occ, load_s=load_s)
             if blind and main and occ == "none" and not headline:
                 _operating_points(run, (0.0015, 0.003), (300, 600))
             for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
