@@ -73,3 +73,45 @@ def test_add_group_means():
     # one group of three (NaN ignored in the mean); the single-row "medium" group is below min_rows=2
     assert len(added) == 1
     assert added[0] == {"method": "m", "occlusion": "none", "err": 2.0, "frames": 31, "object": "all", "worst": 3.0}
+
+
+def test_bench_seeds_parse_and_reject(monkeypatch) -> None:
+    import pytest
+
+    from vtrack.bench.harness import bench_seeds
+    from vtrack.errors import InputError
+
+    monkeypatch.delenv("VTRACK_BENCH_SEEDS", raising=False)
+    assert bench_seeds() == [0]  # the committed tables' seed
+    monkeypatch.setenv("VTRACK_BENCH_SEEDS", " 0,2,1 ")
+    assert bench_seeds() == [0, 2, 1]
+    for bad in ("0,x", "-1", "1,1", ","):
+        monkeypatch.setenv("VTRACK_BENCH_SEEDS", bad)
+        with pytest.raises(InputError, match="VTRACK_BENCH_SEEDS"):
+            bench_seeds()
+
+
+def test_seed_means_average_objects_per_seed_then_seeds() -> None:
+    from vtrack.bench.harness import add_seed_means
+
+    t = BenchTable("s", error_key="err")
+    # two methods, 3 objects, 3 seeds; err = object index + seed (+ 10 for method b); one NaN cell
+    for m, off in (("a", 0.0), ("b", 10.0)):
+        for seed in (0, 1, 2):
+            for i, obj in enumerate(("o1", "o2", "o3")):
+                err = float("nan") if (m, seed, obj) == ("b", 2, "o3") else i + seed + off
+                t.add(method=m, object=obj, seed=seed, err=err, frames=10)
+    add_seed_means(t, by=("method",), means=("err",), sums=("frames",))
+    per_seed = {(r["method"], r["seed"]): r for r in t.rows if r["object"] == "all" and r["seed"] != "all"}
+    assert len(per_seed) == 6
+    assert per_seed[("a", 1)]["err"] == 2.0 and per_seed[("a", 1)]["frames"] == 30
+    assert per_seed[("b", 2)]["err"] == 12.5 and per_seed[("b", 2)]["n_objects"] == 3  # NaN ignored in the mean
+    over = {r["method"]: r for r in t.rows if r["seed"] == "all"}
+    assert over["a"]["err"] == 2.0 and over["a"]["n_seeds"] == 3
+    assert np.isclose(over["a"]["err_sd_seeds"], 1.0)  # per-seed means 1, 2, 3
+    assert np.isclose(over["b"]["err"], (11 + 12 + 12.5) / 3)
+    one = BenchTable("one", error_key="err")
+    for obj in ("o1", "o2"):
+        one.add(method="a", object=obj, seed=0, err=1.0)
+    add_seed_means(one, by=("method",), means=("err",))
+    assert [r["seed"] for r in one.rows if r["object"] == "all"] == [0]  # one seed: no over-seeds row

@@ -57,3 +57,10 @@ def test_session_info(tmp_path: Path) -> None:
     assert abs(rows[0]["rate_hz_measured"] - 60.0) < 1e-6
     out = run("session", "info", str(tmp_path / "nope"))
     assert out.returncode == 2 and "does not exist" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_bench_bad_seeds_is_one_clear_line(tmp_path: Path) -> None:
+    out = run("bench", "heavy", "--seeds", "0,zero", "--out", str(tmp_path))
+    assert out.returncode == 2
+    assert "--seeds" in out.stderr and "0,zero" in out.stderr
+    assert "Traceback" not in out.stderr and not list(tmp_path.iterdir())  # nothing ran, nothing written

@@ -86,6 +86,63 @@ def machine_info() -> dict[str, Any]:
     return info
 
 
+def bench_seeds() -> list[int]:
+    """Simulator seeds of the session benchmarks: ``VTRACK_BENCH_SEEDS`` (``vtrack bench --seeds 0,1,2``), default
+    ``[0]``, the seed every committed table used. Seed ``k`` is a new session of the same object, occlusion and object
+    trajectory (``ycb_session(..., seed=k)``: other finger pressures, joints, contacts and sensor noise), so a mean
+    over seeds shows what holds beyond one recording.
+
+    Raises:
+        InputError: the variable is not a comma-separated list of distinct non-negative integers.
+    """
+    from vtrack.errors import InputError
+
+    raw = os.environ.get("VTRACK_BENCH_SEEDS", "").strip()
+    if not raw:
+        return [0]
+    try:
+        seeds = [int(s) for s in raw.split(",")]
+    except ValueError:
+        seeds = []
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise InputError(
+            "bad benchmark seeds",
+            field="VTRACK_BENCH_SEEDS / --seeds",
+            expected="distinct integers >= 0, e.g. 0,1,2",
+            got=raw,
+        )
+    return seeds
+
+
+def add_seed_means(table: BenchTable, by: tuple[str, ...], means: tuple[str, ...], sums: tuple[str, ...] = ()) -> None:
+    """Per-object rows of several seeds -> mean over objects per seed (``object="all"``, ``seed=k``) and, with two or
+    more seeds, the mean of those per-seed means with their standard deviation (``seed="all"``, columns
+    ``<key>_sd_seeds``, sample sd over seeds). Rows must carry ``object`` and ``seed``; ``by`` are the other grouping
+    columns (e.g. method, occlusion)."""
+    table.add_group_means(
+        by=(*by, "seed"),
+        means=means,
+        sums=sums,
+        min_rows=1,
+        where=lambda r: r.get("object") != "all",
+        label=lambda key, rows: {"object": "all", "n_objects": len(rows)},
+    )
+    table.add_group_means(
+        by=by,
+        means=means,
+        sums=sums,
+        min_rows=2,
+        where=lambda r: r.get("object") == "all" and r.get("seed") != "all",
+        label=lambda key, rows: {
+            "object": "all",
+            "seed": "all",
+            "n_objects": min(r["n_objects"] for r in rows),
+            "n_seeds": len(rows),
+            **{f"{k}_sd_seeds": float(np.std([float(r[k]) for r in rows], ddof=1)) for k in means},
+        },
+    )
+
+
 @dataclass
 class BenchTable:
     """Rows of one benchmark stage.

@@ -5,7 +5,9 @@ ground truth for scoring only) of every shared YCB object at occlusion none / me
 ``VTRACK_BENCH_HEAVY_SECONDS``; occlusions ``VTRACK_BENCH_HEAVY_OCC``, comma-separated), with vision only, touch only
 and both: SLAM (object-motion error: ADD, ADD-S for symmetric objects, first-frame alignment) and known shape from
 ``--mesh`` without a pose (ADD-S in the mesh frame). Per occlusion and method the mean over objects, and the reduction
-of visuo-tactile against vision-only (#20's target under heavy occlusion: >= 50 %).
+of visuo-tactile against vision-only (#20's target under heavy occlusion: >= 50 %). Seeds: ``vtrack bench heavy
+--seeds 0,1,2`` (``VTRACK_BENCH_SEEDS``) runs every session of each seed, then reports the mean over objects per seed
+and the mean and standard deviation of those over seeds (the comparison note reads the latter).
 Quick mode: the soup can under heavy occlusion, SLAM vision / both.
 """
 
@@ -14,7 +16,7 @@ from __future__ import annotations
 import os
 import time
 
-from vtrack.bench.harness import BenchTable
+from vtrack.bench.harness import BenchTable, add_seed_means, bench_seeds
 
 MODES = {"vision": ("vision",), "touch": ("touch",), "vision+touch": ("vision", "touch")}
 
@@ -45,44 +47,43 @@ def run(quick: bool = False) -> BenchTable:
     runs += [(f"known/{m}", dict(shape="known_shape", modalities=MODES[m])) for m in ("vision", "vision+touch")]
     if quick:
         runs = [r for r in runs if r[0] in ("slam/vision", "slam/vision+touch", "slam/vision+touch weak-vision preset")]
+    seeds = bench_seeds()
     t0 = time.perf_counter()
-    for occ in occs:
-        for obj in objects:
-            sess = ycb_session(obj, occ, seconds)
-            mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
-            for name, kw in runs:
-                if kw["shape"] == "known_shape":
-                    kw = {**kw, "mesh": mesh}
-                try:
-                    m = track_session(sess, "", write=False, **kw)
-                except InputError as e:  # e.g. no first pose by global registration: a result too
-                    table.notes.append(f"{name} {obj} {occ}: {e}")
-                    continue
-                table.add(
-                    method=name,
-                    object=obj,
-                    occlusion=occ,
-                    motion_err_mm=m["motion_err_mm"],
-                    add_s_mm=m["add_s_mm"],
-                    ms=m["cpu_ms_per_frame_mean"],
-                    frames=m["frames"],
-                )
-    table.add_group_means(
-        by=("method", "occlusion"),
-        means=("motion_err_mm", "add_s_mm", "ms"),
-        sums=("frames",),
-        min_rows=1,
-        where=lambda r: r.get("object") != "all",
-        label=lambda key, rows: {"object": "all", "n_objects": len(rows)},
-    )
-    means = {(r["method"], r["occlusion"]): r for r in table.rows if r.get("object") == "all"}
+    for occ, seed, obj in ((o, k, b) for o in occs for k in seeds for b in objects):
+        sess = ycb_session(obj, occ, seconds, seed=seed)
+        mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
+        for name, kw in runs:
+            if kw["shape"] == "known_shape":
+                kw = {**kw, "mesh": mesh}
+            try:
+                m = track_session(sess, "", write=False, **kw)
+            except InputError as e:  # e.g. no first pose by global registration: a result too
+                table.notes.append(f"{name} {obj} {occ} seed {seed}: {e}")
+                continue
+            table.add(
+                method=name,
+                object=obj,
+                occlusion=occ,
+                seed=seed,
+                motion_err_mm=m["motion_err_mm"],
+                add_s_mm=m["add_s_mm"],
+                ms=m["cpu_ms_per_frame_mean"],
+                frames=m["frames"],
+            )
+    add_seed_means(table, by=("method", "occlusion"), means=("motion_err_mm", "add_s_mm", "ms"), sums=("frames",))
+    # the headline comparison: over every seed when there are several, else the one seed's mean over objects
+    final = "all" if len(seeds) > 1 else seeds[0]
+    means = {
+        (r["method"], r["occlusion"]): r for r in table.rows if r.get("object") == "all" and r.get("seed") == final
+    }
     for shape, key in (("slam", "motion_err_mm"), ("known", "add_s_mm")):
         for occ in occs:
             v, vt = means.get((f"{shape}/vision", occ)), means.get((f"{shape}/vision+touch", occ))
             if v and vt and v["n_objects"] == vt["n_objects"] and v[key] > 0:
                 table.notes.append(
                     f"{shape} {occ}: vision+touch {vt[key]:.2f} mm vs vision {v[key]:.2f} mm ({key}, mean of "
-                    f"{v['n_objects']} objects): {100.0 * (1.0 - vt[key] / v[key]):+.0f} % lower"
+                    f"{v['n_objects']} objects, seeds {','.join(map(str, seeds))}): "
+                    f"{100.0 * (1.0 - vt[key] / v[key]):+.0f} % lower"
                 )
     table.notes.append(
         f"blind; {seconds:g} s sessions; motion_err_mm: ADD of the object's motion since the first frame (ADD-S for "

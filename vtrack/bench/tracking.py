@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from vtrack.bench.harness import BenchTable
+from vtrack.bench.harness import BenchTable, add_seed_means, bench_seeds
 from vtrack.errors import InputError
 
 #: operating points of our tracker: name -> options
@@ -84,21 +84,29 @@ def _synth_rows(table: BenchTable, quick: bool) -> None:
                 _add_synth_row(table, "slam/visuo-tactile", f"synth {occ} {op}", mesh, occ, *_timed(tr, seq))
 
 
-def session_cases(quick: bool) -> list[tuple[str, str, str, float, Path]]:
-    """(object, occlusion, setting, depth noise, session dir) of the full benchmark.
+def session_cases(quick: bool) -> list[tuple[str, str, str, float, int, Path]]:
+    """(object, occlusion, setting, depth noise, seed, session dir) of the full benchmark.
 
-    Every shared YCB object at occlusion none and medium (2 s sessions, the segmentation benchmark's),
-    plus the default object under heavy occlusion (5 s) and heavy occlusion with 3x depth noise (2 s).
+    Every shared YCB object at occlusion none and medium (2 s sessions, the segmentation benchmark's) for each seed of
+    :func:`~vtrack.bench.harness.bench_seeds`, plus the default object under heavy occlusion (5 s) and heavy
+    occlusion with 3x depth noise (2 s), seed 0 only (the operating points run on them).
     """
     from vtrack.testing.sim import DEFAULT_OBJECT, tiny_session_path, ycb_objects, ycb_session
 
-    cases = [(o, occ, 1.0, ycb_session(o, occ, 2.0)) for o in ycb_objects() for occ in ("none", "medium")]
-    cases.append((DEFAULT_OBJECT, "heavy", 1.0, tiny_session_path(occlusion="heavy", seconds=5.0)))
-    cases.append((DEFAULT_OBJECT, "heavy", 3.0, ycb_session(DEFAULT_OBJECT, "heavy", 2.0, depth_noise=3.0)))
-    return [(o, occ, f"{o[4:]} {occ} n{nz:g}", nz, p) for o, occ, nz, p in cases]
+    cases = [
+        (o, occ, 1.0, k, ycb_session(o, occ, 2.0, seed=k))
+        for k in bench_seeds()
+        for o in ycb_objects()
+        for occ in ("none", "medium")
+    ]
+    cases.append((DEFAULT_OBJECT, "heavy", 1.0, 0, tiny_session_path(occlusion="heavy", seconds=5.0)))
+    cases.append((DEFAULT_OBJECT, "heavy", 3.0, 0, ycb_session(DEFAULT_OBJECT, "heavy", 2.0, depth_noise=3.0)))
+    return [(o, occ, f"{o[4:]} {occ} n{nz:g}" + (f" s{k}" if k else ""), nz, k, p) for o, occ, nz, k, p in cases]
 
 
-def _add_session_row(table: BenchTable, method: str, setting: str, obj: str, occ: str, noise: float, m: dict):
+def _add_session_row(
+    table: BenchTable, method: str, setting: str, obj: str, occ: str, noise: float, m: dict, seed: int = 0
+):
     """One simulated-session row from the metrics ``m`` of :func:`vtrack.tracking.run.track_session`."""
     table.add(
         method=method,
@@ -107,6 +115,7 @@ def _add_session_row(table: BenchTable, method: str, setting: str, obj: str, occ
         object=obj,
         occlusion=occ,
         noise=noise,
+        seed=seed,
         ms=m["cpu_ms_per_frame_mean"],
         wall_ms=m["ms_per_frame_mean"],
         **{k: m[k] for k in ("drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "drift_max_mm")},
@@ -124,7 +133,7 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
 
     oracle = dict(init="gt", tactile_source="gt", segmentation="gt")
     cases = session_cases(quick)
-    for obj, occ, setting, noise, sess in cases:
+    for obj, occ, setting, noise, seed, sess in cases:
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
         runs = [
             ("known/" + m + " [blind]", dict(shape="known_shape", mesh=mesh, modalities=mods))
@@ -153,26 +162,31 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                 # keyframe pose graph with loop closure (`--refine`, `slam + pose graph/`)
                 fe = {**m, **m["frontend"], "rot_drift_deg": float("nan"), "drift_max_mm": float("nan")}
                 fe["backend_s"] = float("nan")
-                _add_session_row(table, name, setting, obj, occ, noise, fe)
+                _add_session_row(table, name, setting, obj, occ, noise, fe, seed)
                 name = name.replace("slam/", "slam + pose graph/")
-            _add_session_row(table, name, setting, obj, occ, noise, m)
-    # the issue's aggregate: every YCB object, occlusion none and medium (means over objects)
-    table.add_group_means(
+            _add_session_row(table, name, setting, obj, occ, noise, m, seed)
+    # the issue's aggregate: every YCB object, occlusion none and medium (means over objects per seed, then over seeds)
+    sim = [
+        r for r in table.rows if r.get("data") == "sim" and r["noise"] == 1.0 and r["occlusion"] in ("none", "medium")
+    ]
+    agg = BenchTable(stage=table.stage, error_key=table.error_key, rows=sim)
+    add_seed_means(
+        agg,
         by=("method", "occlusion"),
         means=("ms", "wall_ms", "drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "poses_per_s"),
         sums=("frames",),
-        min_rows=1,
-        where=lambda r: r.get("data") == "sim" and r["noise"] == 1.0 and r["occlusion"] in ("none", "medium"),
-        label=lambda key, rows: {
-            "setting": f"all {len(rows)} objects {key[1]}",
-            "data": "sim",
-            "object": "all",
-            "noise": 1.0,
-            "drift_max_mm": float(max(r["drift_max_mm"] for r in rows)),
-        },
     )
+    for r in agg.rows[len(sim) :]:
+        seeds = "" if r["seed"] != "all" else f", {r['n_seeds']} seeds"
+        seed_tag = f" seed {r['seed']}" if r["seed"] != "all" else ""
+        table.add(
+            **r,
+            setting=f"all {r['n_objects']} objects {r['occlusion']}{seed_tag}{seeds}",
+            data="sim",
+            noise=1.0,
+        )
     # operating points on the heavy-occlusion default scene (blind known shape)
-    obj, occ, setting, noise, sess = next(c for c in cases if c[1] == "heavy")
+    obj, occ, setting, noise, _, sess = next(c for c in cases if c[1] == "heavy")
     mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
     for op, opts in OPERATING_POINTS.items():
         if op == "default":

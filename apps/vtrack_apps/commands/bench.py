@@ -22,6 +22,12 @@ def register(app: typer.Typer) -> None:
             help="output folder (default results/benchmarks under the current folder; "
             "docs/benchmarks refreshes the repository's tables)",
         ),
+        seeds: str = typer.Option(
+            None,
+            "--seeds",
+            help="simulator seeds of the session benchmarks tracking and heavy, e.g. 0,1,2 (default 0): per-seed "
+            "means over objects, then their mean and sd over seeds",
+        ),
     ) -> None:
         """Run stage benchmarks: error against ms at several operating points, Pareto plot per stage."""
         import os
@@ -32,6 +38,11 @@ def register(app: typer.Typer) -> None:
 
         if out is not None:
             os.environ["VTRACK_BENCH_DIR"] = str(out)
+        if seeds is not None:
+            from vtrack.bench.harness import bench_seeds
+
+            os.environ["VTRACK_BENCH_SEEDS"] = seeds
+            bench_seeds()  # a bad list fails here, before any stage runs
         names = list(STAGES) if stage == "all" else [stage]
         for name in names:
             if name not in STAGES:
