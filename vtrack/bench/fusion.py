@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from vtrack.bench.harness import BenchTable
+from vtrack.bench.harness import BenchTable, add_seed_means, bench_seeds
 
 MODS = {"vision": (0,), "touch": (1,), "vision+touch": (0, 1)}
 
@@ -202,21 +202,22 @@ def _default_prior() -> str:
 def _full(table: BenchTable, seconds: float) -> None:
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
 
-    # every shared YCB object at occlusion none / medium (the targets), the default object also heavy
-    cases = [(name, occ, None) for name in ycb_objects() for occ in ("none", "medium")]
-    cases.append((DEFAULT_OBJECT, "heavy", None))
+    # every shared YCB object at occlusion none / medium (the targets) for each seed, the default object also
+    # heavy (seed 0)
+    cases = [(name, occ, None, k) for k in bench_seeds() for name in ycb_objects() for occ in ("none", "medium")]
+    cases.append((DEFAULT_OBJECT, "heavy", None, 0))
     env = os.environ.get("VTRACK_BENCH_FUSION_CASES")
     if env:
         # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session)
         cases = []
         for item in env.split(";"):
             name, occ, sess = (item.split("|") + ["", ""])[:3]
-            cases.append((name, occ, Path(sess) if sess else None))
+            cases.append((name, occ, Path(sess) if sess else None, 0))
     # "headline": only the neural SDF, vision + touch, blind (pose graph and front end) and oracle — the issue's
     # figures, in about a third of the time of the full ablation
     headline = os.environ.get("VTRACK_BENCH_FUSION_ROWS", "all") == "headline"
-    for name, occ, sess in cases:
-        path = sess or ycb_session(name, occ, seconds)
+    for name, occ, sess, seed in cases:
+        path = sess or ycb_session(name, occ, seconds, seed=seed)
         short = name.split("_", 1)[1]
         main = name == DEFAULT_OBJECT
         for blind in (True, False):
@@ -239,6 +240,7 @@ def _full(table: BenchTable, seconds: float) -> None:
             if blind and main and occ == "none" and not headline:
                 _operating_points(run, (0.0015, 0.003), (300, 600))
             for r in table.rows[n0:]:  # the SLAM run these blind reconstructions used
+                r["seed"] = seed
                 r["slam_motion_err_mm"] = info.get("motion_err_mm", float("nan")) if blind else float("nan")
                 r["slam_motion_err_mm_frontend"] = info.get("motion_err_mm_frontend", float("nan"))
                 r["slam_backend_s"] = info.get("backend_s", float("nan"))
@@ -260,8 +262,10 @@ def run(quick: bool = False) -> BenchTable:
         )
     else:
         _full(table, seconds)
-        # the aggregate: mean over the objects per (method, setting, occlusion), none / medium
-        table.add_group_means(
+        # the aggregate: mean over the objects per (method, setting, occlusion) and seed, none / medium, and
+        # with several seeds the mean and sd of those over seeds
+        add_seed_means(
+            table,
             by=("method", "setting", "occlusion"),
             means=(
                 "fscore_1mm",
@@ -275,12 +279,9 @@ def run(quick: bool = False) -> BenchTable:
                 "ms",
             ),
             sums=("frames",),
-            where=lambda r: r["occlusion"] in ("none", "medium") and r["object"] != "all",
-            label=lambda key, rows: {
-                "object": "all",
-                "n_objects": len(rows),
-                "fscore_5mm_min": float(min(r["fscore_5mm"] for r in rows)),
-            },
+            where=lambda r: r["occlusion"] in ("none", "medium"),
+            extra=lambda rows: {"fscore_5mm_min": float(min(r["fscore_5mm"] for r in rows))},
+            min_objects=2,  # as before: no "mean" of the operating points run on one object
         )
         table.notes.append(
             "full mode: simulator sessions of the default scene, BLIND by default (SLAM poses, "

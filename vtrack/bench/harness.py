@@ -87,10 +87,10 @@ def machine_info() -> dict[str, Any]:
 
 
 def bench_seeds() -> list[int]:
-    """Simulator seeds of the session benchmarks: ``VTRACK_BENCH_SEEDS`` (``vtrack bench --seeds 0,1,2``), default
-    ``[0]``, the seed every committed table used. Seed ``k`` is a new session of the same object, occlusion and object
-    trajectory (``ycb_session(..., seed=k)``: other finger pressures, joints, contacts and sensor noise), so a mean
-    over seeds shows what holds beyond one recording.
+    """Simulator seeds of the session benchmarks (tracking, heavy, fusion): ``VTRACK_BENCH_SEEDS`` (``vtrack bench
+    --seeds 0,1,2``), default ``[0]``, the seed every committed table used. Seed ``k`` is a new session of the same
+    object, occlusion and object trajectory (``ycb_session(..., seed=k)``: other finger pressures, joints, contacts and
+    sensor noise), so a mean over seeds shows what holds beyond one recording.
 
     Raises:
         InputError: the variable is not a comma-separated list of distinct non-negative integers.
@@ -114,25 +114,35 @@ def bench_seeds() -> list[int]:
     return seeds
 
 
-def add_seed_means(table: BenchTable, by: tuple[str, ...], means: tuple[str, ...], sums: tuple[str, ...] = ()) -> None:
+def add_seed_means(
+    table: BenchTable,
+    by: tuple[str, ...],
+    means: tuple[str, ...],
+    sums: tuple[str, ...] = (),
+    where: Callable[[dict], bool] | None = None,
+    extra: Callable[[list[dict]], dict[str, Any]] | None = None,
+    min_objects: int = 1,
+) -> None:
     """Per-object rows of several seeds -> mean over objects per seed (``object="all"``, ``seed=k``) and, with two or
     more seeds, the mean of those per-seed means with their standard deviation (``seed="all"``, columns
     ``<key>_sd_seeds``, sample sd over seeds). Rows must carry ``object`` and ``seed``; ``by`` are the other grouping
-    columns (e.g. method, occlusion)."""
+    columns (e.g. method, occlusion); ``where`` selects the per-object rows (default: all); ``extra(rows)`` adds
+    columns to each per-seed row (e.g. a minimum over objects); groups of fewer than ``min_objects`` rows get no
+    mean."""
     table.add_group_means(
         by=(*by, "seed"),
         means=means,
         sums=sums,
-        min_rows=1,
-        where=lambda r: r.get("object") != "all",
-        label=lambda key, rows: {"object": "all", "n_objects": len(rows)},
+        min_rows=min_objects,
+        where=lambda r: r.get("object") != "all" and (where is None or where(r)),
+        label=lambda key, rows: {"object": "all", "n_objects": len(rows), **(extra(rows) if extra else {})},
     )
     table.add_group_means(
         by=by,
         means=means,
         sums=sums,
         min_rows=2,
-        where=lambda r: r.get("object") == "all" and r.get("seed") != "all",
+        where=lambda r: r.get("object") == "all" and r.get("seed") != "all" and (where is None or where(r)),
         label=lambda key, rows: {
             "object": "all",
             "seed": "all",

@@ -25,8 +25,8 @@ def register(app: typer.Typer) -> None:
         seeds: str = typer.Option(
             None,
             "--seeds",
-            help="simulator seeds of the session benchmarks tracking and heavy, e.g. 0,1,2 (default 0): per-seed "
-            "means over objects, then their mean and sd over seeds",
+            help="simulator seeds of the session benchmarks tracking, heavy and fusion, e.g. 0,1,2 (default 0): "
+            "per-seed means over objects, then their mean and sd over seeds",
         ),
     ) -> None:
         """Run stage benchmarks: error against ms at several operating points, Pareto plot per stage."""
