@@ -4,6 +4,7 @@ Full mode: simulator sessions (``vtrack.testing.sim.ycb_session``, cached; 5 s: 
 little of the object, oracle F@5 0.71) of the default scene holding each shared YCB object at
 occlusion none and medium, plus the soup can under heavy occlusion; BLIND by default (poses from SLAM,
 segmentation and touch from the raw streams), with GT-fed rows labelled ``[oracle]`` as an ablation.
+Seeds: ``vtrack bench fusion --seeds 0,1,2``; occlusions: ``VTRACK_BENCH_FUSION_OCC`` (default none,medium,heavy).
 Extra operating points (TSDF voxel size, neural SDF iterations, online neural SDF at a 25 ms frame
 budget) on the unoccluded soup can.
 Quick mode (< 1 min): ray-cast observations (:mod:`vtrack.testing.observations`, no simulator) of the
@@ -203,9 +204,19 @@ def _full(table: BenchTable, seconds: float) -> None:
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
 
     # every shared YCB object at occlusion none / medium (the targets) for each seed, the default object also
-    # heavy (seed 0)
-    cases = [(name, occ, None, k) for k in bench_seeds() for name in ycb_objects() for occ in ("none", "medium")]
-    cases.append((DEFAULT_OBJECT, "heavy", None, 0))
+    # heavy (seed 0); VTRACK_BENCH_FUSION_OCC (comma-separated, default none,medium,heavy) picks the occlusions
+    occs = os.environ.get("VTRACK_BENCH_FUSION_OCC", "none,medium,heavy").split(",")
+    bad = sorted(set(occs) - {"none", "medium", "heavy"})
+    if bad:
+        from vtrack.errors import InputError
+
+        raise InputError(
+            "unknown occlusion", field="VTRACK_BENCH_FUSION_OCC", expected="none, medium and/or heavy", got=bad
+        )
+    sweep = [o for o in ("none", "medium") if o in occs]
+    cases = [(name, occ, None, k) for k in bench_seeds() for name in ycb_objects() for occ in sweep]
+    if "heavy" in occs:
+        cases.append((DEFAULT_OBJECT, "heavy", None, 0))
     env = os.environ.get("VTRACK_BENCH_FUSION_CASES")
     if env:
         # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session)
