@@ -115,3 +115,37 @@ def test_seed_means_average_objects_per_seed_then_seeds() -> None:
         one.add(method="a", object=obj, seed=0, err=1.0)
     add_seed_means(one, by=("method",), means=("err",))
     assert [r["seed"] for r in one.rows if r["object"] == "all"] == [0]  # one seed: no over-seeds row
+
+
+def test_tracking_bench_aggregate_over_objects_and_seeds() -> None:
+    from vtrack.bench.tracking import add_object_means
+
+    t = BenchTable("tracking", error_key="drift_mm")
+    keys = ("ms", "wall_ms", "drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "poses_per_s")
+    for seed in (0, 1):
+        for i, obj in enumerate(("a", "b", "c")):
+            for occ in ("none", "medium", "heavy"):
+                row = {k: float(i + 10 * seed) for k in keys}
+                t.add(method="slam", data="sim", object=obj, occlusion=occ, noise=1.0, seed=seed, frames=60, **row)
+    t.add(method="slam", data="synthetic", object="a", occlusion="none", noise=1.0, seed=0, frames=5, **row)
+    add_object_means(t)
+    agg = {r["setting"]: r for r in t.rows if r["object"] == "all"}
+    assert set(agg) == {
+        "all 3 objects none seed 0",
+        "all 3 objects none seed 1",
+        "all 3 objects medium seed 0",
+        "all 3 objects medium seed 1",
+        "all 3 objects none, 2 seeds",
+        "all 3 objects medium, 2 seeds",
+    }  # heavy occlusion and the synthetic row stay out
+    assert (
+        agg["all 3 objects medium seed 1"]["motion_err_mm"] == 11.0
+        and agg["all 3 objects none seed 0"]["frames"] == 180
+    )
+    over = agg["all 3 objects none, 2 seeds"]
+    assert over["motion_err_mm"] == 6.0 and np.isclose(over["motion_err_mm_sd_seeds"], np.std([1.0, 11.0], ddof=1))
+    one = BenchTable("tracking", error_key="drift_mm")
+    for obj in ("a", "b"):
+        one.add(method="slam", data="sim", object=obj, occlusion="none", noise=1.0, seed=0, frames=60, **row)
+    add_object_means(one)
+    assert [r["setting"] for r in one.rows if r["object"] == "all"] == ["all 2 objects none"]  # one seed: as before

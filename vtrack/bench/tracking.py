@@ -125,6 +125,26 @@ def _add_session_row(
     )
 
 
+def add_object_means(table: BenchTable) -> None:
+    """The issue's aggregate rows: every YCB object at occlusion none and medium (depth noise 1), the mean over objects
+    per method, occlusion and seed, and with several seeds the mean and sd of those over seeds
+    (:func:`~vtrack.bench.harness.add_seed_means`); ``setting`` reads e.g. ``all 6 objects medium, 3 seeds``."""
+    sim = [
+        r for r in table.rows if r.get("data") == "sim" and r["noise"] == 1.0 and r["occlusion"] in ("none", "medium")
+    ]
+    agg = BenchTable(stage=table.stage, error_key=table.error_key, rows=list(sim))  # a copy: its means are appended
+    add_seed_means(
+        agg,
+        by=("method", "occlusion"),
+        means=("ms", "wall_ms", "drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "poses_per_s"),
+        sums=("frames",),
+    )
+    several = len({r["seed"] for r in sim}) > 1
+    for r in agg.rows[len(sim) :]:
+        which = f", {r['n_seeds']} seeds" if r["seed"] == "all" else (f" seed {r['seed']}" if several else "")
+        table.add(**r, setting=f"all {r['n_objects']} objects {r['occlusion']}{which}", data="sim", noise=1.0)
+
+
 def _session_rows(table: BenchTable, quick: bool) -> None:
     """Blind rows (no ground truth in the pipeline: segmentation, touch from images, global registration for
     known shape, SLAM's own frame) and labelled oracle rows (GT first pose, GT masks and height maps)."""
@@ -165,26 +185,7 @@ def _session_rows(table: BenchTable, quick: bool) -> None:
                 _add_session_row(table, name, setting, obj, occ, noise, fe, seed)
                 name = name.replace("slam/", "slam + pose graph/")
             _add_session_row(table, name, setting, obj, occ, noise, m, seed)
-    # the issue's aggregate: every YCB object, occlusion none and medium (means over objects per seed, then over seeds)
-    sim = [
-        r for r in table.rows if r.get("data") == "sim" and r["noise"] == 1.0 and r["occlusion"] in ("none", "medium")
-    ]
-    agg = BenchTable(stage=table.stage, error_key=table.error_key, rows=sim)
-    add_seed_means(
-        agg,
-        by=("method", "occlusion"),
-        means=("ms", "wall_ms", "drift_mm", "add_s_mm", "motion_err_mm", "rot_drift_deg", "poses_per_s"),
-        sums=("frames",),
-    )
-    for r in agg.rows[len(sim) :]:
-        seeds = "" if r["seed"] != "all" else f", {r['n_seeds']} seeds"
-        seed_tag = f" seed {r['seed']}" if r["seed"] != "all" else ""
-        table.add(
-            **r,
-            setting=f"all {r['n_objects']} objects {r['occlusion']}{seed_tag}{seeds}",
-            data="sim",
-            noise=1.0,
-        )
+    add_object_means(table)
     # operating points on the heavy-occlusion default scene (blind known shape)
     obj, occ, setting, noise, _, sess = next(c for c in cases if c[1] == "heavy")
     mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
