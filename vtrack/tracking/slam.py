@@ -234,7 +234,6 @@ class SLAMOptions:
     #: surface (median 1.6-2.3 mm) while its ends leave it (75th percentile 7.2-10.0 mm; 5 s medium, seeds 0 and 1:
     #: 2.77 -> 5.59 and 3.87 -> 7.67 mm); the passes that gain stay at 1.4-1.9 mm, a can's free spin included
     second_pass_max_move: float = 0.004
-    second_pass_max_move: float = 0.004
     #: confidence gate (fraction of the re-tracked frames): when the second pass finds more of them degenerate than the
     #: first pass did by more than this, the final map constrains the motion less than the growing map did (a mug
     #: whose handle the final map blurs, 0.27-0.29 more; a spinning can, whose final map is a whole cylinder, 0.28-0.60
