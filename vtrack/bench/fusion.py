@@ -213,17 +213,28 @@ def _full(table: BenchTable, seconds: float) -> None:
         raise InputError(
             "unknown occlusion", field="VTRACK_BENCH_FUSION_OCC", expected="none, medium and/or heavy", got=bad
         )
+    seeds = bench_seeds()
     sweep = [o for o in ("none", "medium") if o in occs]
-    cases = [(name, occ, None, k) for k in bench_seeds() for name in ycb_objects() for occ in sweep]
+    cases = [(name, occ, None, k) for k in seeds for name in ycb_objects() for occ in sweep]
     if "heavy" in occs:
         cases.append((DEFAULT_OBJECT, "heavy", None, 0))
     env = os.environ.get("VTRACK_BENCH_FUSION_CASES")
     if env:
-        # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session)
+        # "object|occlusion|session_dir;..." (empty session_dir = generate/cached simulator session, one per seed)
         cases = []
         for item in env.split(";"):
             name, occ, sess = (item.split("|") + ["", ""])[:3]
-            cases.append((name, occ, Path(sess) if sess else None, 0))
+            if sess and seeds != [0]:
+                from vtrack.errors import InputError
+
+                # a given session has its own seed: labelling its rows with the requested ones would be wrong
+                raise InputError(
+                    "a session folder in VTRACK_BENCH_FUSION_CASES cannot be combined with --seeds",
+                    field="VTRACK_BENCH_FUSION_CASES",
+                    expected="object|occlusion| (no folder) to run every seed",
+                    got=item,
+                )
+            cases += [(name, occ, Path(sess), 0)] if sess else [(name, occ, None, k) for k in seeds]
     # "headline": only the neural SDF, vision + touch, blind (pose graph and front end) and oracle — the issue's
     # figures, in about a third of the time of the full ablation
     headline = os.environ.get("VTRACK_BENCH_FUSION_ROWS", "all") == "headline"
