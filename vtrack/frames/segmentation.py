@@ -51,6 +51,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
+from vtrack.geometry.pixels import mask_pixels
 
 #: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
 _SAMPLE_CACHE: dict[tuple[str, int], dict[str, np.ndarray]] = {}
@@ -293,7 +294,7 @@ class HandAwareSegmenter:
         zmax = cv2.dilate(zf, k3)
         zmin = cv2.erode(np.where(fin, zf, np.float32(1e6)), k3)
         band |= fin.astype(bool) & (zmax - zmin > self.opt.exact_jump_m)
-        rows, cols = np.nonzero(band)
+        rows, cols = mask_pixels(band)
         if not len(rows):
             return core
         casters = self._link_casters()
@@ -434,7 +435,7 @@ class HandAwareSegmenter:
             return empty("no depth left after hand removal (the hand hides the object)")
 
         # Back-projection of the remaining pixels (camera then world frame).
-        rows, cols = np.nonzero(valid)
+        rows, cols = mask_pixels(valid)
         zz = z[rows, cols]
         Pc = np.stack([self._rx[rows, cols] * zz, self._ry[rows, cols] * zz, zz], axis=1)
         Pw = Pc @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
@@ -560,32 +561,28 @@ class HandAwareSegmenter:
         contacts: np.ndarray | None,
         info: dict,
     ) -> np.ndarray | None:
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
         from scipy.spatial import cKDTree
 
         opt, cam = self.opt, self.cam
         H, W = cam.height, cam.width
         n = len(zz)
-        lab_img = np.full((H, W), -1, np.int64)
-        lab_img[rows, cols] = np.arange(n)
-        zimg = np.zeros((H, W))
-        zimg[rows, cols] = zz
+        flat = rows * W + cols
+        present = np.zeros(H * W, bool)
+        present[flat] = True
+        present = present.reshape(H, W)
+        zimg = np.zeros(H * W)
+        zimg[flat] = zz
+        zimg = zimg.reshape(H, W)
         f = max(cam.fx, cam.fy)
-        src, dst = [], []
+        edges = []
         for a, b in (
             ((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
             ((slice(0, -1), slice(None)), (slice(1, None), slice(None))),
         ):
-            ia, ib = lab_img[a], lab_img[b]
             za, zb = zimg[a], zimg[b]
             thr = opt.jump_abs_m + opt.jump_px * np.minimum(za, zb) / f
-            e = (ia >= 0) & (ib >= 0) & (np.abs(za - zb) < thr)
-            src.append(ia[e])
-            dst.append(ib[e])
-        s, t = np.concatenate(src), np.concatenate(dst)
-        g = coo_matrix((np.ones(len(s), np.int8), (s, t)), shape=(n, n))
-        n_lab, lab = connected_components(g, directed=False)
+            edges.append(present[a] & present[b] & (np.abs(za - zb) < thr))
+        n_lab, lab = grid_components(present, edges[0], edges[1], rows, cols)
         sizes = np.bincount(lab, minlength=n_lab)
         min_size = max(opt.min_cluster_px, int(np.ceil(opt.min_cluster_fraction * n)))
         # Visible surface area per cluster (pixel footprint (z/fx)(z/fy)): resolution independent.
@@ -639,6 +636,35 @@ class HandAwareSegmenter:
                     changed = True
         info["n_clusters_merged"] = len(chosen)
         return np.isin(lab, list(chosen))
+
+
+def grid_components(
+    nodes: np.ndarray, right: np.ndarray, down: np.ndarray, rows: np.ndarray, cols: np.ndarray
+) -> tuple[int, np.ndarray]:
+    """Connected components of the pixels ``nodes`` (H, W) joined to their right / lower neighbour where
+    ``right`` (H, W - 1) / ``down`` (H - 1, W) is set: ``(count, label of each pixel (rows, cols))``, with the labels
+    of ``scipy.sparse.csgraph.connected_components`` on that graph with the pixels numbered in row-major order
+    (components numbered by their first pixel in row-major order).
+
+    One OpenCV labelling of the image at twice the resolution (pixels at even positions, edges between them)
+    instead of a sparse graph: about a fifth of the CPU for a 160 x 120 depth image."""
+    import cv2
+
+    H, W = nodes.shape
+    g = np.zeros((2 * H - 1, 2 * W - 1), np.uint8)
+    g[::2, ::2] = nodes
+    g[::2, 1::2] = right
+    g[1::2, ::2] = down
+    k, lab_img = cv2.connectedComponents(g, connectivity=4, ltype=cv2.CV_32S)
+    lab = lab_img.reshape(-1)[2 * rows * (2 * W - 1) + 2 * cols] - 1  # 0 is the background (never a pixel)
+    # renumber by first pixel (OpenCV numbers in scan order too; the relabelling makes it a guarantee)
+    first = np.full(k - 1, len(lab), np.int64)
+    np.minimum.at(first, lab, np.arange(len(lab)))
+    if np.any(first[1:] < first[:-1]):
+        rank = np.empty(k - 1, np.int64)
+        rank[np.argsort(first, kind="stable")] = np.arange(k - 1)
+        lab = rank[lab]
+    return k - 1, lab.astype(np.int32)
 
 
 def _points_or_none(p: np.ndarray | None, name: str) -> np.ndarray | None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.pixels import mask_pixels
 
 
 @dataclass(frozen=True)
@@ -117,7 +118,7 @@ class PinholeCamera:
             sub = np.zeros_like(valid)
             sub[::stride, ::stride] = True
             valid &= sub
-        rows, cols = np.nonzero(valid)
+        rows, cols = mask_pixels(valid)
         zz = z[rows, cols]
         pts = np.stack([(cols - self.cx) / self.fx * zz, (rows - self.cy) / self.fy * zz, zz], axis=-1)
         return pts, np.stack([rows, cols], axis=-1)

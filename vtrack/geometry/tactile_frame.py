@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.pixels import mask_pixels
 
 
 def pixel_grid_to_sensor_xy(
@@ -60,7 +61,7 @@ def height_to_points(
             raise InputError("mask size differs from the height map", field="mask", expected=str(h.shape), got=m.shape)
         keep = keep & m
     stride = max(1, int(stride))
-    rows, cols = np.nonzero(keep[::stride, ::stride])
+    rows, cols = mask_pixels(keep[::stride, ::stride])
     rows, cols = rows * stride, cols * stride
     # the gradient only where it is read (a strided subset of the crop); none on a single row or column
     if min(H, W) > 1:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.pixels import mask_pixels
 from vtrack.tactile.pressset import Press, PressSet, sphere_truth
 
 METHODS = ("lut", "lut_raw", "mlp", "ps")
@@ -307,7 +308,7 @@ class Calibration:
             nx[~mask] = 0.0
             ny[~mask] = 0.0
             return nx, ny
-        rows, cols = np.nonzero(mask)
+        rows, cols = mask_pixels(mask)
         if len(rows) == 0:
             return nx, ny
         out = self._predict_pixels(dI[rows, cols], np.asarray(img)[rows, cols], rows, cols, (H, W))
@@ -339,7 +340,7 @@ class Calibration:
             nx, ny = self.normals_from_change(None, image, mask)
         else:
             # zero normals have zero slopes: only the masked pixels go through the model and the conversion
-            rows, cols = np.nonzero(mask)
+            rows, cols = mask_pixels(mask)
             gx = np.zeros((H, W), np.float32)
             gy = np.zeros((H, W), np.float32)
             if len(rows):
