@@ -52,6 +52,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
 from vtrack.geometry.pixels import mask_pixels
+from vtrack.geometry.pointcloud import norms
 
 #: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
 _SAMPLE_CACHE: dict[tuple[str, int], dict[str, np.ndarray]] = {}
@@ -447,7 +448,8 @@ class HandAwareSegmenter:
             ref = [p for p in (sensors, link_pos) if p is not None]
             extent = max(float(np.linalg.norm(np.concatenate(ref) - centre, axis=1).max()), 0.0)
             radius = max(opt.crop_scale * extent, opt.crop_min_radius_m)
-            keep = np.einsum("ij,ij->i", Pw - centre, Pw - centre) < radius**2
+            off = Pw - centre
+            keep = np.einsum("ij,ij->i", off, off) < radius**2
             info["crop_radius_m"] = radius
             info["n_cropped"] = int((~keep).sum())
         ms["crop"] = (time.perf_counter() - t0) * 1e3
@@ -501,7 +503,7 @@ class HandAwareSegmenter:
         c = P_sel.mean(axis=0)
         if opt.temporal:
             self._prev_centroid = c
-            self._prev_radius = float(np.percentile(np.linalg.norm(P_sel - c, axis=1), 95))
+            self._prev_radius = float(np.percentile(norms(P_sel - c), 95))
             self._age = 0
         info["n_object"] = int(len(P_sel))
         info["centroid_world"] = c.tolist()
