@@ -51,7 +51,6 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
-from vtrack.geometry.pixels import mask_pixels
 from vtrack.geometry.pointcloud import norms
 
 #: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
@@ -295,11 +294,12 @@ class HandAwareSegmenter:
         zmax = cv2.dilate(zf, k3)
         zmin = cv2.erode(np.where(fin, zf, np.float32(1e6)), k3)
         band |= fin.astype(bool) & (zmax - zmin > self.opt.exact_jump_m)
-        rows, cols = mask_pixels(band)
-        if not len(rows):
+        idx = np.flatnonzero(band)  # (flat pixel indices: numpy's 2-D nonzero and fancy indexing are slow)
+        if not len(idx):
             return core
+        rows, cols = np.divmod(idx, band.shape[1])
         casters = self._link_casters()
-        d_cam = np.stack([self._rx[rows, cols], self._ry[rows, cols], np.ones(len(rows))], axis=1)
+        d_cam = np.stack([self._rx.ravel()[idx], self._ry.ravel()[idx], np.ones(len(idx))], axis=1)
         t_best = np.full(len(rows), np.inf)
         # Nearest links first: a pixel whose ray already hit nearer than a link's nearest vertex depth cannot
         # get a nearer hit from that link, so it is not cast against it (same minimum; ~1 um float32 slack).
@@ -317,10 +317,10 @@ class HandAwareSegmenter:
             # rays into the link frame (rigid: the ray parameter stays the camera z, since d_cam.z = 1)
             T = Tcl[link]
             R, o = T[:3, :3], T[:3, 3]
-            t = caster.hit_distance(-(R.T @ o), d_cam[inside] @ R)
+            t = caster.hit_distance(-(R.T @ o), np.take(d_cam, inside, axis=0) @ R)
             t_best[inside] = np.minimum(t_best[inside], t)
         out = core.copy()
-        out[rows, cols] = t_best
+        out.ravel()[idx] = t_best
         return out
 
     def _link_casters(self) -> dict[str, Any]:
@@ -436,9 +436,10 @@ class HandAwareSegmenter:
             return empty("no depth left after hand removal (the hand hides the object)")
 
         # Back-projection of the remaining pixels (camera then world frame).
-        rows, cols = mask_pixels(valid)
-        zz = z[rows, cols]
-        Pc = np.stack([self._rx[rows, cols] * zz, self._ry[rows, cols] * zz, zz], axis=1)
+        pix = np.flatnonzero(valid)  # (flat pixel indices: numpy's 2-D nonzero and fancy indexing are slow)
+        rows, cols = np.divmod(pix, W)
+        zz = z.ravel()[pix]
+        Pc = np.stack([self._rx.ravel()[pix] * zz, self._ry.ravel()[pix] * zz, zz], axis=1)
         Pw = Pc @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
 
         # 2. Workspace crop.
@@ -467,13 +468,14 @@ class HandAwareSegmenter:
 
         # 4. + 5. Clusters and selection.
         t0 = time.perf_counter()
-        sel = self._select_cluster(rows[keep], cols[keep], zz[keep], Pw[keep], centre, contacts, info)
+        rows, cols, zz, Pw = rows[keep], cols[keep], zz[keep], Pw[keep]  # (each gathered once)
+        sel = self._select_cluster(rows, cols, zz, Pw, centre, contacts, info)
         ms["cluster"] = (time.perf_counter() - t0) * 1e3
         if sel is None:
             return empty("no object cluster (everything left is too small or inconsistent)")
-        r_sel, c_sel, P_sel = rows[keep][sel], cols[keep][sel], Pw[keep][sel]
+        r_sel, c_sel, P_sel = rows[sel], cols[sel], Pw[sel]
         mask = np.zeros((H, W), bool)
-        mask[r_sel, c_sel] = True
+        mask.ravel()[r_sel * W + c_sel] = True
         if opt.fill_holes_px > 0:
             # Pixels without depth (dropouts at grazing angles, specular spots) enclosed by the object
             # belong to it in the image; never where the hand was rendered. points_world keeps depth only.
@@ -521,7 +523,8 @@ class HandAwareSegmenter:
             if len(idx) < opt.plane_min_points:
                 break
             sub = idx[:: max(1, len(idx) // opt.plane_max_points)]
-            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(Pw[sub]))
+            P_sub = np.take(Pw, sub, axis=0)  # (= Pw[sub]; take is the faster gather of (N, 3) rows)
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P_sub))
             try:
                 model, inl = pc.segment_plane(opt.plane_distance_m, 3, opt.plane_iterations, probability=0.9999, seed=0)
             except TypeError:  # older Open3D without seed/probability
@@ -532,7 +535,7 @@ class HandAwareSegmenter:
                 break
             n, off = model[:3] / nrm, model[3] / nrm
             frac = len(inl) / len(sub)
-            inl_pts = Pw[sub][np.asarray(inl)]
+            inl_pts = P_sub[np.asarray(inl)]
             # Minor in-plane standard deviation: a table/wall spreads both ways, a can's side or a box
             # face held in the hand does not (0.02-0.03 m for the YCB objects).
             ev = np.linalg.eigvalsh(np.cov((inl_pts - inl_pts.mean(0)).T)) if len(inl_pts) > 3 else np.zeros(3)
@@ -545,7 +548,7 @@ class HandAwareSegmenter:
                 info["planes"].append(rec)
                 break
             # Remove the plane and everything beyond it (away from the grasp centre).
-            sd = (Pw[idx] @ n + off) * (1.0 if dist_c < 0 else -1.0)
+            sd = (np.take(Pw, idx, axis=0) @ n + off) * (1.0 if dist_c < 0 else -1.0)
             drop = idx[sd > -opt.plane_distance_m * 2]
             keep[drop] = False
             rec["removed"] = True
