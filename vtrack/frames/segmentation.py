@@ -192,6 +192,7 @@ class HandAwareSegmenter:
         self._rx, self._ry = np.meshgrid(u, v)  # x/z and y/z per pixel
         self._samples: dict[str, np.ndarray] | None = None
         self._casters: dict[str, Any] | None = None
+        self._layout: tuple | None = None  # (links, counts, owner, present, start) of the hand samples
         self.reset()
 
     def prepare(self, q: np.ndarray | None = None) -> None:
@@ -232,14 +233,19 @@ class HandAwareSegmenter:
         samples = self._hand_samples(np.array([T[2, 3] for T in Tcl.values()]))
         links = [k for k in samples if k in Tcl]
         P = np.concatenate([samples[k] @ Tcl[k][:3, :3].T + Tcl[k][:3, 3] for k in links])
-        counts = np.array([len(samples[k]) for k in links])
-        owner = np.repeat(np.arange(len(links)), counts)
+        if self._layout is None or self._layout[0] != links:
+            # which link each sample belongs to, and each link's first sample: fixed once the samples are drawn
+            counts = np.array([len(samples[k]) for k in links])
+            owner = np.repeat(np.arange(len(links)), counts)
+            self._layout = (links, counts, owner, *np.unique(owner, return_index=True))
+        _, counts, owner, present, start = self._layout
         z = P[:, 2]
         # each link's nearest depth (its samples include its mesh's vertices, where a mesh's minimum depth lies)
         z_near = np.minimum.reduceat(z, np.r_[0, np.cumsum(counts)[:-1]]) if len(z) else z
         front = z > 1e-3
         if not front.all():  # (the copies only when needed: usually the whole hand is in front of the camera)
             P, z, owner = P[front], z[front], owner[front]
+            present, start = np.unique(owner, return_index=True)
         u = np.rint(self.cam.fx * P[:, 0] / z + self.cam.cx).astype(np.int64)
         v = np.rint(self.cam.fy * P[:, 1] / z + self.cam.cy).astype(np.int64)
         ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
@@ -252,7 +258,6 @@ class HandAwareSegmenter:
         if self.opt.exact_silhouette and len(u):
             # per-link pixel boxes (+1 px): a ray is cast only against the links whose box holds its pixel.
             # ``owner`` is sorted (links in order), so each link's extremes are one segmented reduction.
-            present, start = np.unique(owner, return_index=True)
             lo_u, hi_u = np.minimum.reduceat(u, start), np.maximum.reduceat(u, start)
             lo_v, hi_v = np.minimum.reduceat(v, start), np.maximum.reduceat(v, start)
             boxes = {
