@@ -322,3 +322,53 @@ def test_hand_samples_do_not_depend_on_which_camera_asked_first(frames):
     for x in (got[0][1], got[1][0], got[1][1]):
         assert sorted(x) == links
         assert all(np.array_equal(x[k], got[0][0][k]) for k in links)
+
+
+def test_grid_components_are_scipys_components(frames):
+    """The clusters' connected components (OpenCV on the doubled grid) carry the labels of the sparse-graph
+    components, numbering included (the cluster scores' ties are broken by it), on the depth graphs the
+    segmenter builds from real frames and on random graphs."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from vtrack.frames.segmentation import grid_components
+
+    make, data = frames
+    seg = make()
+    graphs = []
+    orig = grid_components
+
+    def reference(nodes, right, down):
+        rows, cols = np.nonzero(nodes)
+        idx = np.full(nodes.shape, -1, np.int64)
+        idx[rows, cols] = np.arange(len(rows))
+        s = np.concatenate([idx[:, :-1][right], idx[:-1][down]])
+        t = np.concatenate([idx[:, 1:][right], idx[1:][down]])
+        g = coo_matrix((np.ones(len(s), np.int8), (s, t)), shape=(len(rows), len(rows)))
+        return connected_components(g, directed=False), rows, cols
+
+    import vtrack.frames.segmentation as segmentation
+
+    def grab(nodes, right, down, rows, cols):
+        graphs.append((nodes, right, down))
+        return orig(nodes, right, down, rows, cols)
+
+    segmentation.grid_components = grab
+    try:
+        for depth, q, _gt in data:
+            seg.segment(depth, q)
+    finally:
+        segmentation.grid_components = orig
+    assert len(graphs) == len(data)
+    rng = np.random.default_rng(2)
+    for H, W in ((1, 9), (7, 1), (13, 17), (40, 31)):
+        nodes = rng.random((H, W)) < 0.6
+        right = nodes[:, :-1] & nodes[:, 1:] & (rng.random((H, W - 1)) < 0.6)
+        down = nodes[:-1] & nodes[1:] & (rng.random((H - 1, W)) < 0.6)
+        graphs.append((nodes, right, down))
+    for nodes, right, down in graphs:
+        (n_ref, lab_ref), rows, cols = reference(nodes, right, down)
+        n, lab = orig(nodes, right, down, rows, cols)
+        assert n == n_ref and lab.dtype == lab_ref.dtype
+        np.testing.assert_array_equal(lab, lab_ref)
+    assert max(int(np.max(orig(*g, *np.nonzero(g[0]))[1])) for g in graphs[: len(data)]) >= 3  # several clusters

@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
-from vtrack.geometry.pointcloud import estimate_normals, remove_outliers, voxel_downsample
-from vtrack.geometry.tactile_frame import height_to_points
+from vtrack.geometry.pointcloud import estimate_normals, norms, remove_outliers, voxel_downsample
+from vtrack.geometry.tactile_frame import gradient_at, height_to_points
 
 CAM = PinholeCamera(64, 48, 60.0, 62.0, 31.5, 23.5)
 
@@ -93,6 +93,25 @@ def test_outlier_removal_finds_far_points() -> None:
     P = np.r_[rng.normal(size=(300, 3)) * 0.01, [[5.0, 5.0, 5.0], [-4.0, 3.0, 1.0]]]
     keep = remove_outliers(P)
     assert not keep[-1] and not keep[-2] and keep[:300].mean() > 0.95
+
+
+def test_norms_equal_numpy_norms() -> None:
+    # the per-frame paths' vector lengths: np.linalg.norm's floats, bit for bit, at any scale
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 7, 3000):
+        v = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-6, 3, size=(n, 1))
+        np.testing.assert_array_equal(norms(v), np.linalg.norm(v, axis=1))
+
+
+def test_gradient_at_pixels_equals_numpy_gradient() -> None:
+    # height_to_points differentiates only at the lifted pixels: the same floats as np.gradient, borders included
+    rng = np.random.default_rng(5)
+    for H, W, s in ((2, 2, 0.25), (3, 17, 0.1), (31, 28, 0.0625), (9, 2, 1)):
+        f = rng.normal(size=(H, W)) * 3.0
+        rows, cols = (a.ravel() for a in np.mgrid[0:H, 0:W])
+        gy, gx = np.gradient(f, s)
+        np.testing.assert_array_equal(gradient_at(f, rows, cols, 0, s), gy.ravel())
+        np.testing.assert_array_equal(gradient_at(f, rows, cols, 1, s), gx.ravel())
 
 
 def test_tactile_height_to_points_sphere() -> None:

@@ -76,6 +76,13 @@ def test_stacked_drift_and_poisson_equal_the_single_frame_functions():
         np.testing.assert_array_equal(offs[k], o)
         assert levels[k] == lv
     assert np.abs(offs[0] - [8.0, -5.0, 3.0]).max() < 1.5 and not offs[1].any()  # the drift is found, only there
+    # a stack too deep for int16 bin indices (the int64 path), odd sample counts (the median is one sample)
+    many, many_bg = np.stack(imgs * 6)[:, :117, :118], np.stack(bgs * 6)[:, :117, :118]
+    offs, levels = drift_offsets(many, many_bg)
+    for k in range(len(many)):
+        o, lv = drift_offset(many[k], many_bg[k])
+        np.testing.assert_array_equal(offs[k], o)
+        assert levels[k] == lv
     rng = np.random.default_rng(0)
     gx, gy = rng.normal(size=(2, 3, 31, 47)).astype(np.float32)
     z = poisson_dct_stack(gx, gy)

@@ -27,6 +27,13 @@ def finite_mask(points: np.ndarray) -> np.ndarray:
     return np.isfinite(P).all(axis=-1) if P.size else np.zeros(len(P), dtype=bool)
 
 
+def norms(vectors: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(vectors, axis=1)`` of (N, 3) float64 vectors, the same floats (``sqrt((x^2 + y^2) + z^2)``,
+    numpy's order) from the three columns: numpy's loops over a last axis of 3 made it 6x slower (3000 points)."""
+    sq = vectors * vectors
+    return np.sqrt(sq[:, 0] + sq[:, 1] + sq[:, 2])
+
+
 def voxel_keys(points: np.ndarray, voxel_size: float, origin: np.ndarray | None = None) -> np.ndarray:
     """Integer voxel coordinates (N, 3) int64 of each point for a grid of ``voxel_size`` metres.
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.pixels import mask_pixels
+from vtrack.geometry.pointcloud import norms
 
 
 def pixel_grid_to_sensor_xy(
@@ -53,20 +55,33 @@ def height_to_points(
     H, W = h.shape
     finite = np.isfinite(h)
     hz = np.where(finite, h, 0.0)
-    gy, gx = np.gradient(hz, mm_per_px) if min(H, W) > 1 else (np.zeros_like(hz), np.zeros_like(hz))
-    keep = finite.copy()
+    keep = finite
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
         if m.shape != h.shape:
             raise InputError("mask size differs from the height map", field="mask", expected=str(h.shape), got=m.shape)
-        keep &= m
-    if stride > 1:
-        sub = np.zeros_like(keep)
-        sub[::stride, ::stride] = True
-        keep &= sub
-    rows, cols = np.nonzero(keep)
+        keep = keep & m
+    stride = max(1, int(stride))
+    rows, cols = mask_pixels(keep[::stride, ::stride])
+    rows, cols = rows * stride, cols * stride
+    # the gradient only where it is read (a strided subset of the crop); none on a single row or column
+    if min(H, W) > 1:
+        gy, gx = gradient_at(hz, rows, cols, 0, mm_per_px), gradient_at(hz, rows, cols, 1, mm_per_px)
+    else:
+        gy = gx = np.zeros(len(rows))
     xy = pixel_grid_to_sensor_xy(rows, cols, W, H, mm_per_px)
     pts = np.concatenate([xy, -hz[rows, cols, None] / 1000.0], axis=1)
-    n = np.stack([gx[rows, cols], gy[rows, cols], np.ones(len(rows))], axis=-1)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.stack([gx, gy, np.ones(len(rows))], axis=-1)
+    n /= norms(n)[:, None]
     return pts, n
+
+
+def gradient_at(f: np.ndarray, rows: np.ndarray, cols: np.ndarray, axis: int, spacing: float) -> np.ndarray:
+    """``np.gradient(f, spacing)[axis][rows, cols]`` of a 2-D float64 array, computed at those pixels only (the same
+    floats: central differences ``(f[i+1] - f[i-1]) / (2 spacing)`` inside, one-sided ``(f[1] - f[0]) / spacing`` at
+    the borders; ``f`` needs 2 samples or more along ``axis``)."""
+    n = f.shape[axis]
+    i = rows if axis == 0 else cols
+    hi, lo = np.minimum(i + 1, n - 1), np.maximum(i - 1, 0)
+    num = f[hi, cols] - f[lo, cols] if axis == 0 else f[rows, hi] - f[rows, lo]
+    return num / np.where((i > 0) & (i < n - 1), 2.0 * spacing, spacing)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +43,21 @@ def _natural_key(name: str) -> list[Any]:
 
 def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotations about a fixed unit ``axis`` by ``angle`` (N,) rad (Rodrigues)."""
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    eye, K, KK = _rodrigues_terms(tuple(float(a) for a in axis))
     s = np.sin(angle)[:, None, None]
     c = np.cos(angle)[:, None, None]
-    return np.eye(3)[None] + s * K[None] + (1.0 - c) * (K @ K)[None]
+    return eye + s * K + (1.0 - c) * KK
+
+
+@lru_cache(maxsize=256)
+def _rodrigues_terms(axis: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(I, K, K @ K), each (1, 3, 3), of a joint axis (K: its cross-product matrix): fixed per joint, built once
+    (forward kinematics runs every frame)."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    out = (np.eye(3)[None], K[None], (K @ K)[None])
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 class HandKinematics:

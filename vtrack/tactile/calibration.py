@@ -21,12 +21,14 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.pixels import mask_pixels
 from vtrack.tactile.pressset import Press, PressSet, sphere_truth
 
 METHODS = ("lut", "lut_raw", "mlp", "ps")
@@ -166,32 +168,61 @@ def drift_offsets(
     """:func:`drift_offset` of ``images[j]`` against ``backgrounds[j]`` for a stack of frames of one size (e.g. the
     four DIGIT of a hand at one time step): the same values, ``(offsets (B, 3), levels (B,))``, with one numpy
     call per step for the whole stack instead of one per frame (the per-call overhead is most of the cost of a
-    1200-sample frame)."""
+    1200-sample frame). The samples are laid out channel-first (numpy's loops over a last axis of 3 cost several
+    times the arithmetic) and the noise median comes from a histogram of the integer differences (the same value
+    as ``np.median``: the mean of the two middle order statistics): 0.73 instead of 2.4 ms for four DIGIT frames at
+    80 x 60."""
     images = np.asarray(images)
     backgrounds = np.asarray(backgrounds)
     B = images.shape[0]
     step = max(1, int(np.sqrt(images.shape[1] * images.shape[2] / 1200.0)))
-    a = images[:, ::step, ::step].reshape(B, -1, 3).astype(np.int16)
-    if a.shape[1] == 0:
+    a = np.moveaxis(images[:, ::step, ::step], 3, 1).astype(np.int16, order="C").reshape(B, 3, -1)
+    if a.shape[2] == 0:
         return np.zeros((B, 3)), np.zeros(B)
-    d = a - backgrounds[:, ::step, ::step].reshape(B, -1, 3)
+    d = a - np.moveaxis(backgrounds[:, ::step, ::step], 3, 1).reshape(B, 3, -1)  # (B, 3, N) int16
     off = np.zeros((B, 3))
     if max_spread >= 0:
         nb = 2 * _MODE_RANGE + 1
-        base = (_MODE_RANGE + nb * np.arange(3 * B, dtype=np.int32).reshape(B, 1, 3)).astype(np.int32)
+        base = _MODE_RANGE + nb * np.arange(3 * B, dtype=_index_dtype(3 * B * nb)).reshape(B, 3, 1)
         counts = np.bincount((np.clip(d, -_MODE_RANGE, _MODE_RANGE) + base).ravel(), minlength=3 * B * nb)
-        cp = np.pad(counts.reshape(B, 3, nb), ((0, 0), (0, 0), (2, 2)))
+        cp = np.zeros((B, 3, nb + 4), counts.dtype)
+        cp[..., 2:-2] = counts.reshape(B, 3, nb)
         counts = cp[..., :-4] + 2 * cp[..., 1:-3] + 3 * cp[..., 2:-2] + 2 * cp[..., 3:-1] + cp[..., 4:]
-        m = (np.argmax(counts, axis=2) - _MODE_RANGE).astype(np.float64)[:, None, :]  # (B, 1, 3)
-        near = np.abs(d - m) <= 2.0
-        cnt = near.sum(axis=1)
-        off = np.where(cnt > 0, np.where(near, d, 0).sum(axis=1) / np.maximum(cnt, 1), m[:, 0])
-        flat = (np.abs(d - off[:, None, :]) <= max(max_spread, 1.0)).all(axis=2)
+        m = (np.argmax(counts, axis=2) - _MODE_RANGE).astype(np.float64)  # (B, 3)
+        near = np.abs(d - m[..., None]) <= 2.0
+        cnt = np.count_nonzero(near, axis=2)
+        off = np.where(cnt > 0, np.where(near, d, 0).sum(axis=2) / np.maximum(cnt, 1), m)
+        dev = np.abs(d - off[..., None]) <= max(max_spread, 1.0)
+        flat = dev[:, 0] & dev[:, 1] & dev[:, 2]
         off[(np.abs(off).max(axis=1) < 1.0) | (flat.mean(axis=1) < 1.0 / 3.0)] = 0.0
     row = images[:, ::step].astype(np.int16) - backgrounds[:, ::step]
-    adj = np.abs(np.diff(row, axis=2)).reshape(B, -1, 3)
-    sigma = 1.4826 * np.median(adj, axis=1) / np.sqrt(2.0) if adj.shape[1] else np.zeros((B, 3))
+    adj = np.abs(np.diff(row, axis=2))  # (B, rows, W - 1, 3): 0 ... 510
+    n = adj.shape[1] * adj.shape[2]
+    if n == 0:
+        return off, np.zeros(B)
+    nv = 511
+    cum = np.bincount((adj + _channel_bins(adj.shape, nv)).ravel(), minlength=3 * B * nv).reshape(B, 3, nv)
+    cum = cum.cumsum(axis=2)
+    med = (np.count_nonzero(cum <= (n - 1) // 2, axis=2) + np.count_nonzero(cum <= n // 2, axis=2)) / 2.0
+    sigma = 1.4826 * med / np.sqrt(2.0)
     return off, 0.8 * sigma.sum(axis=1)
+
+
+def _index_dtype(n: int) -> type:
+    """The smallest of int16 / int64 holding bin indices below ``n`` (int16 arithmetic is the fast path)."""
+    return np.int16 if n < 2**15 else np.int64
+
+
+@lru_cache(maxsize=8)
+def _channel_bins(shape: tuple[int, ...], nb: int) -> np.ndarray:
+    """Read-only array of ``shape`` (B, ..., 3): ``nb * (3 b + c)`` at frame b, channel c, i.e. the offsets that put
+    every (frame, channel) in its own ``nb`` bins of one bincount (built once per shape: broadcasting a last axis
+    of 3 is slow)."""
+    B = shape[0]
+    base = (nb * np.arange(3 * B, dtype=_index_dtype(3 * B * nb))).reshape((B,) + (1,) * (len(shape) - 2) + (3,))
+    out = np.ascontiguousarray(np.broadcast_to(base, shape))
+    out.flags.writeable = False
+    return out
 
 
 _MODE_RANGE = 64  # grey levels of drift searched (+-)
@@ -277,7 +308,7 @@ class Calibration:
             nx[~mask] = 0.0
             ny[~mask] = 0.0
             return nx, ny
-        rows, cols = np.nonzero(mask)
+        rows, cols = mask_pixels(mask)
         if len(rows) == 0:
             return nx, ny
         out = self._predict_pixels(dI[rows, cols], np.asarray(img)[rows, cols], rows, cols, (H, W))
@@ -309,15 +340,17 @@ class Calibration:
             nx, ny = self.normals_from_change(None, image, mask)
         else:
             # zero normals have zero slopes: only the masked pixels go through the model and the conversion
-            rows, cols = np.nonzero(mask)
-            gx = np.zeros((H, W), np.float32)
-            gy = np.zeros((H, W), np.float32)
-            if len(rows):
-                im = image[rows, cols]
-                d = im.astype(np.float32) - background[rows, cols]
+            # (flat indices: numpy's 2-D fancy indexing costs several times the 1-D gather of the same pixels)
+            idx = np.flatnonzero(mask)
+            gx = np.zeros(H * W, np.float32)
+            gy = np.zeros(H * W, np.float32)
+            if len(idx):
+                rows, cols = np.divmod(idx, W)
+                im = image.reshape(-1, 3)[idx]
+                d = im.astype(np.float32) - background.reshape(-1, 3)[idx]
                 out = self._predict_pixels(d, im, rows, cols, (H, W)).astype(np.float32, copy=False)
-                gx[rows, cols], gy[rows, cols] = normals_to_slopes(out[:, 0], out[:, 1])
-            return gx, gy
+                gx[idx], gy[idx] = normals_to_slopes(out[:, 0], out[:, 1])
+            return gx.reshape(H, W), gy.reshape(H, W)
         gx, gy = normals_to_slopes(nx, ny)
         return gx.astype(np.float32, copy=False), gy.astype(np.float32, copy=False)
 

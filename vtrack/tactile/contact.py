@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vtrack.geometry.pixels import mask_pixels
 from vtrack.geometry.tactile_frame import pixel_grid_to_sensor_xy
 
 
@@ -79,7 +80,7 @@ def contact_mask(
 def contact_stats(height_mm: np.ndarray, mask: np.ndarray, mm_per_px: float) -> ContactStats:
     """Area, centroid, principal axes and depth of the contact region (all NaN-free; zero when empty)."""
     H, W = mask.shape
-    rows, cols = np.nonzero(mask)
+    rows, cols = mask_pixels(mask)
     n = len(rows)
     if n == 0:
         nan = float("nan")

@@ -443,13 +443,14 @@ def backproject(
         return np.zeros((0, 3)), np.zeros(0, bool)
     xi = np.clip(np.round(uv[:, 0] / stride).astype(int), 0, z.shape[1] - 1)
     yi = np.clip(np.round(uv[:, 1] / stride).astype(int), 0, z.shape[0] - 1)
-    d = z[yi, xi].astype(np.float64) * scale
+    zf = np.asarray(z).reshape(-1)  # (flat indices: numpy's 2-D fancy indexing is several times slower)
+    d = zf[yi * z.shape[1] + xi].astype(np.float64) * scale
     ok = np.isfinite(d) & (d > 0)
     if patch > 0 and ok.any():
         o = np.arange(-patch, patch + 1)
         ys = np.clip(yi[:, None, None] + o[None, :, None], 0, z.shape[0] - 1)
         xs = np.clip(xi[:, None, None] + o[None, None, :], 0, z.shape[1] - 1)
-        zz = z[ys, xs].reshape(len(uv), -1).astype(np.float64) * scale
+        zz = zf[ys * z.shape[1] + xs].reshape(len(uv), -1).astype(np.float64) * scale
         # the mean of the samples within 5 mm of the centre's depth (not across an occluding edge)
         near = np.isfinite(zz) & (zz > 0) & (np.abs(zz - d[:, None]) < 0.005)
         n = near.sum(1)
