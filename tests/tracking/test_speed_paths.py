@@ -164,3 +164,38 @@ def test_scalar_se3_exp_and_log_match_the_matrix_forms():
             np.testing.assert_allclose(T, se3.make_transform(se3.so3_exp(phi), T[:3, 3]), rtol=0, atol=1e-12)
             if np.linalg.norm(phi) < 3.0:
                 np.testing.assert_allclose(_log(T), xi, rtol=1e-9, atol=1e-12)
+
+
+def test_written_out_row_norms_and_ray_residuals_equal_the_numpy_reductions_bit_for_bit():
+    """The tracker's results must not move with its speed-ups: ``_row_norms`` equals ``np.linalg.norm(axis=1)`` and
+    ``_ray_residuals`` (sums written out, rays passed in or not) equals its einsum formulation, to the last bit, on
+    values spread over many magnitudes (where a different summation order shows)."""
+    from vtrack.geometry import se3
+    from vtrack.tracking.window import _ray_directions, _ray_residuals, _row_norms
+
+    rng = np.random.default_rng(7)
+    for n in (1, 3, 40, 517):
+        x = rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 3)) * 4)
+        assert np.array_equal(_row_norms(x), np.linalg.norm(x, axis=1))
+        R = np.stack([se3.so3_exp(rng.normal(size=3) * s) for s in rng.choice([1e-6, 0.1, 3.0], n)])
+        t = rng.normal(size=(n, 3)) * 0.3
+        Q = rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 3)) * 3)
+        C = rng.normal(size=(n, 3))
+        P = C + rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 1)))
+        # the einsum formulation the written-out one replaced
+        Rq = np.einsum("nij,nj->ni", R, Q)
+        d = P - C
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        e = Rq + t - C
+        r_ref = e - d * np.sum(d * e, axis=1, keepdims=True)
+        J_ref = np.empty((n, 3, 6))
+        J_ref[:, :, :3] = R
+        hx = np.zeros((n, 3, 3))
+        hx[:, 0, 1], hx[:, 0, 2] = -Rq[:, 2], Rq[:, 1]
+        hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
+        hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
+        J_ref[:, :, 3:] = -hx @ R
+        J_ref -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J_ref)[:, None, :]
+        for rays in (None, _ray_directions(P, C)):
+            r, J = _ray_residuals(R, t, P, Q, C, rays)
+            assert np.array_equal(r, r_ref) and np.array_equal(J, J_ref)
