@@ -167,16 +167,17 @@ def test_scalar_se3_exp_and_log_match_the_matrix_forms():
 
 
 def test_written_out_row_norms_and_ray_residuals_equal_the_numpy_reductions_bit_for_bit():
-    """The tracker's results must not move with its speed-ups: ``_row_norms`` equals ``np.linalg.norm(axis=1)`` and
+    """The tracker's results must not move with its speed-ups: ``row_norms`` equals ``np.linalg.norm(axis=1)`` and
     ``_ray_residuals`` (sums written out, rays passed in or not) equals its einsum formulation, to the last bit, on
     values spread over many magnitudes (where a different summation order shows)."""
     from vtrack.geometry import se3
-    from vtrack.tracking.window import _ray_directions, _ray_residuals, _row_norms
+    from vtrack.geometry.pointcloud import row_norms
+    from vtrack.tracking.window import _ray_directions, _ray_residuals
 
     rng = np.random.default_rng(7)
     for n in (1, 3, 40, 517):
         x = rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 3)) * 4)
-        assert np.array_equal(_row_norms(x), np.linalg.norm(x, axis=1))
+        assert np.array_equal(row_norms(x), np.linalg.norm(x, axis=1))
         R = np.stack([se3.so3_exp(rng.normal(size=3) * s) for s in rng.choice([1e-6, 0.1, 3.0], n)])
         t = rng.normal(size=(n, 3)) * 0.3
         Q = rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 3)) * 3)
