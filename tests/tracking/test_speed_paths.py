@@ -105,16 +105,23 @@ def test_flat_gel_short_cut_gives_a_zero_height_map(touch_frames):
     assert len(P) == 0
 
 
-def test_window_terms_with_one_query_equal_the_per_slot_terms(tiny_session):
-    """SLAM on the first frames of a session: at every evaluation the batched window terms equal the per-slot
-    terms (each slot's SDF queried on its own), bit for bit."""
+@pytest.mark.parametrize(
+    "opts",
+    [{}, {"touch_weak_vision": 100000, "sigma_touch_weak": 0.0015, "robust": "cauchy", "free_margin": 0.001}],
+    ids=["defaults", "weak-vision-cauchy"],
+)
+def test_window_terms_with_one_query_equal_the_per_slot_terms(tiny_session, opts):
+    """SLAM on the first frames of a session: at every evaluation the batched window terms (one SDF query and one
+    pass of robust weights for the whole window) equal the per-slot terms (each slot's SDF queried and weighted on
+    its own), bit for bit; with SLAM's defaults (one-sided contacts: a sigma per row) and with every frame in the
+    weak-vision regime under the Cauchy kernel."""
     from vtrack.frames.session import SessionFrames
     from vtrack.tracking.run import slam_origin
     from vtrack.tracking.slam import SLAMTracker
 
     frames = SessionFrames(tiny_session, touch_stride=2, touch_downsample=4, max_frames=14)
     T0, _ = slam_origin(frames)
-    trk = SLAMTracker(T0)
+    trk = SLAMTracker(T0, **opts)
     checked = []
     batched = trk._window_terms
 

@@ -986,16 +986,41 @@ class WindowTracker:
         Tinv = _inv(T)
         return np.concatenate([g[1] for g in groups]) @ Tinv[:3, :3].T + Tinv[:3, 3]
 
+    def _weak_vision(self, fr: TrackingFrame, n_vision: int) -> bool:
+        """Whether a frame is in the weak-vision regime (``touch_weak_vision``; ``n_vision``: its segmented vision
+        points when it was current, -1: count ``fr``'s)."""
+        o = self.opts
+        nv = fr.n_vision if n_vision < 0 else n_vision
+        return o.touch_weak_vision > 0 and nv < o.touch_weak_vision
+
+    def _group_weighting(self, kind: str, weak: bool, r: np.ndarray) -> tuple[float | np.ndarray, float]:
+        """Sigma (m; a scalar or one per row) and robust kernel width (sigmas) of a point group's SDF residuals ``r``
+        (m): ``kind`` v(ision) / t(ouch) / f(ree gel), ``weak``: the frame is in the weak-vision regime."""
+        o = self.opts
+        if kind == "v":
+            return o.sigma_vision, o.kernel_vision
+        if kind == "t" and weak:
+            # vision sees too little to hold the pose: the contacts carry it, pulled onto the surface from both
+            # sides (their shallow bias, ~0.3 mm median on the YCB sessions, is below this sigma)
+            return o.sigma_touch_weak, o.kernel_touch
+        if kind == "t":
+            if o.sigma_touch_inside > 0:
+                # contacts read from tactile images lie too shallow (their depth is a lower bound): a point
+                # inside the surface is weak evidence, one outside it strong
+                return np.where(r < 0, o.sigma_touch_inside, o.sigma_touch), o.kernel_touch
+            return o.sigma_touch, o.kernel_touch
+        return o.sigma_free, 1e9  # free gel points: one-sided, not robust
+
     def _frame_terms(
         self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1, qdg: tuple | None = None
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
         frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime).
         ``qdg``: the frame's object-frame points (:meth:`_object_points`) with their SDF values, gradients and
-        Jacobians (:func:`_sdf_jacobian`), when the caller computed them already (once for the whole window)."""
+        Jacobians (:func:`_sdf_jacobian`), and the depth / contact rows' robust weights, costs, weighted Jacobians and
+        weighted residuals, when the caller computed them already (once for the whole window)."""
         o = self.opts
-        nv = fr.n_vision if n_vision < 0 else n_vision
-        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
+        weak = self._weak_vision(fr, n_vision)
         sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
         R = T[:3, :3]
         H = np.zeros((6, 6))
@@ -1004,41 +1029,33 @@ class WindowTracker:
         groups = self._groups(fr)
         if not groups:
             return H, b, 0.0
+        rw = None
         if qdg is None:
             q = self._object_points(T, fr)
             d, g = self.sdf.query(q)
             J = _sdf_jacobian(q, g)
         else:
-            q, d, g, J = qdg
+            q, d, g, J, rw = qdg
         s = 0
         for kind, P in groups:
             n = len(P)
             sl = slice(s, s + n)
             s += n
-            r = d[sl].copy()
+            r = d[sl]
             Jk = J[sl]
-            if kind == "v":
-                sig, kern = o.sigma_vision, o.kernel_vision
-            elif kind == "t" and weak:
-                # vision sees too little to hold the pose: the contacts carry it, pulled onto the surface from both
-                # sides (their shallow bias, ~0.3 mm median on the YCB sessions, is below this sigma)
-                sig, kern = o.sigma_touch_weak, o.kernel_touch
-            elif kind == "t":
-                sig, kern = o.sigma_touch, o.kernel_touch
-                if o.sigma_touch_inside > 0:
-                    # contacts read from tactile images lie too shallow (their depth is a lower bound): a point
-                    # inside the surface is weak evidence, one outside it strong
-                    sig = np.where(r < 0, o.sigma_touch_inside, o.sigma_touch)
+            if rw is not None and kind != "f":
+                w, rho, Jw, wr = (x[sl] for x in rw)
             else:
-                sig, kern = o.sigma_free, 1e9
-                r = np.minimum(r - o.free_margin, 0.0)
-                Jk = Jk * (r < 0)[:, None]
-            rs = r / sig
-            w, rho = _robust_weights(rs, o.robust if kind != "f" else "none", kern)
-            w = w / (sig * sig)
+                sig, kern = self._group_weighting(kind, weak, r)
+                if kind == "f":
+                    r = np.minimum(r - o.free_margin, 0.0)
+                    Jk = Jk * (r < 0)[:, None]
+                w, rho = _robust_weights(r / sig, o.robust if kind != "f" else "none", kern)
+                w = w / (sig * sig)
+                Jw, wr = Jk * w[:, None], w * r
             cost += float(rho.sum())
-            H += (Jk * w[:, None]).T @ Jk
-            b += Jk.T @ (w * r)
+            H += Jw.T @ Jk
+            b += Jk.T @ wr
             if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
                 Nw = fr.touch_normals
                 ok = np.isfinite(Nw).all(1)
@@ -1080,7 +1097,7 @@ class WindowTracker:
             r = _log(_inv(s0.T_prior) @ s0.T)
             sa = 1.0 / np.array([o.sigma_anchor_trans] * 3 + [o.sigma_anchor_rot] * 3)
             terms.append(([0], [_EYE6], r, sa))
-            cost += 0.5 * float(np.sum((r * sa) ** 2))
+            cost += 0.5 * float(((r * sa) ** 2).sum())
         prev_log = None
         prev_dt = None
         prev_ad = None  # Ad(D^-1) of the previous pair: the derivative of its log wrt its older slot, negated
@@ -1104,7 +1121,7 @@ class WindowTracker:
                 # -ratio*I, wrt slot i-2 is +ratio*Ad(Dp^-1)
                 Jc = ratio * prev_ad
                 terms.append(([i - 2, i - 1, i], [Jc, Ja - ratio * _EYE6, Jb], r, sq))
-            cost += 0.5 * float(np.sum((r * sq) ** 2))
+            cost += 0.5 * float(((r * sq) ** 2).sum())
             prev_log, prev_dt, prev_ad = lg, dt_i, ad
         if len(slots) == 1 and self.t_last is not None:
             # single-slot window: prior towards the constant-velocity prediction
@@ -1112,7 +1129,7 @@ class WindowTracker:
             r = _log(_inv(s0.T_prior) @ s0.T)
             sq = 1.0 / (sig * max(dt_first / o.nominal_dt, 1e-3))
             terms.append(([0], [_EYE6], r, sq))
-            cost += 0.5 * float(np.sum((r * sq) ** 2))
+            cost += 0.5 * float(((r * sq) ** 2).sum())
         return terms, cost
 
     def _degeneracy(self, H: np.ndarray, n_vision: int = 0) -> tuple[np.ndarray, int, np.ndarray | None]:
@@ -1231,12 +1248,26 @@ class WindowTracker:
         q_all = np.concatenate(qs)
         d_all, g_all = self.sdf.query(q_all) if len(q_all) else (np.zeros(0), np.zeros((0, 3)))
         J_all = _sdf_jacobian(q_all, g_all)  # row-wise: the same rows as one per frame, in one pass
+        # the robust weights of the depth and contact residuals, row-wise too: each row with its group's sigma and
+        # kernel (:meth:`_group_weighting`; free gel points keep their own path in _frame_terms)
+        sig_rows, kern_rows = np.ones(len(q_all)), np.ones(len(q_all))
+        a = 0
+        for _, fr, nv in (p for parts in evals for p in parts):
+            weak = self._weak_vision(fr, nv)
+            for kind, P in self._groups(fr):
+                sl = slice(a, a + len(P))
+                a += len(P)
+                if kind != "f":
+                    sig_rows[sl], kern_rows[sl] = self._group_weighting(kind, weak, d_all[sl])
+        w_all, rho_all = _robust_weights(d_all / sig_rows, self.opts.robust, kern_rows)
+        w_all = w_all / (sig_rows * sig_rows)
+        Jw_all, wr_all = J_all * w_all[:, None], w_all * d_all
         qdgj = []
         a = 0
         for q in qs:
             sl = slice(a, a + len(q))
             a += len(q)
-            qdgj.append((q, d_all[sl], g_all[sl], J_all[sl]))
+            qdgj.append((q, d_all[sl], g_all[sl], J_all[sl], (w_all[sl], rho_all[sl], Jw_all[sl], wr_all[sl])))
         dgs = iter(qdgj)
         out = []
         for s, parts in zip(slots, evals, strict=True):
