@@ -88,7 +88,7 @@ class SDFGrid:
         # and the sums of the trilinear weights are written in the order np.einsum("ij,ij->i") adds its 2-4 terms
         # ((p0 + p2) + (p1 + p3); (p0 + p2) + p1 for 3; p0 + p1 for 2: its SIMD accumulator of two lanes),
         # tested against the einsum form in tests/tracking/test_sdf_grid.py.
-        g = (P.T - self._origin_col) / self.voxel
+        g = (np.ascontiguousarray(P.T) - self._origin_col) / self.voxel  # C order: every row below is contiguous
         # = np.clip(g, 0, hi - 1e-9) (NaN stays NaN), without its wrapper's overhead
         gc = np.minimum(np.maximum(g, 0.0), self._hi_clip)
         # Distance outside the box (metres) and its direction: keeps far points finite and attracted.
@@ -111,14 +111,14 @@ class SDFGrid:
         if not with_grad:
             return sdf, None
         c0, c1, c2, c3 = cx
-        grad = np.empty((len(P), 3))
-        grad[:, 0] = ((c0 * w00 + c2 * w10) + (c1 * w01 + c3 * w11)) * self._inv_voxel
-        grad[:, 1] = ((l2 - l0) * wz0 + (l3 - l1) * fz) * self._inv_voxel
-        grad[:, 2] = ((l1 - l0) * wy0 + (l3 - l2) * fy) * self._inv_voxel
-        if np.any(far):
+        gt = np.empty((3, len(P)))
+        gt[0] = ((c0 * w00 + c2 * w10) + (c1 * w01 + c3 * w11)) * self._inv_voxel
+        gt[1] = ((l2 - l0) * wz0 + (l3 - l1) * fz) * self._inv_voxel
+        gt[2] = ((l1 - l0) * wy0 + (l3 - l2) * fy) * self._inv_voxel
+        if far.any():
             # Outside the box the distance term dominates; point its gradient back at the box.
-            grad[far] = (outside[:, far] / out_d[far]).T
-        return sdf, grad
+            gt[:, far] = outside[:, far] / out_d[far]
+        return sdf, np.ascontiguousarray(gt.T)
 
     # -- persistence --------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
