@@ -107,7 +107,16 @@ def test_flat_gel_short_cut_gives_a_zero_height_map(touch_frames):
 
 @pytest.mark.parametrize(
     "opts",
-    [{}, {"touch_weak_vision": 100000, "sigma_touch_weak": 0.0015, "robust": "cauchy", "free_margin": 0.001}],
+    [
+        {},
+        {
+            "touch_weak_vision": 100000,
+            "sigma_touch_weak": 0.0015,
+            "sigma_normal_weak": 0.5,
+            "robust": "cauchy",
+            "free_margin": 0.001,
+        },
+    ],
     ids=["defaults", "weak-vision-cauchy"],
 )
 def test_window_terms_with_one_query_equal_the_per_slot_terms(tiny_session, opts):

@@ -483,6 +483,23 @@ def _sdf_jacobian(q: np.ndarray, g: np.ndarray) -> np.ndarray:
     return J
 
 
+def _normal_rows(n_obj: np.ndarray, ghat: np.ndarray, sig, sig2, robust: str) -> tuple:
+    """Per-row algebra of the contact-normal term: measured normals ``n_obj = R^T n`` (m, 3, object frame) against
+    the unit SDF gradients ``ghat`` (m, 3), residual ``rn = n_obj - ghat`` with sigma ``sig`` (``sig2`` = its square;
+    scalars or one per row). Returns ``n_obj``, the weights ``wn`` (m,) and costs (m,) (robust on ``|rn|``, kernel
+    2), ``wnn = wn n_obj`` (m, 3), ``wnn * n_obj`` (m, 3) and the three components of ``rn x n_obj`` (m,) each."""
+    rn = n_obj - ghat
+    wn, rhon = _robust_weights(row_norms(rn) / sig, robust, 2.0)
+    wn = wn / sig2
+    wnn = n_obj * wn[:, None]
+    cross = (
+        rn[:, 1] * n_obj[:, 2] - rn[:, 2] * n_obj[:, 1],
+        rn[:, 2] * n_obj[:, 0] - rn[:, 0] * n_obj[:, 2],
+        rn[:, 0] * n_obj[:, 1] - rn[:, 1] * n_obj[:, 0],
+    )
+    return n_obj, wn, rhon, wnn, wnn * n_obj, cross
+
+
 def _robust_weights(r_scaled: np.ndarray, kind: str, k: float) -> tuple[np.ndarray, np.ndarray]:
     """IRLS weights and robust cost for residuals already divided by their sigma."""
     a = np.abs(r_scaled)
@@ -993,6 +1010,11 @@ class WindowTracker:
         nv = fr.n_vision if n_vision < 0 else n_vision
         return o.touch_weak_vision > 0 and nv < o.touch_weak_vision
 
+    def _normal_sigma(self, weak: bool) -> float:
+        """Sigma of the contact-normal residuals (unit vectors) in a frame (``weak``: the weak-vision regime)."""
+        o = self.opts
+        return o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
+
     def _group_weighting(self, kind: str, weak: bool, r: np.ndarray) -> tuple[float | np.ndarray, float]:
         """Sigma (m; a scalar or one per row) and robust kernel width (sigmas) of a point group's SDF residuals ``r``
         (m): ``kind`` v(ision) / t(ouch) / f(ree gel), ``weak``: the frame is in the weak-vision regime."""
@@ -1021,7 +1043,7 @@ class WindowTracker:
         weighted residuals, when the caller computed them already (once for the whole window)."""
         o = self.opts
         weak = self._weak_vision(fr, n_vision)
-        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
+        sig_normal = self._normal_sigma(weak)
         R = T[:3, :3]
         H = np.zeros((6, 6))
         b = np.zeros(6)
@@ -1044,7 +1066,7 @@ class WindowTracker:
             r = d[sl]
             Jk = J[sl]
             if rw is not None and kind != "f":
-                w, rho, Jw, wr = (x[sl] for x in rw)
+                w, rho, Jw, wr = (x[sl] for x in rw[:4])
             else:
                 sig, kern = self._group_weighting(kind, weak, r)
                 if kind == "f":
@@ -1057,31 +1079,30 @@ class WindowTracker:
             H += Jw.T @ Jk
             b += Jk.T @ wr
             if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
-                Nw = fr.touch_normals
-                ok = np.isfinite(Nw).all(1)
-                gn = g[sl]
-                gnorm = row_norms(gn)
-                ok &= gnorm > 0.5
-                if ok.any():
-                    n_obj = Nw[ok] @ R  # R^T n for each row
-                    ghat = gn[ok] / gnorm[ok, None]
-                    rn = n_obj - ghat  # (m, 3)
+                if rw is not None:
+                    rows = rw[4]  # the window's pass (None: no usable normal)
+                else:
+                    rows = None
+                    ok, gnorm = self._normal_ok(fr, g[sl])
+                    if ok.any():
+                        n_obj = fr.touch_normals[ok] @ R  # R^T n for each row
+                        rows = _normal_rows(n_obj, g[sl][ok] / gnorm[ok, None], sig_normal, sig_normal**2, o.robust)
+                if rows is not None:
                     # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected. In closed form
                     # (the same sums as with the (m, 3, 3) hat matrices, in another order): hat(n)^T hat(n) =
                     # |n|^2 I - n n^T and hat(n)^T r = r x n
-                    wn, rhon = _robust_weights(row_norms(rn) / sig_normal, o.robust, 2.0)
-                    wn = wn / sig_normal**2
+                    n_obj, wn, rhon, wnn, nn, (c0, c1, c2) = rows
                     cost += float(rhon.sum())
-                    wnn = n_obj * wn[:, None]
-                    H[3:, 3:] += _EYE3 * float((wnn * n_obj).sum()) - wnn.T @ n_obj
-                    b[3:] += np.array(
-                        [
-                            wn @ (rn[:, 1] * n_obj[:, 2] - rn[:, 2] * n_obj[:, 1]),
-                            wn @ (rn[:, 2] * n_obj[:, 0] - rn[:, 0] * n_obj[:, 2]),
-                            wn @ (rn[:, 0] * n_obj[:, 1] - rn[:, 1] * n_obj[:, 0]),
-                        ]
-                    )
+                    H[3:, 3:] += _EYE3 * float(nn.sum()) - wnn.T @ n_obj
+                    b[3:] += np.array([wn @ c0, wn @ c1, wn @ c2])
         return H, b, cost
+
+    @staticmethod
+    def _normal_ok(fr: TrackingFrame, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The contacts whose measured normal is finite and whose SDF gradient ``g`` (m, 3) is not degenerate (norm
+        above 0.5: off the map's band edges), and the gradient norms (m,)."""
+        gnorm = row_norms(g)
+        return np.isfinite(fr.touch_normals).all(1) & (gnorm > 0.5), gnorm
 
     def _motion_terms(
         self, slots: list[_Slot], v_before: np.ndarray, dt_first: float
@@ -1238,6 +1259,7 @@ class WindowTracker:
         """Every slot's data terms (:meth:`_slot_terms`, at the projected pose for a slot with a projector ``proj``),
         with ONE SDF query for the points of the whole window (the query is per point: same values as one query
         per slot, at a third of the call overhead)."""
+        o = self.opts
         evals = []
         for s in slots:
             # the data says nothing reliable along a slot's weak directions: it sees (and pulls) only the strong
@@ -1251,23 +1273,52 @@ class WindowTracker:
         # the robust weights of the depth and contact residuals, row-wise too: each row with its group's sigma and
         # kernel (:meth:`_group_weighting`; free gel points keep their own path in _frame_terms)
         sig_rows, kern_rows = np.ones(len(q_all)), np.ones(len(q_all))
+        # ... and the contact-normal term's rows (:func:`_normal_rows`): per part, (rows of q_all, n_obj, sigma)
+        nrm: list[tuple[np.ndarray, np.ndarray, float] | None] = []
         a = 0
-        for _, fr, nv in (p for parts in evals for p in parts):
+        for T, fr, nv in (p for parts in evals for p in parts):
             weak = self._weak_vision(fr, nv)
+            nrm.append(None)
             for kind, P in self._groups(fr):
                 sl = slice(a, a + len(P))
                 a += len(P)
                 if kind != "f":
                     sig_rows[sl], kern_rows[sl] = self._group_weighting(kind, weak, d_all[sl])
+                if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
+                    ok, _ = self._normal_ok(fr, g_all[sl])
+                    if ok.any():
+                        nrm[-1] = (
+                            sl.start + np.flatnonzero(ok),
+                            fr.touch_normals[ok] @ T[:3, :3],
+                            self._normal_sigma(weak),
+                        )
         w_all, rho_all = _robust_weights(d_all / sig_rows, self.opts.robust, kern_rows)
         w_all = w_all / (sig_rows * sig_rows)
         Jw_all, wr_all = J_all * w_all[:, None], w_all * d_all
+        used = [x for x in nrm if x is not None]
+        if used:
+            idx = np.concatenate([x[0] for x in used])
+            counts = [len(x[0]) for x in used]
+            gn = g_all[idx]
+            sig = np.repeat([x[2] for x in used], counts)
+            sig2 = np.repeat([x[2] ** 2 for x in used], counts)  # the scalar path's sigma**2, as a float
+            rows_all = _normal_rows(
+                np.concatenate([x[1] for x in used]), gn / row_norms(gn)[:, None], sig, sig2, o.robust
+            )
         qdgj = []
         a = 0
-        for q in qs:
+        m = 0
+        for q, x in zip(qs, nrm, strict=True):
             sl = slice(a, a + len(q))
             a += len(q)
-            qdgj.append((q, d_all[sl], g_all[sl], J_all[sl], (w_all[sl], rho_all[sl], Jw_all[sl], wr_all[sl])))
+            rows = None
+            if x is not None:
+                ns = slice(m, m + len(x[0]))
+                m += len(x[0])
+                n_obj, wn, rhon, wnn, nn, cross = rows_all
+                rows = (n_obj[ns], wn[ns], rhon[ns], wnn[ns], nn[ns], tuple(c[ns] for c in cross))
+            rw = (w_all[sl], rho_all[sl], Jw_all[sl], wr_all[sl], rows)
+            qdgj.append((q, d_all[sl], g_all[sl], J_all[sl], rw))
         dgs = iter(qdgj)
         out = []
         for s, parts in zip(slots, evals, strict=True):
