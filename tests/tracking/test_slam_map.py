@@ -133,3 +133,23 @@ def test_slam_keyframe_thresholds_reach_the_graph_and_the_window_separately():
     assert (to.kf_rot, to.kf_trans) == (0.01, 0.001) and bo.kf_rot == 0.07
     with pytest.raises(InputError):
         SLAMOptions.split({"window_kf_spin": 1.0})
+
+
+def test_merged_insertion_equals_np_insert():
+    """The surfel map inserts its new voxels with positions computed once for its four arrays: the same arrays as
+    ``np.insert`` at the (sorted, possibly repeated) insertion points, for 1-D and (K, 3) arrays."""
+    from vtrack.tracking.slam import _merged
+
+    rng = np.random.default_rng(2)
+    for k, m in ((0, 5), (7, 1), (50, 20), (400, 130)):
+        pos = np.sort(rng.integers(0, k + 1, m))  # where each new row goes in the old array, in order
+        at = pos + np.arange(m)
+        old = np.ones(k + m, bool)
+        old[at] = False
+        for shape in ((k,), (k, 3)):
+            a = rng.normal(size=shape)
+            v = rng.normal(size=(m, *shape[1:]))
+            assert np.array_equal(_merged(a, v, at, old), np.insert(a, pos, v, axis=0))
+        keys = np.sort(rng.integers(0, 1 << 40, k))
+        new = rng.integers(0, 1 << 40, m)
+        assert np.array_equal(_merged(keys, new, at, old), np.insert(keys, pos, new))

@@ -105,16 +105,32 @@ def test_flat_gel_short_cut_gives_a_zero_height_map(touch_frames):
     assert len(P) == 0
 
 
-def test_window_terms_with_one_query_equal_the_per_slot_terms(tiny_session):
-    """SLAM on the first frames of a session: at every evaluation the batched window terms equal the per-slot
-    terms (each slot's SDF queried on its own), bit for bit."""
+@pytest.mark.parametrize(
+    "opts",
+    [
+        {},
+        {
+            "touch_weak_vision": 100000,
+            "sigma_touch_weak": 0.0015,
+            "sigma_normal_weak": 0.5,
+            "robust": "cauchy",
+            "free_margin": 0.001,
+        },
+    ],
+    ids=["defaults", "weak-vision-cauchy"],
+)
+def test_window_terms_with_one_query_equal_the_per_slot_terms(tiny_session, opts):
+    """SLAM on the first frames of a session: at every evaluation the batched window terms (one SDF query and one
+    pass of robust weights for the whole window) equal the per-slot terms (each slot's SDF queried and weighted on
+    its own), bit for bit; with SLAM's defaults (one-sided contacts: a sigma per row) and with every frame in the
+    weak-vision regime under the Cauchy kernel."""
     from vtrack.frames.session import SessionFrames
     from vtrack.tracking.run import slam_origin
     from vtrack.tracking.slam import SLAMTracker
 
     frames = SessionFrames(tiny_session, touch_stride=2, touch_downsample=4, max_frames=14)
     T0, _ = slam_origin(frames)
-    trk = SLAMTracker(T0)
+    trk = SLAMTracker(T0, **opts)
     checked = []
     batched = trk._window_terms
 
@@ -164,3 +180,39 @@ def test_scalar_se3_exp_and_log_match_the_matrix_forms():
             np.testing.assert_allclose(T, se3.make_transform(se3.so3_exp(phi), T[:3, 3]), rtol=0, atol=1e-12)
             if np.linalg.norm(phi) < 3.0:
                 np.testing.assert_allclose(_log(T), xi, rtol=1e-9, atol=1e-12)
+
+
+def test_written_out_row_norms_and_ray_residuals_equal_the_numpy_reductions_bit_for_bit():
+    """The tracker's results must not move with its speed-ups: ``row_norms`` equals ``np.linalg.norm(axis=1)`` and
+    ``_ray_residuals`` (sums written out, rays passed in or not) equals its einsum formulation, to the last bit, on
+    values spread over many magnitudes (where a different summation order shows)."""
+    from vtrack.geometry import se3
+    from vtrack.geometry.pointcloud import row_norms
+    from vtrack.tracking.window import _ray_directions, _ray_residuals
+
+    rng = np.random.default_rng(7)
+    for n in (1, 3, 40, 517):
+        x = rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 3)) * 4)
+        assert np.array_equal(row_norms(x), np.linalg.norm(x, axis=1))
+        R = np.stack([se3.so3_exp(rng.normal(size=3) * s) for s in rng.choice([1e-6, 0.1, 3.0], n)])
+        t = rng.normal(size=(n, 3)) * 0.3
+        Q = rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 3)) * 3)
+        C = rng.normal(size=(n, 3))
+        P = C + rng.normal(size=(n, 3)) * np.exp(rng.normal(size=(n, 1)))
+        # the einsum formulation the written-out one replaced
+        Rq = np.einsum("nij,nj->ni", R, Q)
+        d = P - C
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        e = Rq + t - C
+        r_ref = e - d * np.sum(d * e, axis=1, keepdims=True)
+        J_ref = np.empty((n, 3, 6))
+        J_ref[:, :, :3] = R
+        hx = np.zeros((n, 3, 3))
+        hx[:, 0, 1], hx[:, 0, 2] = -Rq[:, 2], Rq[:, 1]
+        hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
+        hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
+        J_ref[:, :, 3:] = -hx @ R
+        J_ref -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J_ref)[:, None, :]
+        for rays in (None, _ray_directions(P, C)):
+            r, J = _ray_residuals(R, t, P, Q, C, rays)
+            assert np.array_equal(r, r_ref) and np.array_equal(J, J_ref)

@@ -21,6 +21,13 @@ def as_points(points, name: str = "points") -> np.ndarray:
     return P
 
 
+def row_norms(x: np.ndarray) -> np.ndarray:
+    """Euclidean norms (N,) of the rows of ``x`` (N, 3): ``np.linalg.norm(x, axis=1)`` bit for bit (its reduction adds
+    ``(x0^2 + x1^2) + x2^2``), without its generic path (~3x the time on a few hundred rows)."""
+    x2 = x * x
+    return np.sqrt((x2[:, 0] + x2[:, 1]) + x2[:, 2])
+
+
 def finite_mask(points: np.ndarray) -> np.ndarray:
     """Rows whose three coordinates are finite."""
     P = np.asarray(points)

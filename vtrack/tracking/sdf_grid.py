@@ -56,12 +56,15 @@ class SDFGrid:
         self._shape = np.array(self.values.shape, dtype=np.int64)
         self._strides = np.array([self.values.shape[1] * self.values.shape[2], self.values.shape[2], 1], dtype=np.int64)
         sx, sy, sz = self._strides
-        # flat offsets of the 8 cell corners, ordered (x, y, z) with x slowest
+        # flat offsets of the 8 cell corners, ordered (x, y, z) with x slowest, as a column (query works on (3, N) /
+        # (8, N) arrays: one long inner loop per coordinate instead of numpy's slow inner loops of length 3 or 8)
         self._corner_off = np.array(
             [a * sx + b * sy + c * sz for a in (0, 1) for b in (0, 1) for c in (0, 1)], dtype=np.int64
-        )[None, :]
-        self._hi_clip = (self._shape - 1).astype(np.float64) - 1e-9  # per-call constants of query, built once
-        self._i_max = self._shape - 2
+        )[:, None]
+        # per-call constants of query, built once, per coordinate
+        self._origin_col = self.origin[:, None]
+        self._hi_clip = ((self._shape - 1).astype(np.float64) - 1e-9)[:, None]
+        self._i_max = (self._shape - 2)[:, None]
         self._inv_voxel = 1.0 / self.voxel
 
     @property
@@ -81,36 +84,41 @@ class SDFGrid:
         (the trackers do); NaN in gives NaN out for that row only.
         """
         P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        g = (P - self.origin) / self.voxel
+        # Coordinate-major (3, N): the same element-wise operations as on (N, 3), so the same values bit for bit,
+        # and the sums of the trilinear weights are written in the order np.einsum("ij,ij->i") adds its 2-4 terms
+        # ((p0 + p2) + (p1 + p3); (p0 + p2) + p1 for 3; p0 + p1 for 2: its SIMD accumulator of two lanes),
+        # tested against the einsum form in tests/tracking/test_sdf_grid.py.
+        g = (np.ascontiguousarray(P.T) - self._origin_col) / self.voxel  # C order: every row below is contiguous
         # = np.clip(g, 0, hi - 1e-9) (NaN stays NaN), without its wrapper's overhead
         gc = np.minimum(np.maximum(g, 0.0), self._hi_clip)
         # Distance outside the box (metres) and its direction: keeps far points finite and attracted.
         outside = (g - gc) * self.voxel
         i0 = np.minimum(gc.astype(np.int64), self._i_max)  # gc >= 0, so truncation == floor
         f = gc - i0
-        c = self._flat[(i0 @ self._strides)[:, None] + self._corner_off]  # (N, 8), corner order x-major
-        fx, fy, fz = f[:, 0:1], f[:, 1:2], f[:, 2:3]
-        wy = np.concatenate([1.0 - fy, fy], 1)
-        wz = np.concatenate([1.0 - fz, fz], 1)
-        wyz = (wy[:, :, None] * wz[:, None, :]).reshape(-1, 4)
-        c4 = c.reshape(-1, 2, 4)
-        cx = c4[:, 1] - c4[:, 0]  # (N, 4) differences along x
-        lerp_x = c4[:, 0] + cx * fx  # (N, 4) values at (y, z) corners after x-interpolation
-        sdf = np.einsum("ij,ij->i", lerp_x, wyz)
-        out_d = np.sqrt(np.einsum("ij,ij->i", outside, outside))
+        sx, sy, sz = self._strides
+        c = self._flat[i0[0] * sx + i0[1] * sy + i0[2] * sz + self._corner_off]  # (8, N), corner order x-major
+        fx, fy, fz = f[0], f[1], f[2]
+        wy0, wz0 = 1.0 - fy, 1.0 - fz
+        w00, w01, w10, w11 = wy0 * wz0, wy0 * fz, fy * wz0, fy * fz  # (y, z) corner weights
+        cx = c[4:] - c[:4]  # (4, N) differences along x (float32, as the grid)
+        lx = c[:4] + cx * fx  # (4, N) values at the (y, z) corners after x-interpolation
+        l0, l1, l2, l3 = lx
+        sdf = (l0 * w00 + l2 * w10) + (l1 * w01 + l3 * w11)
+        o0, o1, o2 = outside
+        out_d = np.sqrt((o0 * o0 + o2 * o2) + o1 * o1)
         far = out_d > 0
         sdf = sdf + out_d
         if not with_grad:
             return sdf, None
-        dx = np.einsum("ij,ij->i", cx, wyz)
-        lx = lerp_x.reshape(-1, 2, 2)  # (N, y, z)
-        dy = np.einsum("ij,ij->i", lx[:, 1] - lx[:, 0], wz)
-        dz = np.einsum("ij,ij->i", lx[:, :, 1] - lx[:, :, 0], wy)
-        grad = np.stack([dx, dy, dz], axis=1) * self._inv_voxel
-        if np.any(far):
+        c0, c1, c2, c3 = cx
+        gt = np.empty((3, len(P)))
+        gt[0] = ((c0 * w00 + c2 * w10) + (c1 * w01 + c3 * w11)) * self._inv_voxel
+        gt[1] = ((l2 - l0) * wz0 + (l3 - l1) * fz) * self._inv_voxel
+        gt[2] = ((l1 - l0) * wy0 + (l3 - l2) * fy) * self._inv_voxel
+        if far.any():
             # Outside the box the distance term dominates; point its gradient back at the box.
-            grad[far] = outside[far] / out_d[far, None]
-        return sdf, grad
+            gt[:, far] = outside[:, far] / out_d[far]
+        return sdf, np.ascontiguousarray(gt.T)
 
     # -- persistence --------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
@@ -274,13 +282,18 @@ def surfel_band_sdf(
     wgt = np.zeros(dist.shape)
     wgt[valid] = W[iv] / np.maximum(dist[valid], min_dist)
     # float32 differences (sub-micrometre error on a 0.3 m box): half the memory traffic of the (n, 3) terms
-    diff = X.astype(np.float32)[row] - S.astype(np.float32)[iv]
+    # per coordinate ((3, n) rows: 1-D gathers instead of gathers of 12-byte rows), the float32 3-term sums in the
+    # order np.einsum("ij,ij->i") adds them on float32 ((p0 + p1) + p2; tests/tracking/test_sdf_band.py)
+    Xc = np.ascontiguousarray(X.T, dtype=np.float32)
+    Sc = np.ascontiguousarray(S.T, dtype=np.float32)
+    Nc = np.ascontiguousarray(N.T, dtype=np.float32)
+    dx, dy, dz = Xc[0][row] - Sc[0][iv], Xc[1][row] - Sc[1][iv], Xc[2][row] - Sc[2][iv]
     has_n = (np.einsum("ij,ij->i", N, N) > 0.25)[iv]  # per surfel once, not per (point, neighbour)
     sd = np.zeros(dist.shape, np.float32)
     sd[valid] = np.where(
         has_n,
-        np.einsum("ij,ij->i", diff, N.astype(np.float32)[iv]),
-        np.sqrt(np.einsum("ij,ij->i", diff, diff)),
+        (dx * Nc[0][iv] + dy * Nc[1][iv]) + dz * Nc[2][iv],
+        np.sqrt((dx * dx + dy * dy) + dz * dz),
     )
     wsum = wgt.sum(1)
     val = np.where(wsum > 0, np.einsum("ij,ij->i", wgt, sd) / np.maximum(wsum, 1e-12), trunc)

@@ -40,6 +40,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry import se3
+from vtrack.geometry.pointcloud import row_norms
 from vtrack.tracking.frame import TrackingFrame, sanitize
 
 
@@ -319,6 +320,7 @@ class _Slot:
     #: pose it was computed at: the data terms see only the projected part of the motion away from it
     proj: np.ndarray | None = None
     T_lin: np.ndarray | None = None
+    _lin_inv: tuple[np.ndarray, np.ndarray] | None = None  #: (T_lin, its inverse), see :meth:`lin_inv`
     #: projector of a twist onto the directions the slot's contacts constrain by their measured normals (None: all)
     proj_touch: np.ndarray | None = None
     n_vision: int = -1  #: segmented vision points of the frame when it was current (-1: count the slot's frame)
@@ -330,6 +332,22 @@ class _Slot:
     #: sticking contacts (see ``TrackerOptions.sigma_stick``): world points (K, 3) and their object-frame anchors
     stick: tuple[np.ndarray, np.ndarray] | None = None
 
+    def lin_inv(self) -> np.ndarray:
+        """Inverse of ``T_lin`` (4x4), computed once per linearisation pose (``T_lin`` is replaced, never edited in
+        place): every cost evaluation of a projected slot needs it."""
+        c = self._lin_inv
+        if c is None or c[0] is not self.T_lin:
+            c = self._lin_inv = (self.T_lin, _inv(self.T_lin))  # type: ignore[arg-type]
+        return c[1]
+
+
+#: read-only identities (np.eye allocates and fills one per call: ~4 us, a dozen times per cost evaluation)
+_EYE3 = np.eye(3)
+_EYE4 = np.eye(4)
+_EYE6 = np.eye(6)
+for _e in (_EYE3, _EYE4, _EYE6):
+    _e.flags.writeable = False
+
 
 def _hat3(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -337,7 +355,7 @@ def _hat3(v: np.ndarray) -> np.ndarray:
 
 def _inv(T: np.ndarray) -> np.ndarray:
     """Inverse of one rigid 4x4 (cheap scalar path; se3.invert is batched and slower for one)."""
-    out = np.eye(4)
+    out = _EYE4.copy()
     Rt = T[:3, :3].T
     out[:3, :3] = Rt
     out[:3, 3] = -Rt @ T[:3, 3]
@@ -414,20 +432,33 @@ def _adjoint(T: np.ndarray) -> np.ndarray:
     return A
 
 
+def _ray_directions(P: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Unit viewing rays ``d = (p - c)/|p - c|`` (N, 3) of observed points ``P`` from camera centres ``C`` (world)."""
+    d = P - C
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d
+
+
 def _ray_residuals(
-    R: np.ndarray, t: np.ndarray, P: np.ndarray, Q: np.ndarray, C: np.ndarray
+    R: np.ndarray, t: np.ndarray, P: np.ndarray, Q: np.ndarray, C: np.ndarray, d: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Point-to-ray residuals of colour-track anchors and their Jacobians, one row per correspondence.
 
     ``R`` (N, 3, 3) / ``t`` (N, 3): the rotation and translation of ``T_world_object`` each row is scored at;
     ``Q`` (N, 3) anchors in the object frame (m); ``P`` (N, 3) observed points and ``C`` (N, 3) camera centres in
     the world frame (m). ``r = (I - d d^T)(R q + t - c)`` with ``d = (p - c)/|p - c|`` (N, 3) and
-    ``dr/d delta = (I - d d^T) R [I, -hat(q)] = (I - d d^T) [R, -hat(R q) R]`` (N, 3, 6)."""
-    Rq = np.einsum("nij,nj->ni", R, Q)
-    d = P - C
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    ``dr/d delta = (I - d d^T) R [I, -hat(q)] = (I - d d^T) [R, -hat(R q) R]`` (N, 3, 6). ``d``: the rays
+    (:func:`_ray_directions`) when the caller has them (they do not depend on the pose).
+
+    The 3-term sums are written out in the order of the numpy reductions they replace (``np.einsum("nij,nj->ni")``:
+    ``(p0 + p2) + p1``; ``np.einsum("nk,nkj->nj")`` and ``np.sum(axis=1)``: ``(p0 + p1) + p2``), so the values are
+    the same bit for bit (tests/tracking/test_speed_paths.py) at a third of the time."""
+    Rq = (R[:, :, 0] * Q[:, 0:1] + R[:, :, 2] * Q[:, 2:3]) + R[:, :, 1] * Q[:, 1:2]
+    if d is None:
+        d = _ray_directions(P, C)
     e = Rq + t - C
-    r = e - d * np.sum(d * e, axis=1, keepdims=True)
+    de = d * e
+    r = e - d * ((de[:, 0] + de[:, 1]) + de[:, 2])[:, None]
     J = np.empty((len(Q), 3, 6))
     J[:, :, :3] = R
     hx = np.zeros((len(Q), 3, 3))
@@ -435,8 +466,38 @@ def _ray_residuals(
     hx[:, 1, 0], hx[:, 1, 2] = Rq[:, 2], -Rq[:, 0]
     hx[:, 2, 0], hx[:, 2, 1] = -Rq[:, 1], Rq[:, 0]
     J[:, :, 3:] = -hx @ R
-    J -= d[:, :, None] * np.einsum("nk,nkj->nj", d, J)[:, None, :]
+    dJ = (d[:, 0:1] * J[:, 0] + d[:, 1:2] * J[:, 1]) + d[:, 2:3] * J[:, 2]  # d^T J (N, 6)
+    J -= d[:, :, None] * dJ[:, None, :]
     return r, J
+
+
+def _sdf_jacobian(q: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """(N, 6) Jacobians ``d phi(T^-1 p) / d delta = g^T [-I, hat(q)] = [-g, g x q]`` of SDF residuals at object-frame
+    points ``q`` (N, 3) with SDF gradients ``g`` (N, 3), for the right perturbation ``T exp(delta)``."""
+    J = np.empty((len(q), 6))
+    J[:, :3] = -g
+    # g x q written out (np.cross computes the same products; its wrapper costs more than they do)
+    J[:, 3] = g[:, 1] * q[:, 2] - g[:, 2] * q[:, 1]
+    J[:, 4] = g[:, 2] * q[:, 0] - g[:, 0] * q[:, 2]
+    J[:, 5] = g[:, 0] * q[:, 1] - g[:, 1] * q[:, 0]
+    return J
+
+
+def _normal_rows(n_obj: np.ndarray, ghat: np.ndarray, sig, sig2, robust: str) -> tuple:
+    """Per-row algebra of the contact-normal term: measured normals ``n_obj = R^T n`` (m, 3, object frame) against
+    the unit SDF gradients ``ghat`` (m, 3), residual ``rn = n_obj - ghat`` with sigma ``sig`` (``sig2`` = its square;
+    scalars or one per row). Returns ``n_obj``, the weights ``wn`` (m,) and costs (m,) (robust on ``|rn|``, kernel
+    2), ``wnn = wn n_obj`` (m, 3), ``wnn * n_obj`` (m, 3) and the three components of ``rn x n_obj`` (m,) each."""
+    rn = n_obj - ghat
+    wn, rhon = _robust_weights(row_norms(rn) / sig, robust, 2.0)
+    wn = wn / sig2
+    wnn = n_obj * wn[:, None]
+    cross = (
+        rn[:, 1] * n_obj[:, 2] - rn[:, 2] * n_obj[:, 1],
+        rn[:, 2] * n_obj[:, 0] - rn[:, 0] * n_obj[:, 2],
+        rn[:, 0] * n_obj[:, 1] - rn[:, 1] * n_obj[:, 0],
+    )
+    return n_obj, wn, rhon, wnn, wnn * n_obj, cross
 
 
 def _robust_weights(r_scaled: np.ndarray, kind: str, k: float) -> tuple[np.ndarray, np.ndarray]:
@@ -496,6 +557,9 @@ class WindowTracker:
         self._stick_anchors: dict[int, np.ndarray] = {}  # sticking-contact id -> object-frame anchor (m)
         self._stick_last: dict[int, np.ndarray] = {}  # sticking-contact id -> its world point in the last frame
         self._stick_reanchor: set[int] = set()  # ids that failed the slip test this frame
+        #: the window's stacked colour correspondences (slots' ``colour`` tuples, P, Q, C, counts, rays), reused
+        #: while the slots keep the same tuples (:meth:`_window_colour_terms`)
+        self._colour_batch: tuple | None = None
 
     # -- public API ---------------------------------------------------------------------------
     def reset(self, T_world_object: np.ndarray) -> None:
@@ -725,7 +789,7 @@ class WindowTracker:
         Pc = s.proj_colour
         if Pc is not None and not Pc.any():
             return np.zeros((6, 6)), np.zeros(6), 0.0
-        T = s.T if Pc is None or s.T_lin is None else s.T_lin @ _exp(Pc @ _log(_inv(s.T_lin) @ s.T))
+        T = s.T if Pc is None or s.T_lin is None else s.T_lin @ _exp(Pc @ _log(s.lin_inv() @ s.T))
         if o.colour_residual == "ray" and C is not None:
             n = len(Q)
             r, J = _ray_residuals(np.broadcast_to(T[:3, :3], (n, 3, 3)), np.broadcast_to(T[:3, 3], (n, 3)), P, Q, C)
@@ -765,17 +829,20 @@ class WindowTracker:
                 batch.append(i)
         if not batch:
             return out
-        P = np.concatenate([slots[i].colour[0] for i in batch])  # type: ignore[index]
-        Q = np.concatenate([slots[i].colour[1] for i in batch])  # type: ignore[index]
-        C = np.concatenate([slots[i].colour[2] for i in batch])  # type: ignore[index]
-        counts = [len(slots[i].colour[1]) for i in batch]  # type: ignore[index]
-        k = np.repeat(np.arange(len(batch)), counts)
-        R = np.stack([slots[i].T[:3, :3] for i in batch])[k]  # (N, 3, 3) each correspondence's slot rotation
-        t = np.stack([slots[i].T[:3, 3] for i in batch])[k]
-        r, J = _ray_residuals(R, t, P, Q, C)  # the per-slot algebra of _colour_terms, row by row
-        w, rho = _robust_weights(
-            np.linalg.norm(r, axis=1) / o.sigma_colour, o.robust_colour or o.robust, o.kernel_colour
-        )
+        # the window's correspondences do not change between cost evaluations: stacked once per window
+        key = [slots[i].colour for i in batch]
+        cb = self._colour_batch
+        if cb is None or len(cb[0]) != len(key) or any(a is not b for a, b in zip(cb[0], key, strict=False)):
+            P = np.concatenate([c[0] for c in key])  # type: ignore[index]
+            Q = np.concatenate([c[1] for c in key])  # type: ignore[index]
+            C = np.concatenate([c[2] for c in key])  # type: ignore[index]
+            counts = [len(c[1]) for c in key]  # type: ignore[index]
+            cb = self._colour_batch = (key, P, Q, C, counts, _ray_directions(P, C))
+        _, P, Q, C, counts, d = cb
+        R = np.repeat(np.stack([slots[i].T[:3, :3] for i in batch]), counts, axis=0)  # (N, 3, 3) each row's slot's
+        t = np.repeat(np.stack([slots[i].T[:3, 3] for i in batch]), counts, axis=0)
+        r, J = _ray_residuals(R, t, P, Q, C, d)  # the per-slot algebra of _colour_terms, row by row
+        w, rho = _robust_weights(row_norms(r) / o.sigma_colour, o.robust_colour or o.robust, o.kernel_colour)
         w = w / o.sigma_colour**2
         # per slot, the normal equations as two BLAS products on its (3 n, 6) Jacobian (a third of the einsum's time)
         Jw = (J * w[:, None, None]).reshape(-1, 6)
@@ -880,7 +947,7 @@ class WindowTracker:
             w, rho = _robust_weights(np.linalg.norm(r, axis=1) / sig, o.robust, o.kernel_stick)
             w = w / (sig * sig)
             J = np.zeros((len(q), 3, 6))
-            J[:, :, :3] = -np.eye(3)
+            J[:, :, :3] = -_EYE3
             J[:, :, 3:] = np.stack([_hat3(x) for x in q])
             H = np.einsum("k,kai,kaj->ij", w, J, J)
             b = np.einsum("k,kai,ka->i", w, J, r)
@@ -936,17 +1003,47 @@ class WindowTracker:
         Tinv = _inv(T)
         return np.concatenate([g[1] for g in groups]) @ Tinv[:3, :3].T + Tinv[:3, 3]
 
+    def _weak_vision(self, fr: TrackingFrame, n_vision: int) -> bool:
+        """Whether a frame is in the weak-vision regime (``touch_weak_vision``; ``n_vision``: its segmented vision
+        points when it was current, -1: count ``fr``'s)."""
+        o = self.opts
+        nv = fr.n_vision if n_vision < 0 else n_vision
+        return o.touch_weak_vision > 0 and nv < o.touch_weak_vision
+
+    def _normal_sigma(self, weak: bool) -> float:
+        """Sigma of the contact-normal residuals (unit vectors) in a frame (``weak``: the weak-vision regime)."""
+        o = self.opts
+        return o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
+
+    def _group_weighting(self, kind: str, weak: bool, r: np.ndarray) -> tuple[float | np.ndarray, float]:
+        """Sigma (m; a scalar or one per row) and robust kernel width (sigmas) of a point group's SDF residuals ``r``
+        (m): ``kind`` v(ision) / t(ouch) / f(ree gel), ``weak``: the frame is in the weak-vision regime."""
+        o = self.opts
+        if kind == "v":
+            return o.sigma_vision, o.kernel_vision
+        if kind == "t" and weak:
+            # vision sees too little to hold the pose: the contacts carry it, pulled onto the surface from both
+            # sides (their shallow bias, ~0.3 mm median on the YCB sessions, is below this sigma)
+            return o.sigma_touch_weak, o.kernel_touch
+        if kind == "t":
+            if o.sigma_touch_inside > 0:
+                # contacts read from tactile images lie too shallow (their depth is a lower bound): a point
+                # inside the surface is weak evidence, one outside it strong
+                return np.where(r < 0, o.sigma_touch_inside, o.sigma_touch), o.kernel_touch
+            return o.sigma_touch, o.kernel_touch
+        return o.sigma_free, 1e9  # free gel points: one-sided, not robust
+
     def _frame_terms(
         self, T: np.ndarray, fr: TrackingFrame, n_vision: int = -1, qdg: tuple | None = None
     ) -> tuple[np.ndarray, np.ndarray, float]:
         """6x6 normal matrix, 6-vector gradient and robust cost of one frame's data at pose T (``n_vision``: the
         frame's segmented vision points when it was current, -1: count ``fr``'s; selects the weak-vision regime).
-        ``qdg``: the frame's object-frame points (:meth:`_object_points`) with their SDF values and gradients,
-        when the caller queried them already (one batched query for the whole window)."""
+        ``qdg``: the frame's object-frame points (:meth:`_object_points`) with their SDF values, gradients and
+        Jacobians (:func:`_sdf_jacobian`), and the depth / contact rows' robust weights, costs, weighted Jacobians and
+        weighted residuals, when the caller computed them already (once for the whole window)."""
         o = self.opts
-        nv = fr.n_vision if n_vision < 0 else n_vision
-        weak = o.touch_weak_vision > 0 and nv < o.touch_weak_vision
-        sig_normal = o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
+        weak = self._weak_vision(fr, n_vision)
+        sig_normal = self._normal_sigma(weak)
         R = T[:3, :3]
         H = np.zeros((6, 6))
         b = np.zeros(6)
@@ -954,72 +1051,58 @@ class WindowTracker:
         groups = self._groups(fr)
         if not groups:
             return H, b, 0.0
+        rw = None
         if qdg is None:
             q = self._object_points(T, fr)
             d, g = self.sdf.query(q)
+            J = _sdf_jacobian(q, g)
         else:
-            q, d, g = qdg
-        J = np.empty((len(q), 6))
-        J[:, :3] = -g
-        # g x q written out (np.cross computes the same products; its wrapper costs more than they do)
-        J[:, 3] = g[:, 1] * q[:, 2] - g[:, 2] * q[:, 1]
-        J[:, 4] = g[:, 2] * q[:, 0] - g[:, 0] * q[:, 2]
-        J[:, 5] = g[:, 0] * q[:, 1] - g[:, 1] * q[:, 0]
+            q, d, g, J, rw = qdg
         s = 0
         for kind, P in groups:
             n = len(P)
             sl = slice(s, s + n)
             s += n
-            r = d[sl].copy()
+            r = d[sl]
             Jk = J[sl]
-            if kind == "v":
-                sig, kern = o.sigma_vision, o.kernel_vision
-            elif kind == "t" and weak:
-                # vision sees too little to hold the pose: the contacts carry it, pulled onto the surface from both
-                # sides (their shallow bias, ~0.3 mm median on the YCB sessions, is below this sigma)
-                sig, kern = o.sigma_touch_weak, o.kernel_touch
-            elif kind == "t":
-                sig, kern = o.sigma_touch, o.kernel_touch
-                if o.sigma_touch_inside > 0:
-                    # contacts read from tactile images lie too shallow (their depth is a lower bound): a point
-                    # inside the surface is weak evidence, one outside it strong
-                    sig = np.where(r < 0, o.sigma_touch_inside, o.sigma_touch)
+            if rw is not None and kind != "f":
+                w, rho, Jw, wr = (x[sl] for x in rw[:4])
             else:
-                sig, kern = o.sigma_free, 1e9
-                r = np.minimum(r - o.free_margin, 0.0)
-                Jk = Jk * (r < 0)[:, None]
-            rs = r / sig
-            w, rho = _robust_weights(rs, o.robust if kind != "f" else "none", kern)
-            w = w / (sig * sig)
+                sig, kern = self._group_weighting(kind, weak, r)
+                if kind == "f":
+                    r = np.minimum(r - o.free_margin, 0.0)
+                    Jk = Jk * (r < 0)[:, None]
+                w, rho = _robust_weights(r / sig, o.robust if kind != "f" else "none", kern)
+                w = w / (sig * sig)
+                Jw, wr = Jk * w[:, None], w * r
             cost += float(rho.sum())
-            H += (Jk * w[:, None]).T @ Jk
-            b += Jk.T @ (w * r)
+            H += Jw.T @ Jk
+            b += Jk.T @ wr
             if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
-                Nw = fr.touch_normals
-                ok = np.isfinite(Nw).all(1)
-                gn = g[sl]
-                gnorm = np.linalg.norm(gn, axis=1)
-                ok &= gnorm > 0.5
-                if ok.any():
-                    n_obj = Nw[ok] @ R  # R^T n for each row
-                    ghat = gn[ok] / gnorm[ok, None]
-                    rn = n_obj - ghat  # (m, 3)
+                if rw is not None:
+                    rows = rw[4]  # the window's pass (None: no usable normal)
+                else:
+                    rows = None
+                    ok, gnorm = self._normal_ok(fr, g[sl])
+                    if ok.any():
+                        n_obj = fr.touch_normals[ok] @ R  # R^T n for each row
+                        rows = _normal_rows(n_obj, g[sl][ok] / gnorm[ok, None], sig_normal, sig_normal**2, o.robust)
+                if rows is not None:
                     # d(R^T n)/d phi = hat(R^T n); the gradient's own change with q is neglected. In closed form
                     # (the same sums as with the (m, 3, 3) hat matrices, in another order): hat(n)^T hat(n) =
                     # |n|^2 I - n n^T and hat(n)^T r = r x n
-                    wn, rhon = _robust_weights(np.linalg.norm(rn, axis=1) / sig_normal, o.robust, 2.0)
-                    wn = wn / sig_normal**2
+                    n_obj, wn, rhon, wnn, nn, (c0, c1, c2) = rows
                     cost += float(rhon.sum())
-                    wnn = n_obj * wn[:, None]
-                    H[3:, 3:] += np.eye(3) * float(np.sum(wnn * n_obj)) - wnn.T @ n_obj
-                    b[3:] += np.stack(
-                        [
-                            wn @ (rn[:, 1] * n_obj[:, 2] - rn[:, 2] * n_obj[:, 1]),
-                            wn @ (rn[:, 2] * n_obj[:, 0] - rn[:, 0] * n_obj[:, 2]),
-                            wn @ (rn[:, 0] * n_obj[:, 1] - rn[:, 1] * n_obj[:, 0]),
-                        ]
-                    )
+                    H[3:, 3:] += _EYE3 * float(nn.sum()) - wnn.T @ n_obj
+                    b[3:] += np.array([wn @ c0, wn @ c1, wn @ c2])
         return H, b, cost
+
+    @staticmethod
+    def _normal_ok(fr: TrackingFrame, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The contacts whose measured normal is finite and whose SDF gradient ``g`` (m, 3) is not degenerate (norm
+        above 0.5: off the map's band edges), and the gradient norms (m,)."""
+        gnorm = row_norms(g)
+        return np.isfinite(fr.touch_normals).all(1) & (gnorm > 0.5), gnorm
 
     def _motion_terms(
         self, slots: list[_Slot], v_before: np.ndarray, dt_first: float
@@ -1034,18 +1117,20 @@ class WindowTracker:
             s0 = slots[0]
             r = _log(_inv(s0.T_prior) @ s0.T)
             sa = 1.0 / np.array([o.sigma_anchor_trans] * 3 + [o.sigma_anchor_rot] * 3)
-            terms.append(([0], [np.eye(6)], r, sa))
-            cost += 0.5 * float(np.sum((r * sa) ** 2))
+            terms.append(([0], [_EYE6], r, sa))
+            cost += 0.5 * float(((r * sa) ** 2).sum())
         prev_log = None
         prev_dt = None
+        prev_ad = None  # Ad(D^-1) of the previous pair: the derivative of its log wrt its older slot, negated
         for i in range(1, len(slots)):
             D = _inv(slots[i - 1].T) @ slots[i].T
             lg = _log(D)
             dt_i = max(slots[i].t - slots[i - 1].t, 1e-6)
             scale = max(dt_i / o.nominal_dt, 1e-3)
             sq = 1.0 / (sig * scale)
-            Jb = np.eye(6)
-            Ja = -_adjoint(_inv(D))
+            Jb = _EYE6
+            ad = _adjoint(_inv(D))
+            Ja = -ad
             if prev_log is None:
                 v0 = slots[0].v  # velocity estimated when the oldest slot was current
                 r = lg - v0 * dt_i
@@ -1053,19 +1138,19 @@ class WindowTracker:
             else:
                 ratio = dt_i / prev_dt
                 r = lg - ratio * prev_log
-                Dp = _inv(slots[i - 2].T) @ slots[i - 1].T
-                # -ratio * log(Dp): derivative wrt slot i-1 is -ratio*I, wrt slot i-2 is +ratio*Ad(Dp^-1)
-                Jc = ratio * _adjoint(_inv(Dp))
-                terms.append(([i - 2, i - 1, i], [Jc, Ja - ratio * np.eye(6), Jb], r, sq))
-            cost += 0.5 * float(np.sum((r * sq) ** 2))
-            prev_log, prev_dt = lg, dt_i
+                # -ratio * log(Dp), Dp = T_{i-2}^-1 T_{i-1} (the previous pair's D): derivative wrt slot i-1 is
+                # -ratio*I, wrt slot i-2 is +ratio*Ad(Dp^-1)
+                Jc = ratio * prev_ad
+                terms.append(([i - 2, i - 1, i], [Jc, Ja - ratio * _EYE6, Jb], r, sq))
+            cost += 0.5 * float(((r * sq) ** 2).sum())
+            prev_log, prev_dt, prev_ad = lg, dt_i, ad
         if len(slots) == 1 and self.t_last is not None:
             # single-slot window: prior towards the constant-velocity prediction
             s0 = slots[0]
             r = _log(_inv(s0.T_prior) @ s0.T)
             sq = 1.0 / (sig * max(dt_first / o.nominal_dt, 1e-3))
-            terms.append(([0], [np.eye(6)], r, sq))
-            cost += 0.5 * float(np.sum((r * sq) ** 2))
+            terms.append(([0], [_EYE6], r, sq))
+            cost += 0.5 * float(((r * sq) ** 2).sum())
         return terms, cost
 
     def _degeneracy(self, H: np.ndarray, n_vision: int = 0) -> tuple[np.ndarray, int, np.ndarray | None]:
@@ -1156,7 +1241,7 @@ class WindowTracker:
         touch = TrackingFrame(t=fr.t, touch_points=fr.touch_points, touch_normals=fr.touch_normals)
         nv = s.n_vision if s.n_vision >= 0 else fr.n_vision
         P = s.proj_touch
-        return [(T, rest, nv), (s.T_lin @ _exp(P @ _log(_inv(s.T_lin) @ T)), touch, nv)]
+        return [(T, rest, nv), (s.T_lin @ _exp(P @ _log(s.lin_inv() @ T)), touch, nv)]
 
     def _slot_combine(self, s: _Slot, terms: list[tuple[np.ndarray, np.ndarray, float]]):
         """One slot's data terms from the terms of its :meth:`_slot_parts`."""
@@ -1174,17 +1259,67 @@ class WindowTracker:
         """Every slot's data terms (:meth:`_slot_terms`, at the projected pose for a slot with a projector ``proj``),
         with ONE SDF query for the points of the whole window (the query is per point: same values as one query
         per slot, at a third of the call overhead)."""
+        o = self.opts
         evals = []
         for s in slots:
             # the data says nothing reliable along a slot's weak directions: it sees (and pulls) only the strong
             # part of the motion since T_lin; the motion prior alone carries the rest
-            T = s.T if s.proj is None else s.T_lin @ _exp(s.proj @ _log(_inv(s.T_lin) @ s.T))
+            T = s.T if s.proj is None else s.T_lin @ _exp(s.proj @ _log(s.lin_inv() @ s.T))
             evals.append(self._slot_parts(s, T))
         qs = [self._object_points(T, fr) for parts in evals for T, fr, _ in parts]
-        cuts = np.cumsum([len(q) for q in qs])[:-1]
         q_all = np.concatenate(qs)
         d_all, g_all = self.sdf.query(q_all) if len(q_all) else (np.zeros(0), np.zeros((0, 3)))
-        dgs = iter(zip(qs, np.split(d_all, cuts), np.split(g_all, cuts), strict=True))
+        J_all = _sdf_jacobian(q_all, g_all)  # row-wise: the same rows as one per frame, in one pass
+        # the robust weights of the depth and contact residuals, row-wise too: each row with its group's sigma and
+        # kernel (:meth:`_group_weighting`; free gel points keep their own path in _frame_terms)
+        sig_rows, kern_rows = np.ones(len(q_all)), np.ones(len(q_all))
+        # ... and the contact-normal term's rows (:func:`_normal_rows`): per part, (rows of q_all, n_obj, sigma)
+        nrm: list[tuple[np.ndarray, np.ndarray, float] | None] = []
+        a = 0
+        for T, fr, nv in (p for parts in evals for p in parts):
+            weak = self._weak_vision(fr, nv)
+            nrm.append(None)
+            for kind, P in self._groups(fr):
+                sl = slice(a, a + len(P))
+                a += len(P)
+                if kind != "f":
+                    sig_rows[sl], kern_rows[sl] = self._group_weighting(kind, weak, d_all[sl])
+                if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
+                    ok, _ = self._normal_ok(fr, g_all[sl])
+                    if ok.any():
+                        nrm[-1] = (
+                            sl.start + np.flatnonzero(ok),
+                            fr.touch_normals[ok] @ T[:3, :3],
+                            self._normal_sigma(weak),
+                        )
+        w_all, rho_all = _robust_weights(d_all / sig_rows, self.opts.robust, kern_rows)
+        w_all = w_all / (sig_rows * sig_rows)
+        Jw_all, wr_all = J_all * w_all[:, None], w_all * d_all
+        used = [x for x in nrm if x is not None]
+        if used:
+            idx = np.concatenate([x[0] for x in used])
+            counts = [len(x[0]) for x in used]
+            gn = g_all[idx]
+            sig = np.repeat([x[2] for x in used], counts)
+            sig2 = np.repeat([x[2] ** 2 for x in used], counts)  # the scalar path's sigma**2, as a float
+            rows_all = _normal_rows(
+                np.concatenate([x[1] for x in used]), gn / row_norms(gn)[:, None], sig, sig2, o.robust
+            )
+        qdgj = []
+        a = 0
+        m = 0
+        for q, x in zip(qs, nrm, strict=True):
+            sl = slice(a, a + len(q))
+            a += len(q)
+            rows = None
+            if x is not None:
+                ns = slice(m, m + len(x[0]))
+                m += len(x[0])
+                n_obj, wn, rhon, wnn, nn, cross = rows_all
+                rows = (n_obj[ns], wn[ns], rhon[ns], wnn[ns], nn[ns], tuple(c[ns] for c in cross))
+            rw = (w_all[sl], rho_all[sl], Jw_all[sl], wr_all[sl], rows)
+            qdgj.append((q, d_all[sl], g_all[sl], J_all[sl], rw))
+        dgs = iter(qdgj)
         out = []
         for s, parts in zip(slots, evals, strict=True):
             Hi, bi, ci = self._slot_combine(s, [self._frame_terms(T, fr, nv, next(dgs)) for T, fr, nv in parts])
@@ -1217,10 +1352,12 @@ class WindowTracker:
         cost += cm
         for ids, Js, r, sq in terms:
             W = sq * sq
+            Wr = W * r
             for a, Ja in zip(ids, Js, strict=True):
-                b[6 * a : 6 * a + 6] += Ja.T @ (W * r)
+                b[6 * a : 6 * a + 6] += Ja.T @ Wr
+                JaW = Ja.T * W
                 for c, Jc in zip(ids, Js, strict=True):
-                    H[6 * a : 6 * a + 6, 6 * c : 6 * c + 6] += (Ja.T * W) @ Jc
+                    H[6 * a : 6 * a + 6, 6 * c : 6 * c + 6] += JaW @ Jc
         return H, b, cost, datas
 
     def _optimise(self, slots: list[_Slot], v_before: np.ndarray) -> tuple[float, int, int]:
