@@ -649,6 +649,8 @@ class SLAMTracker(WindowTracker):
             self._box = (c - half, c + half)
             return
         lo, hi = self._box
+        if (P.min(0) >= lo + self.trunc).all() and (P.max(0) <= hi - self.trunc).all():
+            return  # the percentiles below lie within [min, max]: no growth (the usual case, without their sorts)
         plo, phi = np.percentile(P, [0.5, 99.5], axis=0)  # one partition for both (same values)
         if (plo < lo + self.trunc).any() or (phi > hi - self.trunc).any():
             # snap the growth to whole grid voxels so the old grid's samples stay on the new lattice
