@@ -138,18 +138,31 @@ def test_slam_keyframe_thresholds_reach_the_graph_and_the_window_separately():
 def test_merged_insertion_equals_np_insert():
     """The surfel map inserts its new voxels with positions computed once for its four arrays: the same arrays as
     ``np.insert`` at the (sorted, possibly repeated) insertion points, for 1-D and (K, 3) arrays."""
-    from vtrack.tracking.slam import _merged
+    from vtrack.tracking.slam import _merge_order, _merged
 
     rng = np.random.default_rng(2)
     for k, m in ((0, 5), (7, 1), (50, 20), (400, 130)):
         pos = np.sort(rng.integers(0, k + 1, m))  # where each new row goes in the old array, in order
-        at = pos + np.arange(m)
-        old = np.ones(k + m, bool)
-        old[at] = False
+        order = _merge_order(k, pos)
         for shape in ((k,), (k, 3)):
             a = rng.normal(size=shape)
             v = rng.normal(size=(m, *shape[1:]))
-            assert np.array_equal(_merged(a, v, at, old), np.insert(a, pos, v, axis=0))
+            assert np.array_equal(_merged(a, v, order), np.insert(a, pos, v, axis=0))
         keys = np.sort(rng.integers(0, 1 << 40, k))
         new = rng.integers(0, 1 << 40, m)
-        assert np.array_equal(_merged(keys, new, at, old), np.insert(keys, pos, new))
+        assert np.array_equal(_merged(keys, new, order), np.insert(keys, pos, new))
+
+
+def test_add_rows_equals_fancy_index_add():
+    """The surfel map's flat-index row addition: bit for bit ``a[rows] += b`` on (K, 3) arrays."""
+    from vtrack.tracking.slam import _add_rows
+
+    rng = np.random.default_rng(3)
+    for k, m in ((1, 1), (10, 0), (50, 20), (400, 399)):
+        a = rng.normal(size=(k, 3))
+        rows = np.sort(rng.choice(k, min(m, k), replace=False))
+        b = rng.normal(size=(len(rows), 3))
+        ref = a.copy()
+        ref[rows] += b
+        _add_rows(a, rows, b)
+        assert np.array_equal(a, ref)

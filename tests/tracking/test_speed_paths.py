@@ -216,3 +216,31 @@ def test_written_out_row_norms_and_ray_residuals_equal_the_numpy_reductions_bit_
         for rays in (None, _ray_directions(P, C)):
             r, J = _ray_residuals(R, t, P, Q, C, rays)
             assert np.array_equal(r, r_ref) and np.array_equal(J, J_ref)
+
+
+def test_sanitize_row_gathers_equal_masked_indexing_bit_for_bit():
+    """sanitize gathers rows with take on flat indices: the same arrays as boolean / fancy row indexing, on frames with
+    non-finite rows, missing normals and streams over and under their budgets."""
+    from vtrack.tracking.frame import TrackingFrame, _subsample, sanitize
+
+    rng = np.random.default_rng(5)
+    for nv, nt, nf in ((0, 0, 0), (30, 5, 3), (700, 250, 90)):
+        V, P, N, F = (rng.normal(size=(n, 3)) for n in (nv, nt, nt, nf))
+        for A in (V, P, N, F):
+            A[rng.random(len(A)) < 0.1, rng.integers(0, 3)] = np.nan
+        fr = TrackingFrame(t=0.5, vision_points=V, touch_points=P, touch_normals=N, free_points=F)
+        out = sanitize(fr, 400, 160, 64, seed=7)
+        r = np.random.default_rng(7)  # the reference: the masked-indexing form, the same draws in the same order
+        Vr = V[np.isfinite(V).all(1)]
+        Vr = Vr[_subsample(len(Vr), 400, r)]
+        ok = np.isfinite(P).all(1)
+        Pr, Nr = P[ok], N[ok]
+        nn = np.linalg.norm(Nr, axis=1)
+        good = np.isfinite(nn) & (nn > 1e-9)
+        Nr = np.where(good[:, None], Nr / np.where(good, nn, 1.0)[:, None], np.nan)
+        k = _subsample(len(Pr), 160, r)
+        Pr, Nr = Pr[k], Nr[k]
+        Fr = F[np.isfinite(F).all(1)]
+        Fr = Fr[_subsample(len(Fr), 64, r)]
+        for a, b in ((out.vision_points, Vr), (out.touch_points, Pr), (out.touch_normals, Nr), (out.free_points, Fr)):
+            assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True)

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vtrack.errors import InputError
-from vtrack.geometry.pointcloud import as_points
+from vtrack.geometry.pointcloud import as_points, row_norms
 
 
 @dataclass
@@ -67,22 +67,23 @@ def sanitize(
     if not np.isfinite(t):
         raise InputError("frame timestamp is not finite", field="frame.t", expected="finite seconds", got=t)
     rng = np.random.default_rng(seed)
+    # row gathers with take on flat row indices: numpy's 2-D masked / fancy row indexing is 2-4x slower (same rows)
     V = _rows(frame.vision_points, "vision_points")
-    V = V[np.isfinite(V).all(1)]
-    V = V[_subsample(len(V), max_vision, rng)]
+    V = V.take(np.flatnonzero(np.isfinite(V).all(1)), 0)
+    V = V.take(_subsample(len(V), max_vision, rng), 0)
     P = _rows(frame.touch_points, "touch_points")
     N = _rows(frame.touch_normals, "touch_normals") if frame.touch_normals is not None else np.zeros((0, 3))
     if len(N) != len(P):
         # Normals missing or mismatched: keep the points, drop the normal term (NaN marks it).
         N = np.full(P.shape, np.nan)
-    ok = np.isfinite(P).all(1)
-    P, N = P[ok], N[ok]
-    nn = np.linalg.norm(N, axis=1)
+    ok = np.flatnonzero(np.isfinite(P).all(1))
+    P, N = P.take(ok, 0), N.take(ok, 0)
+    nn = row_norms(N)  # = np.linalg.norm(N, axis=1) bit for bit
     good_n = np.isfinite(nn) & (nn > 1e-9)
     N = np.where(good_n[:, None], N / np.where(good_n, nn, 1.0)[:, None], np.nan)
     k = _subsample(len(P), max_touch, rng)
-    P, N = P[k], N[k]
+    P, N = P.take(k, 0), N.take(k, 0)
     F = _rows(frame.free_points, "free_points")
-    F = F[np.isfinite(F).all(1)]
-    F = F[_subsample(len(F), max_free, rng)]
+    F = F.take(np.flatnonzero(np.isfinite(F).all(1)), 0)
+    F = F.take(_subsample(len(F), max_free, rng), 0)
     return TrackingFrame(t=t, vision_points=V, touch_points=P, touch_normals=N, free_points=F, info=dict(frame.info))

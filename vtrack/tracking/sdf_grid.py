@@ -277,10 +277,12 @@ def surfel_band_sdf(
     dist = dist.reshape(len(X), k)
     idx = idx.reshape(len(X), k)
     valid = np.isfinite(dist)
-    # only the (point, neighbour) pairs within reach (about half of a band's): the others weigh 0 and keep sd = 0
-    row, iv = np.nonzero(valid)[0], idx[valid]
+    # only the (point, neighbour) pairs within reach (about half of a band's): the others weigh 0 and keep sd = 0.
+    # Their flat positions in the (M, k) arrays: 1-D gathers and scatters instead of 2-D masks (the same values)
+    flat = np.flatnonzero(valid)
+    row, iv = flat // k, idx.reshape(-1)[flat]
     wgt = np.zeros(dist.shape)
-    wgt[valid] = W[iv] / np.maximum(dist[valid], min_dist)
+    wgt.reshape(-1)[flat] = W[iv] / np.maximum(dist.reshape(-1)[flat], min_dist)
     # float32 differences (sub-micrometre error on a 0.3 m box): half the memory traffic of the (n, 3) terms
     # per coordinate ((3, n) rows: 1-D gathers instead of gathers of 12-byte rows), the float32 3-term sums in the
     # order np.einsum("ij,ij->i") adds them on float32 ((p0 + p1) + p2; tests/tracking/test_sdf_band.py)
@@ -290,7 +292,7 @@ def surfel_band_sdf(
     dx, dy, dz = Xc[0][row] - Sc[0][iv], Xc[1][row] - Sc[1][iv], Xc[2][row] - Sc[2][iv]
     has_n = (np.einsum("ij,ij->i", N, N) > 0.25)[iv]  # per surfel once, not per (point, neighbour)
     sd = np.zeros(dist.shape, np.float32)
-    sd[valid] = np.where(
+    sd.reshape(-1)[flat] = np.where(
         has_n,
         (dx * Nc[0][iv] + dy * Nc[1][iv]) + dz * Nc[2][iv],
         np.sqrt((dx * dx + dy * dy) + dz * dz),

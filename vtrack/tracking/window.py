@@ -706,10 +706,11 @@ class WindowTracker:
                     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
                     e = e - d * np.sum(d * e, axis=1, keepdims=True)
                 renew |= has & (np.linalg.norm(e, axis=1) > o.colour_reanchor)
+            finite = np.isfinite(Q).all(1).tolist()  # once for all rows, not one np.all per track
             for k, (a, q) in enumerate(zip(ids, Q, strict=True)):
                 if a in self._colour_dropped:
                     continue
-                if (a not in keep or renew[k]) and np.all(np.isfinite(q)):
+                if (a not in keep or renew[k]) and finite[k]:
                     keep[a] = q
                     self._anchor_frame[a] = self._frame_count
                     self._anchor_world[a] = P[k].copy()
