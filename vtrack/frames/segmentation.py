@@ -52,6 +52,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
 from vtrack.geometry.pointcloud import norms
+from vtrack.geometry.se3 import add_row_vector, apply_rigid
 
 #: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
 _SAMPLE_CACHE: dict[tuple[str, int], dict[str, np.ndarray]] = {}
@@ -478,7 +479,7 @@ class HandAwareSegmenter:
         rows, cols = np.divmod(pix, W)
         zz = z.ravel()[pix]
         Pc = np.stack([self._rx.ravel()[pix] * zz, self._ry.ravel()[pix] * zz, zz], axis=1)
-        Pw = Pc @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
+        Pw = apply_rigid(self.T_world_camera, Pc)  # (= Pc @ R.T + t, cheaper)
 
         # 2. Workspace crop.
         t0 = time.perf_counter()
@@ -487,7 +488,7 @@ class HandAwareSegmenter:
             ref = [p for p in (sensors, link_pos) if p is not None]
             extent = max(float(np.linalg.norm(np.concatenate(ref) - centre, axis=1).max()), 0.0)
             radius = max(opt.crop_scale * extent, opt.crop_min_radius_m)
-            off = Pw - centre
+            off = add_row_vector(Pw.copy(), -centre)  # (= Pw - centre: a - b is a + (-b); cheaper)
             keep = np.einsum("ij,ij->i", off, off) < radius**2
             info["crop_radius_m"] = radius
             info["n_cropped"] = int((~keep).sum())
@@ -543,7 +544,7 @@ class HandAwareSegmenter:
         c = P_sel.mean(axis=0)
         if opt.temporal:
             self._prev_centroid = c
-            self._prev_radius = float(np.percentile(norms(P_sel - c), 95))
+            self._prev_radius = float(np.percentile(norms(add_row_vector(P_sel.copy(), -c)), 95))  # (= P_sel - c)
             self._age = 0
         info["n_object"] = int(len(P_sel))
         info["centroid_world"] = c.tolist()
