@@ -109,8 +109,8 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=np.float64)
     P = np.asarray(points, dtype=np.float64)
     X = np.einsum("...ij,...nj->...ni", T[..., :3, :3], P)
-    if T.ndim == 2 and X.ndim == 2:  # one transform: the translation column by column (same sums, cheaper)
-        return add_row_vector(X, T[:3, 3])
+    if T.ndim == 2 and X.ndim == 2 and len(X) >= 1024:  # one transform, many points: the translation column by
+        return add_row_vector(X, T[:3, 3])  # column (same sums, cheaper; a small broadcast is cheaper as it is)
     return X + T[..., None, :3, 3]
 
 
