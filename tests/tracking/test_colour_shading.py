@@ -154,3 +154,30 @@ def test_bad_shading_option_is_an_input_error():
         ColourOptions.from_dict({"shading": "retinex"})
     with pytest.raises(InputError):
         ColourOptions.from_dict({"pre_blur_px": -1.0})
+
+
+def test_normalise_shading_is_the_masked_division_bit_for_bit():
+    """:func:`normalise_shading` gives exactly ``128 g / mean`` on the masked pixels with a mean above 1 and 128
+    elsewhere (the boolean-indexed formula it replaced), on a textured, shaded image with a ragged mask, a dark
+    patch (mean below 1) and a one-pixel-wide crop."""
+    import cv2
+
+    from vtrack.tracking.colour import normalise_shading
+
+    rng = np.random.default_rng(5)
+    yy, xx = np.mgrid[0:90, 0:120]
+    grey = np.clip(60 + 100 * np.exp(-((xx - 50) ** 2 + (yy - 40) ** 2) / 2000.0) + rng.normal(0, 12, xx.shape), 0, 255)
+    grey = grey.astype(np.uint8)
+    grey[:50, :50] = 0  # a dark corner: its local mean falls below 1
+    mask = ((xx - 60) ** 2 / 45.0**2 + (yy - 45) ** 2 / 30.0**2 < 1) | (rng.random(xx.shape) < 0.05)
+    mask[:50, :50] = True
+    for g, m, blur in ((grey, mask, 7.0), (grey, mask, 2.5), (grey[:, 40:41], mask[:, 40:41], 7.0)):
+        gf, mf = g.astype(np.float32), m.astype(np.float32)
+        nd = cv2.GaussianBlur(np.dstack([gf * mf, mf]), (0, 0), blur).reshape(g.shape + (2,))
+        mean = nd[..., 0] / np.maximum(nd[..., 1], 1e-3)
+        want = np.full(g.shape, 128.0, np.float32)
+        ok = m & (mean > 1.0)
+        want[ok] = 128.0 * gf[ok] / mean[ok]
+        got = normalise_shading(g, m, blur)
+        assert got.dtype == np.float32 and np.array_equal(got, want)
+        assert (~ok & m).any() or g.shape[1] == 1

@@ -52,6 +52,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
 from vtrack.geometry.pointcloud import norms
+from vtrack.geometry.se3 import add_row_vector, apply_rigid
 
 #: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
 _SAMPLE_CACHE: dict[tuple[str, int], dict[str, np.ndarray]] = {}
@@ -160,6 +161,38 @@ def sample_link_surfaces(kin: Any, spacing_m: float, max_samples: int) -> dict[s
     return out
 
 
+def place_link_samples(
+    stacked: np.ndarray, counts: np.ndarray, owner: np.ndarray, poses: list[np.ndarray]
+) -> np.ndarray:
+    """Move every link's surface samples by its pose: the same values as
+    ``np.concatenate([S_k @ T_k[:3, :3].T + T_k[:3, 3] for k])``, about 3x cheaper.
+
+    Args:
+        stacked: (N, 3) float64 samples of all links one after another (m, each in its link frame).
+        counts: (L,) samples per link, in ``stacked`` order (sum N).
+        owner: (N,) link index of each sample (``np.repeat(arange(L), counts)``).
+        poses: L (4, 4) poses ``T_frame_link`` (the output frame, e.g. the camera).
+
+    Returns:
+        (N, 3) float64 sample positions in the output frame (m).
+    """
+    out = np.empty_like(stacked)
+    if not len(poses):
+        return out
+    T = np.asarray(poses, np.float64)
+    # The rotations transposed into contiguous (3, 3) blocks: the same BLAS product per row as ``S @ R.T``
+    # (checked bit for bit), without the transposed-operand path that costs ~4x more per call.
+    Rt = np.ascontiguousarray(T[:, :3, :3].transpose(0, 2, 1))
+    b = 0
+    for i, n in enumerate(counts.tolist()):
+        np.matmul(stacked[b : b + n], Rt[i], out=out[b : b + n])
+        b += n
+    # one contiguous (N, 3) add instead of a small broadcast add per link (np.repeat of the rows is slower
+    # than a gather by owner); elementwise, so the same sums
+    out += np.take(T[:, :3, 3], owner, axis=0)
+    return out
+
+
 class HandAwareSegmenter:
     """Stateful per-camera object segmenter (see the module docstring for the steps).
 
@@ -192,7 +225,7 @@ class HandAwareSegmenter:
         self._rx, self._ry = np.meshgrid(u, v)  # x/z and y/z per pixel
         self._samples: dict[str, np.ndarray] | None = None
         self._casters: dict[str, Any] | None = None
-        self._layout: tuple | None = None  # (links, counts, owner, present, start) of the hand samples
+        self._layout: tuple | None = None  # (links, counts, owner, present, start, stacked) of the hand samples
         self.reset()
 
     def prepare(self, q: np.ndarray | None = None) -> None:
@@ -232,13 +265,14 @@ class HandAwareSegmenter:
         Tcl = {k: Tcw @ (v[0] if v.ndim == 3 else v) for k, v in poses.items()}
         samples = self._hand_samples(np.array([T[2, 3] for T in Tcl.values()]))
         links = [k for k in samples if k in Tcl]
-        P = np.concatenate([samples[k] @ Tcl[k][:3, :3].T + Tcl[k][:3, 3] for k in links])
         if self._layout is None or self._layout[0] != links:
             # which link each sample belongs to, and each link's first sample: fixed once the samples are drawn
             counts = np.array([len(samples[k]) for k in links])
             owner = np.repeat(np.arange(len(links)), counts)
-            self._layout = (links, counts, owner, *np.unique(owner, return_index=True))
-        _, counts, owner, present, start = self._layout
+            stacked = np.concatenate([samples[k] for k in links]) if links else np.zeros((0, 3))
+            self._layout = (links, counts, owner, *np.unique(owner, return_index=True), stacked)
+        _, counts, owner, present, start, stacked = self._layout
+        P = place_link_samples(stacked, counts, owner, [Tcl[k] for k in links])
         z = P[:, 2]
         # each link's nearest depth (its samples include its mesh's vertices, where a mesh's minimum depth lies)
         z_near = np.minimum.reduceat(z, np.r_[0, np.cumsum(counts)[:-1]]) if len(z) else z
@@ -445,7 +479,7 @@ class HandAwareSegmenter:
         rows, cols = np.divmod(pix, W)
         zz = z.ravel()[pix]
         Pc = np.stack([self._rx.ravel()[pix] * zz, self._ry.ravel()[pix] * zz, zz], axis=1)
-        Pw = Pc @ self.T_world_camera[:3, :3].T + self.T_world_camera[:3, 3]
+        Pw = apply_rigid(self.T_world_camera, Pc)  # (= Pc @ R.T + t, cheaper)
 
         # 2. Workspace crop.
         t0 = time.perf_counter()
@@ -454,7 +488,7 @@ class HandAwareSegmenter:
             ref = [p for p in (sensors, link_pos) if p is not None]
             extent = max(float(np.linalg.norm(np.concatenate(ref) - centre, axis=1).max()), 0.0)
             radius = max(opt.crop_scale * extent, opt.crop_min_radius_m)
-            off = Pw - centre
+            off = add_row_vector(Pw.copy(), -centre)  # (= Pw - centre: a - b is a + (-b); cheaper)
             keep = np.einsum("ij,ij->i", off, off) < radius**2
             info["crop_radius_m"] = radius
             info["n_cropped"] = int((~keep).sum())
@@ -510,7 +544,7 @@ class HandAwareSegmenter:
         c = P_sel.mean(axis=0)
         if opt.temporal:
             self._prev_centroid = c
-            self._prev_radius = float(np.percentile(norms(P_sel - c), 95))
+            self._prev_radius = float(np.percentile(norms(add_row_vector(P_sel.copy(), -c)), 95))  # (= P_sel - c)
             self._age = 0
         info["n_object"] = int(len(P_sel))
         info["centroid_world"] = c.tolist()
