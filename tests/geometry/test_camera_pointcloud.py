@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
-from vtrack.geometry.pointcloud import estimate_normals, norms, remove_outliers, voxel_downsample
+from vtrack.geometry.pointcloud import estimate_normals, remove_outliers, row_norms, voxel_downsample
 from vtrack.geometry.tactile_frame import gradient_at, height_to_points
 
 CAM = PinholeCamera(64, 48, 60.0, 62.0, 31.5, 23.5)
@@ -100,7 +100,7 @@ def test_norms_equal_numpy_norms() -> None:
     rng = np.random.default_rng(4)
     for n in (0, 1, 7, 3000):
         v = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-6, 3, size=(n, 1))
-        np.testing.assert_array_equal(norms(v), np.linalg.norm(v, axis=1))
+        np.testing.assert_array_equal(row_norms(v), np.linalg.norm(v, axis=1))
 
 
 def test_gradient_at_pixels_equals_numpy_gradient() -> None:

@@ -51,7 +51,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry.camera import PinholeCamera
-from vtrack.geometry.pointcloud import norms
+from vtrack.geometry.pointcloud import row_norms
 from vtrack.geometry.se3 import add_row_vector, apply_rigid
 
 #: Link-frame hand samples per (URDF path, spacing in 0.1 mm): link -> (N, 3) points.
@@ -544,7 +544,7 @@ class HandAwareSegmenter:
         c = P_sel.mean(axis=0)
         if opt.temporal:
             self._prev_centroid = c
-            self._prev_radius = float(np.percentile(norms(add_row_vector(P_sel.copy(), -c)), 95))  # (= P_sel - c)
+            self._prev_radius = float(np.percentile(row_norms(add_row_vector(P_sel.copy(), -c)), 95))  # (= P_sel - c)
             self._age = 0
         info["n_object"] = int(len(P_sel))
         info["centroid_world"] = c.tolist()

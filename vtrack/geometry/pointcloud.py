@@ -23,7 +23,8 @@ def as_points(points, name: str = "points") -> np.ndarray:
 
 def row_norms(x: np.ndarray) -> np.ndarray:
     """Euclidean norms (N,) of the rows of ``x`` (N, 3): ``np.linalg.norm(x, axis=1)`` bit for bit (its reduction adds
-    ``(x0^2 + x1^2) + x2^2``), without its generic path (~3x the time on a few hundred rows)."""
+    ``(x0^2 + x1^2) + x2^2``), without its generic path over a last axis of 3 (~3x the time on a few hundred rows,
+    6x on 3000)."""
     x2 = x * x
     return np.sqrt((x2[:, 0] + x2[:, 1]) + x2[:, 2])
 
@@ -32,13 +33,6 @@ def finite_mask(points: np.ndarray) -> np.ndarray:
     """Rows whose three coordinates are finite."""
     P = np.asarray(points)
     return np.isfinite(P).all(axis=-1) if P.size else np.zeros(len(P), dtype=bool)
-
-
-def norms(vectors: np.ndarray) -> np.ndarray:
-    """``np.linalg.norm(vectors, axis=1)`` of (N, 3) float64 vectors, the same floats (``sqrt((x^2 + y^2) + z^2)``,
-    numpy's order) from the three columns: numpy's loops over a last axis of 3 made it 6x slower (3000 points)."""
-    sq = vectors * vectors
-    return np.sqrt(sq[:, 0] + sq[:, 1] + sq[:, 2])
 
 
 def voxel_keys(points: np.ndarray, voxel_size: float, origin: np.ndarray | None = None) -> np.ndarray:

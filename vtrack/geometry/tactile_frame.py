@@ -18,7 +18,7 @@ import numpy as np
 
 from vtrack.errors import InputError
 from vtrack.geometry.pixels import mask_pixels
-from vtrack.geometry.pointcloud import norms
+from vtrack.geometry.pointcloud import row_norms
 
 
 def pixel_grid_to_sensor_xy(
@@ -72,7 +72,7 @@ def height_to_points(
     xy = pixel_grid_to_sensor_xy(rows, cols, W, H, mm_per_px)
     pts = np.concatenate([xy, -hz[rows, cols, None] / 1000.0], axis=1)
     n = np.stack([gx, gy, np.ones(len(rows))], axis=-1)
-    n /= norms(n)[:, None]
+    n /= row_norms(n)[:, None]
     return pts, n
 
 
