@@ -38,12 +38,14 @@ keys = ("cpu_ms_per_frame_mean", "ms_prep_mean", "ms_per_frame_mean", "motion_er
 print(json.dumps({k: m[k] for k in keys}))
 """
 KEYS = ("cpu_ms_per_frame_mean", "ms_prep_mean", "ms_per_frame_mean")
+SHARED = Path(os.environ.get("VTRACK_SHARED") or Path(__file__).resolve().parents[2] / "shared").resolve()
 
 
 def run_child(tree: str, case: tuple[str, str, str], out: str, opts: str) -> dict:
     """Track one session with the code of ``tree``; poses saved to ``out`` (.npy), metrics returned."""
     tree = str(Path(tree).resolve())
-    env = dict(os.environ, PYTHONPATH=f"{tree}:{tree}/apps")
+    # the shared data as this checkout resolves it: a tree elsewhere (a worktree) would look beside itself
+    env = dict(os.environ, PYTHONPATH=f"{tree}:{tree}/apps", VTRACK_SHARED=str(SHARED))
     cmd = [sys.executable, "-c", CHILD, *case, out, opts]
     r = subprocess.run(cmd, env=env, cwd="/tmp", capture_output=True, text=True)
     if r.returncode:
