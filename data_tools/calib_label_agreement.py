@@ -118,9 +118,9 @@ def sphere_centres(
 
     Returns (N, 3): centre x, y and the contact radius of the fitted ball (px): where the fitted sphere meets
     the flat gel (height 0), ``sqrt(r^2 - z_c^2)`` - the radius that ball geometry gives the press."""
+    from vtrack.geometry.fit import fit_sphere
     from vtrack.tactile.autolabel import AutoLabelOptions
     from vtrack.tactile.calibration import calibrate
-    from vtrack.tactile.evaluation import fit_sphere
     from vtrack.tactile.pipeline import TactilePipeline
     from vtrack.tactile.pressset import load_press_set
 

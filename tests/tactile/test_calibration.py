@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from vtrack.errors import InputError
+from vtrack.geometry.fit import fit_sphere
 from vtrack.tactile.calibration import Calibration, held_out_presses, lambertian_calibration
-from vtrack.tactile.evaluation import evaluate_presses, fit_sphere
+from vtrack.tactile.evaluation import evaluate_presses
 from vtrack.tactile.pipeline import TactilePipeline
 from vtrack.tactile.render import render_tactile_image
 from vtrack.tactile.synthetic import sphere_height

@@ -120,6 +120,22 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
     assert isinstance(bad.exception, InputError)
     bad = CliRunner().invoke(app, ["track", str(blind_session), "--init-pose", "1,2,3", "--out", str(tmp_path)])
     assert isinstance(bad.exception, InputError) and "--init-pose" in str(bad.exception)
+    bad = CliRunner().invoke(
+        app,
+        [
+            "track",
+            str(blind_session),
+            "--shape",
+            "slam",
+            "--shape-prior",
+            "cube",
+            "--max-frames",
+            "2",
+            "--out",
+            str(tmp_path),
+        ],
+    )
+    assert isinstance(bad.exception, InputError) and "shape_prior" in str(bad.exception)
 
 
 def test_known_shape_needs_a_mesh(blind_session, tmp_path):

@@ -77,22 +77,13 @@ class Detection:
 
 
 def _robust_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, float, np.ndarray]:
-    """Algebraic circle fit (:func:`~vtrack.tactile.evaluation.fit_sphere` in 2-D) with outlier rejection:
-    (cx, cy, r, rms, kept mask); r is not finite for a degenerate set. Needs >= 3 points."""
-    from vtrack.tactile.evaluation import fit_sphere
+    """Algebraic circle fit with outlier rejection (:func:`~vtrack.geometry.fit.robust_sphere` in 2-D, residuals
+    under max(1 px, 2.5 median residuals) kept): (cx, cy, r, rms, kept mask); r is not finite for a degenerate
+    set. Needs >= 3 points."""
+    from vtrack.geometry.fit import robust_sphere
 
-    keep = np.ones(len(x), bool)
-    for _ in range(4):
-        (cx, cy), r = fit_sphere(np.column_stack([x[keep], y[keep]]))
-        if not np.isfinite(r):
-            return cx, cy, r, float("nan"), keep
-        res = np.abs(np.hypot(x - cx, y - cy) - r)
-        new = res < max(1.0, 2.5 * float(np.median(res[keep])))
-        if new.sum() < 8 or (new == keep).all():
-            break
-        keep = new
-    res = np.hypot(x[keep] - cx, y[keep] - cy) - r
-    return cx, cy, r, float(np.sqrt(np.mean(res * res))), keep
+    (cx, cy), r, rms, keep = robust_sphere(np.column_stack([x, y]), floor=1.0)
+    return cx, cy, r, rms, keep
 
 
 def _parabola_offset(v: np.ndarray, j: np.ndarray) -> np.ndarray:

@@ -13,30 +13,8 @@ from typing import Any
 import numpy as np
 
 from vtrack.errors import InputError
+from vtrack.geometry.fit import fit_sphere
 from vtrack.tactile.pressset import Press, PressSet, sphere_truth
-
-
-def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Algebraic least-squares sphere (3-D) or circle (2-D) fit: (centre (D,), radius) of (N, D) points.
-
-    Needs N >= D + 1 points not all on one hyperplane; a degenerate set gives radius ``inf``.
-    """
-    P = np.asarray(points, np.float64)
-    if P.ndim != 2 or P.shape[1] not in (2, 3) or len(P) < P.shape[1] + 1 or not np.isfinite(P).all():
-        raise InputError("sphere/circle fit needs >= D+1 finite 2-D or 3-D points", field="points", got=np.shape(P))
-    D = P.shape[1]
-    mu = P.mean(0)
-    Q = P - mu
-    scale = max(np.abs(Q).max(), 1e-12)
-    Q = Q / scale  # conditioning
-    A = np.column_stack([2 * Q, np.ones(len(Q))])
-    b = (Q * Q).sum(1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c = sol[:D]
-    r2 = sol[D] + c @ c
-    if not np.isfinite(r2) or r2 <= 0:
-        return mu, float("inf")
-    return c * scale + mu, float(np.sqrt(r2) * scale)
 
 
 def angle_deg(n1: np.ndarray, n2: np.ndarray) -> np.ndarray:

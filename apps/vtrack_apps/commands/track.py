@@ -51,6 +51,12 @@ def register(app: typer.Typer) -> None:
             help="SLAM, offline: track the first SECONDS again, backwards, against the final map (default: the "
             "whole session; 0 = off; docs/benchmarks/slam_second_pass_default.md)",
         ),
+        shape_prior: str = typer.Option(
+            "sphere",
+            "--shape-prior",
+            help="SLAM: sphere (when the map is a ball, track against the first well-measured ball) | sphere-fill "
+            "(ablation: fill the unobserved map only) | none (docs/benchmarks/sphere_prior.md)",
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -89,7 +95,13 @@ def register(app: typer.Typer) -> None:
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
             if shape == "slam":
-                opts.update(mapper=mapper, refine=refine, loop_closure=loop_closure, spin_search=spin_search)
+                opts.update(
+                    mapper=mapper,
+                    refine=refine,
+                    loop_closure=loop_closure,
+                    spin_search=spin_search,
+                    shape_prior=shape_prior,
+                )
                 if second_pass is not None:
                     opts["second_pass_s"] = second_pass
                 if not colour:
