@@ -136,6 +136,10 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
         ],
     )
     assert isinstance(bad.exception, InputError) and "shape_prior" in str(bad.exception)
+    bad = CliRunner().invoke(
+        app, ["track", str(blind_session), "--shape", "slam", "--few-touch", "-1", "--out", str(tmp_path)]
+    )
+    assert isinstance(bad.exception, InputError) and "--few-touch" in str(bad.exception)
 
 
 def test_known_shape_needs_a_mesh(blind_session, tmp_path):

@@ -30,7 +30,7 @@ def run(quick: bool = False) -> BenchTable:
     from vtrack.paths import shared_data_dir
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
     from vtrack.tracking.run import track_session
-    from vtrack.tracking.slam import SLAM_TOUCH_WEAK_VISION
+    from vtrack.tracking.slam import SLAM_FEW_TOUCH, SLAM_TOUCH_WEAK_VISION
 
     table = BenchTable(stage="heavy_occlusion", error_key="motion_err_mm", time_key="ms", threads=1)
     seconds = float(os.environ.get("VTRACK_BENCH_HEAVY_SECONDS", "2"))
@@ -42,7 +42,8 @@ def run(quick: bool = False) -> BenchTable:
         (
             "slam/vision+touch weak-vision preset",
             dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_TOUCH_WEAK_VISION),
-        )
+        ),
+        ("slam/vision+touch few-touch preset", dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_FEW_TOUCH)),
     ]
     runs += [(f"known/{m}", dict(shape="known_shape", modalities=MODES[m])) for m in ("vision", "vision+touch")]
     if quick:

@@ -173,6 +173,15 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 }
 
 
+#: Opt-in heavy-occlusion setting of SLAM (``track_session(..., **SLAM_FEW_TOUCH)``, ``vtrack track --few-touch
+#: 12``): a frame that sees fewer than 300 segmented depth points keeps at most 12 contact points instead of 120
+#: (``TrackerOptions.few_touch_points``), so that touch steers the pose no further from the motion prior than a few
+#: measurements would (a sliding patch read against the map it built is off as a whole). While a sphere prior is in
+#: force the contacts keep their full budget. Blind 2 s heavy-occlusion sessions, 6 YCB objects x seeds 0-2, mean
+#: motion error (docs/benchmarks/few_touch.md): vision only 3.27 mm, vision + touch 4.08 -> 2.97 mm. Not the
+#: default: on the 5 s medium sessions it shuffles the chaotic front end (mean 2.08 -> 2.44 mm; banana, seed 2:
+#: 3.9 -> 11.4 mm).
+SLAM_FEW_TOUCH: dict[str, int] = {"few_touch_points": 12}
 #: SLAM's colour term (``TrackerOptions.sigma_colour``, m; SLAM's default since 2026-11-26): KLT feature tracks on
 #: the segmented object pixels (:mod:`vtrack.tracking.colour`, built by the frames layer when the term is on) anchored
 #: in the object frame, each observation pulled onto its viewing ray at 1 mm (Huber at 0.5 sigma,
@@ -435,6 +444,14 @@ class SLAMTracker(WindowTracker):
                 "SLAM needs an object frame: pass T_init (e.g. from the first frame's points)", field="T_init"
             )
         return cls(T0, **opts)
+
+    def _touch_budget(self, frame: TrackingFrame) -> int:
+        # a map held to a verified ball does not carry the contacts' own errors: they keep their full budget (the
+        # hidden baseball, touch only, 2 s medium: 0.94 / 0.67 / 0.68 mm on seeds 0-2 with 120 points, 1.22 / 1.05 /
+        # 0.86 with 12)
+        if self.shape_prior.sphere is not None:
+            return self.opts.max_touch_points
+        return super()._touch_budget(frame)
 
     # -- tracking with map-aware gating ---------------------------------------------------
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:

@@ -74,6 +74,13 @@ class TrackerOptions:
     gate: float = 0.02  #: drop vision points farther than this from the predicted surface, m
     max_vision_points: int = 300
     max_touch_points: int = 120
+    #: > 0: in a frame that sees fewer than ``few_touch_min_vision`` segmented vision points (touch-only frames
+    #: included), the contacts are subsampled to at most this many instead of ``max_touch_points``. The pixels of one
+    #: contact patch do not carry independent errors: matched against a map the sliding contacts built themselves, a
+    #: patch is off as a whole, yet 120 rows outweigh the motion prior as if each were a measurement of its own.
+    #: SLAM's opt-in heavy-occlusion setting (``SLAM_FEW_TOUCH``, docs/benchmarks/few_touch.md); 0: off
+    few_touch_points: int = 0
+    few_touch_min_vision: int = 300  #: see ``few_touch_points`` (300: every frame that is not fully seen)
     max_free_points: int = 48
     degeneracy_ratio: float = 1e-5  #: relative floor of the spectrum (absolute floor: one vision point)
     #: what the data may do along weak eigen-directions: ``lift`` (default) lifts them to the floor and keeps the
@@ -585,7 +592,7 @@ class WindowTracker:
         o = self.opts
         self._frame_count += 1
         fr = sanitize(
-            frame, o.max_vision_points, o.max_touch_points, o.max_free_points, seed=o.seed + self._frame_count
+            frame, o.max_vision_points, self._touch_budget(frame), o.max_free_points, seed=o.seed + self._frame_count
         )
         dt = o.nominal_dt if self.t_last is None else fr.t - self.t_last
         if self.t_last is not None and dt <= 0:
@@ -1003,6 +1010,18 @@ class WindowTracker:
             return np.zeros((0, 3))
         Tinv = _inv(T)
         return np.concatenate([g[1] for g in groups]) @ Tinv[:3, :3].T + Tinv[:3, 3]
+
+    def _touch_budget(self, frame: TrackingFrame) -> int:
+        """How many contact points a frame keeps (``max_touch_points``, or ``few_touch_points`` when it sees little)."""
+        o = self.opts
+        if o.few_touch_points <= 0:
+            return o.max_touch_points
+        try:
+            V = frame.vision_points
+            nv = 0 if V is None else int(np.isfinite(np.asarray(V, float)).all(-1).sum())
+        except (TypeError, ValueError):
+            nv = 0  # sanitize() names the bad array
+        return o.max_touch_points if nv >= o.few_touch_min_vision else min(o.max_touch_points, o.few_touch_points)
 
     def _weak_vision(self, fr: TrackingFrame, n_vision: int) -> bool:
         """Whether a frame is in the weak-vision regime (``touch_weak_vision``; ``n_vision``: its segmented vision

@@ -57,6 +57,12 @@ def register(app: typer.Typer) -> None:
             help="SLAM: sphere (when the map is a ball, track against the first well-measured ball) | sphere-fill "
             "(ablation: fill the unobserved map only) | none (docs/benchmarks/sphere_prior.md)",
         ),
+        few_touch: int = typer.Option(
+            0,
+            "--few-touch",
+            help="SLAM, heavy occlusion (opt-in): contact points kept in frames that see fewer than 300 depth points "
+            "(12 is the measured setting, 0 = all 120; docs/benchmarks/few_touch.md)",
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -104,6 +110,10 @@ def register(app: typer.Typer) -> None:
                 )
                 if second_pass is not None:
                     opts["second_pass_s"] = second_pass
+                if few_touch < 0:
+                    raise InputError("contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch)
+                if few_touch > 0:
+                    opts["few_touch_points"] = few_touch
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
 
