@@ -140,6 +140,13 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
         app, ["track", str(blind_session), "--shape", "slam", "--few-touch", "-1", "--out", str(tmp_path)]
     )
     assert isinstance(bad.exception, InputError) and "--few-touch" in str(bad.exception)
+    bad = CliRunner().invoke(app, ["track", str(blind_session), "--select-run", "--out", str(tmp_path)])
+    assert isinstance(bad.exception, InputError) and "--select-run" in str(bad.exception)  # known shape: no
+    args = ["track", str(blind_session), "--shape", "slam", "--select-run", "--max-frames", "10"]
+    r = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "sel"), "--json", str(tmp_path / "sel.json")])
+    assert r.exit_code == 0, r.output
+    m = json.loads((tmp_path / "sel.json").read_text())
+    assert m["frames"] == 10 and 0 <= m["selected_run"] < len(m["select_scores_mm"]) == 3
 
 
 def test_known_shape_needs_a_mesh(blind_session, tmp_path):

@@ -241,6 +241,7 @@ def track_session(
     return_poses: bool = False,
     keep_frames: dict | None = None,
     keep_step: int = 1,
+    select_runs: bool = False,
     **opts: Any,
 ) -> Any:
     """Run a tracker over a session; return the metrics dict (also written to ``out_dir``).
@@ -268,6 +269,10 @@ def track_session(
         depth_stride / touch_stride / touch_downsample: pixel stride of the depth images, point stride and
             working-resolution factor of the tactile pipeline (tracking needs far fewer points than mapping:
             4 x 2 on a DIGIT keeps a point every 0.6 mm at a third of the pipeline's cost).
+        select_runs: SLAM, offline (opt-in): track the session again with each setting of
+            :data:`~vtrack.tracking.slam.SLAM_SELECT_ALTERNATIVES` (same frames, built once) and keep the run whose
+            final map agrees best with its own depth points (:func:`~vtrack.tracking.slam.map_consistency_mm`; blind);
+            the metrics say ``select_scores_mm`` and ``selected_run`` (0 = the default setting).
         **opts: tracker options (:class:`~vtrack.tracking.window.TrackerOptions` fields, ...).
     """
     from vtrack.frames.session import SessionFrames
@@ -276,6 +281,10 @@ def track_session(
         raise InputError("unknown shape mode", field="shape", expected="known_shape|slam", got=shape)
     if init not in INITS:
         raise InputError("unknown initialisation", field="init", expected="auto | gt (oracle)", got=init)
+    if select_runs and (shape != "slam" or method != "ours"):
+        raise InputError(
+            "run selection is for SLAM", field="select_runs", expected="shape slam, method ours", got=shape
+        )
     modalities = tuple(modalities)
     if method == "icp":
         modalities = ("vision",)
@@ -349,6 +358,7 @@ def track_session(
     # SLAM's second pass (offline) re-tracks the session start against the final map: keep those tracking frames
     second_s = float(getattr(tracker, "second_pass_s", 0.0) or 0.0)
     early: list = []
+    tfs: list = []  # every tracking frame, replayed by the alternative runs (select_runs)
     sticker = None
     if "touch" in modalities and float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
         from vtrack.tracking.stick import StickingContacts
@@ -375,43 +385,45 @@ def track_session(
         status.append(st)
         if second_s > 0 and frames.times[i] - frames.times[0] <= second_s:
             early.append(tf)
+        if select_runs:
+            tfs.append(tf)
         if keep_frames is not None and i % max(1, int(keep_step)) == 0:
             keep_frames["built"].append((i, fr))
     if not np.all(np.isfinite(est)):
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
-    second: dict[str, Any] = {}
-    if len(early) >= 2:
-        if keep_frames is not None:
-            keep_frames.update(second_pass_frames=early, poses_first_pass=est.copy())
+    est, second, est_front, backend = _offline_passes(tracker, early, est, frames.times, keep_frames)
+    selection: dict[str, Any] = {}
+    if select_runs:
+        # offline: the same tracking frames through SLAM again with each alternative setting; the run whose final
+        # map agrees best with its own depth points is kept (blind: no ground truth in the choice)
+        from vtrack.tracking.slam import SLAM_SELECT_ALTERNATIVES, map_consistency_mm, select_run, sphere_in_force
+
         c0 = time.process_time()
-        est[: len(early)] = tracker.retrack_start(early, est[: len(early)])
-        rep = tracker.second_pass_report
-        second = {
-            "second_pass_frames": len(early),
-            "second_pass_cpu_s": time.process_time() - c0,
-            "second_pass_max_move_mm": float(rep.get("max_move_mm", 0.0)),
-            "second_pass_rejected": bool(rep.get("rejected", False)),
-            "second_pass_degenerate_rise": float(rep.get("degenerate_rise", 0.0)),
-        }
-    est_front = None
-    backend: dict[str, Any] = {}
-    if hasattr(tracker, "refine_poses"):
-        # SLAM back end: keyframe pose graph (registration + loop edges), after the last frame; its cost is
-        # reported apart from the per-frame tracking cost
-        c0, t0 = time.process_time(), time.perf_counter()
-        est_front = est
-        est = tracker.refine_poses(frames.times, est)
-        if keep_frames is not None:
-            keep_frames["poses_frontend"] = est_front
-        rep = tracker.backend_report
-        backend = {
-            "refined": bool(rep.get("refined", False)),
-            "backend_s": time.perf_counter() - t0,
-            "backend_cpu_s": time.process_time() - c0,
-            "keyframes": int(rep.get("keyframes", 0)),
-            "registration_edges": int(rep.get("registration_edges", 0)),
-            "loop_edges": int(rep.get("loop_edges", 0)),
-            "loop_rejected": int(rep.get("loop_rejected", 0)),
+        runs = [(tracker, est, status, second, est_front, backend, keep_frames)]
+        for alt in SLAM_SELECT_ALTERNATIVES:
+            tr = build_tracker(shape, mesh_path, T_init, method=method, **{**opts, **alt})
+            e = np.zeros_like(est)
+            st_alt: list[str] = []
+            for i, tf in enumerate(tfs):
+                e[i] = tr.step(tf)
+                st_alt.append(tr.last_info.status if tr.last_info else "ok")
+            if not np.all(np.isfinite(e)):
+                raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
+            kf_alt: dict | None = None if keep_frames is None else {}
+            est_a, second_a, front_a, backend_a = _offline_passes(tr, early, e, frames.times, kf_alt)
+            runs.append((tr, est_a, st_alt, second_a, front_a, backend_a, kf_alt))
+        scores = [map_consistency_mm(r[0], tfs, r[1]) for r in runs]
+        spheres = [sphere_in_force(r[0]) for r in runs]
+        best = select_run(scores, spheres)
+        tracker, est, status, second, est_front, backend, kf_best = runs[best]
+        if keep_frames is not None and best > 0 and kf_best:
+            keep_frames.update(kf_best, tracker=tracker)
+        selection = {
+            "select_scores_mm": [float(x) for x in scores],
+            "select_sphere_prior": spheres,
+            "selected_run": best,
+            "select_alternatives": [dict(a) for a in SLAM_SELECT_ALTERNATIVES],
+            "select_cpu_s": time.process_time() - c0,
         }
     metrics: dict[str, Any] = {
         "mode": "icp" if method == "icp" else shape,
@@ -438,6 +450,7 @@ def track_session(
         "session": str(Path(session_dir)),
         **second,
         **backend,
+        **selection,
     }
     errors = None
     if gt_data is not None:
@@ -456,6 +469,50 @@ def track_session(
     if return_poses:
         return metrics, (frames.times, est)
     return metrics
+
+
+def _offline_passes(
+    tracker: Any, early: list, est: np.ndarray, times: np.ndarray, keep_frames: dict | None
+) -> tuple[np.ndarray, dict[str, Any], np.ndarray | None, dict[str, Any]]:
+    """SLAM's offline passes after the last frame: the second pass over ``early`` (the first frames' tracking
+    frames, re-tracked backwards against the final map) and the back end (``refine_poses``), when the tracker has
+    them. Returns ``(T_world_object (N, 4, 4), second-pass metrics, front-end poses or None, back-end metrics)``;
+    ``est`` is updated in place by the second pass."""
+    second: dict[str, Any] = {}
+    if len(early) >= 2:
+        if keep_frames is not None:
+            keep_frames.update(second_pass_frames=early, poses_first_pass=est.copy())
+        c0 = time.process_time()
+        est[: len(early)] = tracker.retrack_start(early, est[: len(early)])
+        rep = tracker.second_pass_report
+        second = {
+            "second_pass_frames": len(early),
+            "second_pass_cpu_s": time.process_time() - c0,
+            "second_pass_max_move_mm": float(rep.get("max_move_mm", 0.0)),
+            "second_pass_rejected": bool(rep.get("rejected", False)),
+            "second_pass_degenerate_rise": float(rep.get("degenerate_rise", 0.0)),
+        }
+    est_front = None
+    backend: dict[str, Any] = {}
+    if hasattr(tracker, "refine_poses"):
+        # SLAM back end: keyframe pose graph (registration + loop edges), after the last frame; its cost is
+        # reported apart from the per-frame tracking cost
+        c0, t0 = time.process_time(), time.perf_counter()
+        est_front = est
+        est = tracker.refine_poses(times, est)
+        if keep_frames is not None:
+            keep_frames["poses_frontend"] = est_front
+        rep = tracker.backend_report
+        backend = {
+            "refined": bool(rep.get("refined", False)),
+            "backend_s": time.perf_counter() - t0,
+            "backend_cpu_s": time.process_time() - c0,
+            "keyframes": int(rep.get("keyframes", 0)),
+            "registration_edges": int(rep.get("registration_edges", 0)),
+            "loop_edges": int(rep.get("loop_edges", 0)),
+            "loop_rejected": int(rep.get("loop_rejected", 0)),
+        }
+    return est, second, est_front, backend
 
 
 class Relocalisation:

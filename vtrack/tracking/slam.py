@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -182,6 +183,12 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 #: default: on the 5 s medium sessions it shuffles the chaotic front end (mean 2.08 -> 2.44 mm; banana, seed 2:
 #: 3.9 -> 11.4 mm).
 SLAM_FEW_TOUCH: dict[str, int] = {"few_touch_points": 12}
+#: Opt-in offline run selection (``track_session(..., select_runs=True)``, ``vtrack track --select-run``): the
+#: session is tracked again with each of these settings (on top of the user's) and the run whose final map agrees
+#: best with its own depth points is kept (:func:`map_consistency_mm`). The front end is chaotic: a small change of
+#: the motion prior or of the contact budget moves single sessions by +-1-2 mm either way, and the map-consistency
+#: score sees part of that. Blind 5 s medium sessions, 6 YCB objects x seeds 0-2 (docs/benchmarks/slam_select_run.md)
+SLAM_SELECT_ALTERNATIVES: tuple[dict[str, float], ...] = ({"sigma_motion_rot": 0.005}, {"max_touch_points": 12})
 #: SLAM's colour term (``TrackerOptions.sigma_colour``, m; SLAM's default since 2026-11-26): KLT feature tracks on
 #: the segmented object pixels (:mod:`vtrack.tracking.colour`, built by the frames layer when the term is on) anchored
 #: in the object frame, each observation pulled onto its viewing ray at 1 mm (Huber at 0.5 sigma,
@@ -781,3 +788,40 @@ class SLAMTracker(WindowTracker):
         """Object-frame map points and normals (m)."""
         S, N, _ = self.map.surfels()
         return S, N
+
+
+def map_consistency_mm(tracker: Any, frames: Sequence[Any], poses: np.ndarray, min_points: int = 30) -> float:
+    """Blind agreement of a SLAM run with its own data, mm (lower is better): the mean over frames with at least
+    ``min_points`` finite depth points of the median |SDF| of those points (world, ``frame.vision_points``) moved by
+    the frame's ``T_world_object`` (``poses`` (N, 4, 4)) into the object frame of the run's final map
+    (``tracker.sdf``). A run that lost track of the object fuses views at wrong poses: its map is thicker and its
+    frames sit off it. NaN when no frame qualifies."""
+    meds: list[float] = []
+    for fr, T in zip(frames, poses, strict=True):
+        V = getattr(fr, "vision_points", None)
+        if V is None:
+            continue
+        V = np.asarray(V, np.float64)
+        V = V[np.isfinite(V).all(1)] if V.ndim == 2 and len(V) else V.reshape(0, 3)
+        if len(V) < min_points:
+            continue
+        d, _ = tracker.sdf.query(se3.transform_points(se3.invert(np.asarray(T, np.float64)), V), with_grad=False)
+        d = np.abs(d[np.isfinite(d)])
+        if len(d):
+            meds.append(float(np.median(d)))
+    return float(np.mean(meds)) * 1e3 if meds else float("nan")
+
+
+def sphere_in_force(tracker: Any) -> bool:
+    """Whether a SLAM tracker's map is the sphere prior's ball (:class:`~vtrack.tracking.shape_prior.SpherePrior`)."""
+    return getattr(getattr(tracker, "shape_prior", None), "sphere", None) is not None
+
+
+def select_run(scores: Sequence[float], spheres: Sequence[bool]) -> int:
+    """Index of the run to keep (``select_runs``): the lowest finite :func:`map_consistency_mm` among the runs whose
+    map is of the same kind as the first (default) run's: with or without the sphere prior's ball. A ball map is an
+    ideal sphere and the depth points of a ball that is not quite round sit farther off it than off a fused map, so
+    the scores of the two kinds are not comparable (the 5 s unoccluded baseball: a fused map scored 40 % lower and was
+    0.2 mm worse). 0 when no candidate has a finite score."""
+    ok = [i for i, (s, b) in enumerate(zip(scores, spheres, strict=True)) if np.isfinite(s) and b == spheres[0]]
+    return min(ok, key=lambda i: scores[i]) if ok else 0

@@ -63,6 +63,12 @@ def register(app: typer.Typer) -> None:
             help="SLAM, heavy occlusion (opt-in): contact points kept in frames that see fewer than 300 depth points "
             "(12 is the measured setting, 0 = all 120; docs/benchmarks/few_touch.md)",
         ),
+        select_run: bool = typer.Option(
+            False,
+            "--select-run",
+            help="SLAM, offline (opt-in): track again with each alternative setting and keep the run whose map agrees "
+            "best with its own depth points (3x the tracking CPU; docs/benchmarks/slam_select_run.md)",
+        ),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -97,6 +103,8 @@ def register(app: typer.Typer) -> None:
         perturb = None
         if init_perturb_mm > 0 or init_perturb_deg > 0:
             perturb = (init_perturb_mm / 1000.0, math.radians(init_perturb_deg))
+        if select_run and (shape != "slam" or method != "ours"):
+            raise InputError("run selection is for SLAM", field="--select-run", expected="--shape slam", got=shape)
         opts = {}
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
@@ -114,6 +122,8 @@ def register(app: typer.Typer) -> None:
                     raise InputError("contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch)
                 if few_touch > 0:
                     opts["few_touch_points"] = few_touch
+                if select_run:
+                    opts["select_runs"] = True
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
 
@@ -151,6 +161,8 @@ def register(app: typer.Typer) -> None:
             "backend_s",
             "keyframes",
             "loop_edges",
+            "select_scores_mm",
+            "selected_run",
         )
         report(f"track {session}", {k: m.get(k) for k in keys if k in m}, None)
         if json_out:
