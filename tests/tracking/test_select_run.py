@@ -82,7 +82,10 @@ def test_selected_run_is_the_lowest_score_and_replays_exactly(tiny_session):
     setting, bit for bit; the metrics report every score and the choice."""
     from vtrack.tracking.run import track_session
 
-    m, (_, T) = track_session(tiny_session, "", shape="slam", write=False, return_poses=True, select_runs=True)
+    kept: dict = {}
+    m, (_, T) = track_session(
+        tiny_session, "", shape="slam", write=False, return_poses=True, select_runs=True, keep_frames=kept
+    )
     scores = m["select_scores_mm"]
     assert len(scores) == 1 + len(SLAM_SELECT_ALTERNATIVES) and np.all(np.isfinite(scores))
     assert all(0.0 < s < 5.0 for s in scores)  # mm: depth points sit within a few mm of their own map
@@ -94,6 +97,9 @@ def test_selected_run_is_the_lowest_score_and_replays_exactly(tiny_session):
     alt = {} if best == 0 else SLAM_SELECT_ALTERNATIVES[best - 1]
     m_direct, (_, T_direct) = track_session(tiny_session, "", shape="slam", write=False, return_poses=True, **alt)
     np.testing.assert_array_equal(T, T_direct)
+    # the kept tracker is the one handed back (its map scores the kept poses as reported)
+    frames = [fr.tracking_frame() for _, fr in kept["built"]]
+    assert map_consistency_mm(kept["tracker"], frames, T) == pytest.approx(scores[best], rel=1e-9)
     assert m["motion_err_mm"] == m_direct["motion_err_mm"]
     # every alternative is really another run: their scores differ from the default's
     assert len(set(scores)) == len(scores)

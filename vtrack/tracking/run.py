@@ -416,8 +416,8 @@ def track_session(
         spheres = [sphere_in_force(r[0]) for r in runs]
         best = select_run(scores, spheres)
         tracker, est, status, second, est_front, backend, kf_best = runs[best]
-        if keep_frames is not None and best > 0 and kf_best:
-            keep_frames.update(kf_best, tracker=tracker)
+        if keep_frames is not None and best > 0:
+            keep_frames.update(kf_best or {}, tracker=tracker)  # the kept run's tracker and offline-pass poses
         selection = {
             "select_scores_mm": [float(x) for x in scores],
             "select_sphere_prior": spheres,
