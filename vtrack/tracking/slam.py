@@ -801,8 +801,8 @@ def map_consistency_mm(tracker: Any, frames: Sequence[Any], poses: np.ndarray, m
         V = getattr(fr, "vision_points", None)
         if V is None:
             continue
-        V = np.asarray(V, np.float64)
-        V = V[np.isfinite(V).all(1)] if V.ndim == 2 and len(V) else V.reshape(0, 3)
+        V = np.asarray(V, np.float64).reshape(-1, 3)
+        V = V[np.isfinite(V).all(1)]
         if len(V) < min_points:
             continue
         d, _ = tracker.sdf.query(se3.transform_points(se3.invert(np.asarray(T, np.float64)), V), with_grad=False)
