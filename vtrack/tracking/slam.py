@@ -383,6 +383,10 @@ class SLAMOptions:
         # it off and pulled its spin (2 s session, occlusion none, motion error 4.67 -> 1.31 mm at 3 mm; vision
         # alone 2.32); the hidden baseball at medium occlusion, tracked by touch, keeps 2.21 -> 2.32 mm.
         rest.setdefault("sigma_free", 0.003)
+        # The oldest keyframe is anchored at its latest estimate: with the stale anchor, even and odd frames drifted
+        # apart along directions the data leaves free (TrackerOptions.anchor_refresh; 5 s medium 2.078 -> 2.019 mm,
+        # frame-to-frame jitter 0.399 -> 0.293 deg; 2 s heavy 4.077 -> 3.662; docs/benchmarks/anchor_refresh.md)
+        rest.setdefault("anchor_refresh", True)
         # Colour feature tracks observe what the map cannot: a body of revolution's spin (the mug once its handle is
         # hidden; SLAM_COLOUR_SIGMA above for the measurements). No tracks in the frames (no RGB, no texture, frames
         # built without colour): no term, the same poses as without it.

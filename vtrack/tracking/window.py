@@ -70,6 +70,12 @@ class TrackerOptions:
     sigma_motion_rot: float = 0.015  #: rad per nominal frame
     sigma_anchor_trans: float = 0.0005  #: oldest keyframe prior, m
     sigma_anchor_rot: float = 0.005  #: rad
+    #: the oldest keyframe's anchor (``T_prior``) follows its latest estimate: True re-anchors every keyframe at its
+    #: value after the window it was last refined in; False keeps, for the keyframe that becomes the oldest, its value
+    #: from one window earlier. Then each window is pinned to the state two frames back, so even and odd frames form
+    #: two chains, and along a direction the data leaves free they drift apart (the 5 s banana at medium occlusion
+    #: flipped 4-5 deg between consecutive frames). SLAM's default: True (docs/benchmarks/anchor_refresh.md)
+    anchor_refresh: bool = False
     nominal_dt: float = 1.0 / 30.0  #: s, frame period the motion sigmas refer to
     gate: float = 0.02  #: drop vision points farther than this from the predicted surface, m
     max_vision_points: int = 300
@@ -1518,6 +1524,7 @@ class WindowTracker:
             )
             self.keyframes.append(cur)
             self.keyframes = self.keyframes[-(o.window - 1) :]
-        # keyframes refined in this window keep their new estimates as priors for the anchor
+        # keyframes refined in this window keep their new estimates as priors for the anchor (the oldest too with
+        # ``anchor_refresh``)
         for s in self.keyframes:
-            s.T_prior = s.T.copy() if s is not self.keyframes[0] else s.T_prior
+            s.T_prior = s.T.copy() if (o.anchor_refresh or s is not self.keyframes[0]) else s.T_prior
