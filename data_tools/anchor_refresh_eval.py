@@ -10,7 +10,6 @@ PREFIX.png (per session: the stale anchor's error and jitter against the refresh
 """
 
 import json
-import sys
 from multiprocessing import Pool
 
 
@@ -93,21 +92,23 @@ def main(secs: float, occ: str, seeds: list[int], objs: list[str], mods: tuple, 
 
 
 if __name__ == "__main__":
+    import argparse
+
     from vtrack.testing.sim import ycb_objects
 
-    args = sys.argv[1:]
-    out = None
-    if "--out" in args:
-        i = args.index("--out")
-        out = args[i + 1]
-        del args[i : i + 2]
-    mods = ("vision",) if "--vision" in args else ("vision", "touch")
-    args = [a for a in args if a != "--vision"]
+    ap = argparse.ArgumentParser(description="SLAM window anchor: stale against refreshed, per session.")
+    ap.add_argument("seconds", type=float)
+    ap.add_argument("occlusion")
+    ap.add_argument("seeds", help="comma-separated simulator seeds")
+    ap.add_argument("objects", nargs="?", default="", help="comma-separated YCB names (default: all shared)")
+    ap.add_argument("--vision", action="store_true", help="vision only")
+    ap.add_argument("--out", default=None, help="write PREFIX.csv and PREFIX.png")
+    a = ap.parse_args()
     main(
-        float(args[0]),
-        args[1],
-        [int(s) for s in args[2].split(",")],
-        args[3].split(",") if len(args) > 3 else ycb_objects(),
-        mods,
-        out,
+        a.seconds,
+        a.occlusion,
+        [int(s) for s in a.seeds.split(",")],
+        a.objects.split(",") if a.objects else ycb_objects(),
+        ("vision",) if a.vision else ("vision", "touch"),
+        a.out,
     )
