@@ -74,7 +74,7 @@ class TrackerOptions:
     #: value after the window it was last refined in; False keeps, for the keyframe that becomes the oldest, its value
     #: from one window earlier. Then each window is pinned to the state two frames back, so even and odd frames form
     #: two chains, and along a direction the data leaves free they drift apart (the 5 s banana at medium occlusion
-    #: flipped 4-5 deg between consecutive frames). SLAM's default: True (docs/benchmarks/anchor_refresh.md)
+    #: flipped 4-7 deg between consecutive frames). SLAM's default: True (docs/benchmarks/anchor_refresh.md)
     anchor_refresh: bool = False
     nominal_dt: float = 1.0 / 30.0  #: s, frame period the motion sigmas refer to
     gate: float = 0.02  #: drop vision points farther than this from the predicted surface, m
