@@ -94,3 +94,20 @@ def test_frames_layer_builds_segmenter_and_tactile_pipelines_through_the_registr
     sf = SessionFrames(blind_session, ("vision", "touch"))
     assert "tactile" in seen and "segmentation" in seen
     assert all(type(c.segmenter).__name__ == "HandAwareSegmenter" for c in sf.cams)
+
+
+def test_bool_options_refuse_strings_and_numbers():
+    import numpy as np
+
+    from vtrack.tracking.slam import SLAMTracker
+    from vtrack.tracking.window import TrackerOptions
+
+    # "no" would read as true: refused with the field named
+    for bad in ("no", 1, None):
+        with pytest.raises(InputError) as e:
+            TrackerOptions.from_dict({"anchor_refresh": bad})
+        assert e.value.field == "anchor_refresh"
+    with pytest.raises(InputError, match="true or false"):
+        SLAMTracker(np.eye(4), recover="yes")
+    assert TrackerOptions.from_dict({"anchor_refresh": np.bool_(True)}).anchor_refresh
+    assert TrackerOptions.from_dict({"recover": False}).recover is False

@@ -11,14 +11,19 @@ T = TypeVar("T")
 
 
 def checked_fields(cls: type[T], opts: dict[str, Any], what: str) -> dict[str, Any]:
-    """``opts`` unchanged if every key is a field of the dataclass ``cls``; else an InputError naming the
-    unknown keys (a typo in an option must not be silently ignored)."""
-    names = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    """``opts`` unchanged if every key is a field of the dataclass ``cls`` and every value of a ``bool`` field is a
+    bool; else an InputError naming the unknown keys (a typo in an option must not be silently ignored) or the field
+    (a string such as ``"no"`` would read as true)."""
+    fs = fields(cls)  # type: ignore[arg-type]
+    names = {f.name for f in fs}
     unknown = set(opts) - names
     if unknown:
         raise InputError(
             f"unknown {what} option(s)", field=", ".join(sorted(unknown)), expected=f"some of {sorted(names)}"
         )
+    for f in fs:
+        if f.name in opts and f.type in ("bool", bool) and type(opts[f.name]).__name__ not in ("bool", "bool_"):
+            raise InputError(f"{what} option must be true or false", field=f.name, expected="bool", got=opts[f.name])
     return opts
 
 
