@@ -404,3 +404,31 @@ def test_place_link_samples_is_the_per_link_transform_bit_for_bit(frames):
         got = place_link_samples(np.concatenate(S), counts, np.repeat(np.arange(len(S)), counts), Ts)
         assert got.dtype == np.float64 and np.array_equal(got, want)
     assert len(cases[0][0]) > 10 and sum(len(s) for s in cases[0][0]) > 1000
+
+
+def test_colour_mask_grows_into_dropouts_and_along_the_hand_never_into_it(frames):
+    """Opt-in ``colour_grow_px``: the colour tracks' mask is the object mask plus, within that many pixels of it, the
+    depth-less pixels and those beside the exact hand silhouette; never grown into the silhouette itself."""
+    import cv2
+
+    make, data = frames
+    assert make().segment(*data[0][:2]).colour_mask is None  # off by default: the object mask is used
+    seg = make(_opts(colour_grow_px=1))
+    added_total, added_object = 0, 0
+    for depth, q, gt in data:
+        res = seg.segment(depth, q)
+        cm = res.colour_mask
+        assert cm is not None and cm.shape == res.mask.shape and cm.dtype == bool
+        assert np.all(cm[res.mask])  # a superset of the object mask
+        core, _ = seg.render_hand_depth(seg.kin.link_poses(q), with_core=True)
+        core = np.isfinite(core)
+        added = cm & ~res.mask
+        assert not np.any(added & core)  # never into the hand (object pixels in front of it are in the object mask)
+        near_mask = cv2.dilate(res.mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        near_hand = cv2.dilate(core.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        assert np.all(near_mask[added])  # one pixel of growth
+        assert np.all(((depth <= 0) | near_hand)[added])  # only into dropouts or beside the hand
+        added_total += int(added.sum())
+        added_object += int((added & gt).sum())
+    assert added_total > 0
+    print(f"grown pixels: {added_total}, on the object (GT): {added_object}")

@@ -140,6 +140,10 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
         app, ["track", str(blind_session), "--shape", "slam", "--few-touch", "-1", "--out", str(tmp_path)]
     )
     assert isinstance(bad.exception, InputError) and "--few-touch" in str(bad.exception)
+    bad = CliRunner().invoke(
+        app, ["track", str(blind_session), "--shape", "slam", "--colour-grow", "-1", "--out", str(tmp_path)]
+    )
+    assert isinstance(bad.exception, InputError) and "--colour-grow" in str(bad.exception)
     bad = CliRunner().invoke(app, ["track", str(blind_session), "--select-run", "--out", str(tmp_path)])
     assert isinstance(bad.exception, InputError) and "--select-run" in str(bad.exception)  # known shape: no
     args = ["track", str(blind_session), "--shape", "slam", "--select-run", "--max-frames", "10"]

@@ -43,7 +43,10 @@ from vtrack.geometry import se3
 from vtrack.geometry.camera import PinholeCamera
 from vtrack.tracking.frame import TrackingFrame
 
-SEGMENTATIONS = ("pipeline", "gt", "none")
+SEGMENTATIONS = ("pipeline", "gt", "none", "gt_colour", "gt_points")
+#: oracle ablations that split the mask's two uses: ``gt_colour`` follows the colour feature tracks on the renderer's
+#: mask and takes the depth points from the pipeline's; ``gt_points`` the reverse
+SPLIT_ORACLES = ("gt_colour", "gt_points")
 #: a colour track's full-resolution depth must agree with the depth-stride sample this well (m)
 _COLOUR_DEPTH_AGREE_M = 0.005
 
@@ -155,7 +158,9 @@ class SessionFrames:
         session: session directory or an open :class:`~vtrack.io.session.SessionReader`.
         modalities: subset of ("vision", "touch").
         tactile_source: ``pipeline`` (default) or ``gt`` (oracle ablation).
-        segmentation: ``pipeline`` (default), ``gt`` (oracle ablation) or ``none`` (all valid depth).
+        segmentation: ``pipeline`` (default), ``gt`` (oracle ablation), ``none`` (all valid depth), or the split
+            oracle ablations ``gt_colour`` (colour tracks on the renderer's mask, depth points from the pipeline's)
+            and ``gt_points`` (the reverse).
         depth_stride: pixel stride of the depth images.
         touch_stride: point stride of the tactile pipeline (working pixels).
         touch_downsample: working-resolution factor of the tactile pipeline (``auto``: from the image size).
@@ -171,6 +176,9 @@ class SessionFrames:
             (:mod:`vtrack.tracking.colour`; the tracker's colour term, option ``sigma_colour``); cameras without
             an ``rgb`` field give none. Off by default: the default path reads no RGB.
         colour_opts: :class:`~vtrack.tracking.colour.ColourOptions` overrides.
+        segmentation_opts: :class:`~vtrack.frames.segmentation.SegmentationOptions` overrides of the pipeline's
+            segmenter (e.g. ``{"colour_grow_px": 1}``, the heavy-occlusion colour mask); unknown names are an
+            :class:`~vtrack.errors.InputError`.
     """
 
     def __init__(
@@ -189,6 +197,7 @@ class SessionFrames:
         contact_free_max_vision: int = 30,
         colour: bool = False,
         colour_opts: dict | None = None,
+        segmentation_opts: dict | None = None,
     ) -> None:
         from vtrack.io.session import SessionReader, open_session
 
@@ -200,7 +209,7 @@ class SessionFrames:
             )
         if segmentation not in SEGMENTATIONS:
             raise InputError(
-                "unknown segmentation", field="segmentation", expected="pipeline | gt | none", got=segmentation
+                "unknown segmentation", field="segmentation", expected=" | ".join(SEGMENTATIONS), got=segmentation
             )
         self.reader = r = session if isinstance(session, SessionReader) else open_session(session)
         self.path = Path(r.path)
@@ -211,6 +220,12 @@ class SessionFrames:
         self.scene = scene or r.scene(check_files=False)
         self.tactile_source = tactile_source
         self.segmentation = segmentation
+        self._seg_opts: Any = None
+        if segmentation_opts:
+            from vtrack.config import build_config
+            from vtrack.frames.segmentation import SegmentationOptions
+
+            self._seg_opts = build_config(SegmentationOptions, segmentation_opts, "segmentation")
         self.depth_stride = max(1, int(depth_stride))
         self.contact_free_margin_m = float(contact_free_margin_m)
         self.contact_free_max_vision = int(contact_free_max_vision)
@@ -291,16 +306,16 @@ class SessionFrames:
     # ------------------------------------------------------------------ set-up
     def _setup_segmentation(self) -> None:
         for c in self.cams:
-            if self.segmentation == "gt":  # oracle ablation: the renderer's exact mask
+            if self.segmentation in ("gt", *SPLIT_ORACLES):  # oracle ablation: the renderer's exact mask
                 from vtrack.eval.oracle import gt_mask_stream
 
                 c.gt_mask = gt_mask_stream(self.reader, c.name)
-            elif self.segmentation == "pipeline":
+            if self.segmentation in ("pipeline", *SPLIT_ORACLES):
                 from vtrack import registry
 
                 k = self.depth_stride
                 h, w = -(-c.cam.height // k), -(-c.cam.width // k)
-                c.segmenter = registry.load("segmentation")(self.kin, c.strided(k, (h, w)), c.T_wc)
+                c.segmenter = registry.load("segmentation")(self.kin, c.strided(k, (h, w)), c.T_wc, self._seg_opts)
 
     def _joints_at(self, times: np.ndarray) -> np.ndarray | None:
         if self.kin is None:
@@ -416,12 +431,14 @@ class SessionFrames:
                     sensor_positions_world=sensor_pos if len(sensor_pos) else None,
                 )
                 mask = res.mask
+                colour_mask = res.colour_mask if res.colour_mask is not None else mask
                 if res.info.get("empty_reason"):
                     info.setdefault("segmentation", {})[c.name] = res.info["empty_reason"]
-            elif m is not None:
-                mask = m > 0
+                if m is not None:  # a split oracle: one of the mask's two uses gets the renderer's
+                    mask, colour_mask = (m > 0, colour_mask) if self.segmentation == "gt_points" else (mask, m > 0)
             else:
-                mask = z > 0
+                mask = m > 0 if m is not None else z > 0
+                colour_mask = mask
             masks[c.name] = mask
             pts, _ = cam.unproject(z, mask=mask, depth_scale=1.0)
             if len(pts):
@@ -429,7 +446,7 @@ class SessionFrames:
             rgb = raw.get("rgb", {}).get(c.name)
             if c.tracks is not None and rgb is not None:
                 # RGB as it is: the tracks convert to grey only the object's box
-                ids, P = self._colour_tracks(c, rgb, z, mask, raw.get("depth_full", {}).get(c.name))
+                ids, P = self._colour_tracks(c, rgb, z, colour_mask, raw.get("depth_full", {}).get(c.name))
                 cids.append(ids)
                 cpts.append(P)
                 corg.append(np.repeat(c.T_wc[None, :3, 3], len(P), axis=0))

@@ -184,7 +184,8 @@ def reconstruct_session(
         raise InputError("unknown reconstruction method", field="method", expected=" or ".join(METHODS), got=method)
     out = Path(out_dir)
     gt_data = SessionGroundTruth.find(gt, session_dir)
-    oracle = [n for n, v in (("tactile", tactile_source), ("segmentation", segmentation)) if v == "gt"]
+    # "gt" and the split segmentation oracles (gt_colour / gt_points) all read the renderer's masks
+    oracle = [n for n, v in (("tactile", tactile_source), ("segmentation", segmentation)) if v.startswith("gt")]
     track_metrics: dict[str, Any] | None = None
     mesh_frame: Path | None = None
     if str(poses) == "track":

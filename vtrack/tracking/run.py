@@ -258,7 +258,8 @@ def track_session(
         init: ``auto`` (above) or ``gt`` (ORACLE: the first ground-truth pose, perturbed by ``init_perturb``
             = (metres, radians)).
         gt: session with ground truth to SCORE against (default: this session if it has ``gt/``).
-        tactile_source / segmentation: ``pipeline`` (default) or ``gt`` (oracle ablations).
+        tactile_source / segmentation: ``pipeline`` (default) or ``gt`` (oracle ablations); segmentation also
+            ``gt_colour`` / ``gt_points`` (oracle: the renderer's mask for the colour tracks / the depth points only).
         max_frames: track only the first frames (0 = all).
         return_poses: return ``(metrics, (times, T_world_object))`` instead of the metrics alone.
         keep_frames: a dict that receives ``frames`` (the SessionFrames) and ``built`` (every
@@ -300,6 +301,7 @@ def track_session(
         # the colour term's feature tracks: RGB is read only when the tracker uses them (SLAM by default)
         colour=method == "ours" and colour_term_on(shape, opts),
         colour_opts=opts.pop("colour_opts", None),
+        segmentation_opts=opts.pop("segmentation_opts", None),
     )
     mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known_shape" or method == "icp") else None
     if (shape == "known_shape" or method == "icp") and mesh_path is None:
@@ -336,7 +338,7 @@ def track_session(
         init_from += f" perturbed by {init_perturb[0] * 1e3:.1f} mm / {np.degrees(init_perturb[1]):.1f} deg"
     if tactile_source == "gt":
         oracle.append("tactile")
-    if segmentation == "gt":
+    if segmentation.startswith("gt"):  # gt, or a split oracle (gt_colour / gt_points)
         oracle.append("segmentation")
     if shape == "known_shape" and method == "ours":
         known_shape_touch_defaults(opts, modalities)

@@ -23,7 +23,9 @@ def register(app: typer.Typer) -> None:
             "pipeline", "--tactile-source", help="pipeline (tactile images) | gt (ORACLE height maps)"
         ),
         segmentation: str = typer.Option(
-            "pipeline", "--segmentation", help="pipeline (no GT) | gt (ORACLE masks) | none"
+            "pipeline",
+            "--segmentation",
+            help="pipeline (no GT) | gt (ORACLE masks) | none | gt_colour / gt_points (ORACLE mask for one use only)",
         ),
         online: bool = typer.Option(False, "--online", help="neural SDF: frame-by-frame with a time budget"),
         iters: int = typer.Option(0, "--iters", help="neural SDF offline iterations (0 = OFFLINE_ITERS)"),

@@ -63,6 +63,13 @@ def register(app: typer.Typer) -> None:
             help="SLAM, heavy occlusion (opt-in): contact points kept in frames that see fewer than 300 depth points "
             "(12 is the measured setting, 0 = all 120; docs/benchmarks/few_touch.md)",
         ),
+        colour_grow: int = typer.Option(
+            0,
+            "--colour-grow",
+            help="heavy occlusion (opt-in): grow the colour tracks' mask by this many depth pixels into dropouts and "
+            "along the fingers (1 is the measured setting; hurts a well-seen object; "
+            "docs/benchmarks/heavy_mask_ablation.md)",
+        ),
         select_run: bool = typer.Option(
             False,
             "--select-run",
@@ -77,7 +84,9 @@ def register(app: typer.Typer) -> None:
             "pipeline", "--tactile-source", help="pipeline (tactile images) | gt (ORACLE height maps)"
         ),
         segmentation: str = typer.Option(
-            "pipeline", "--segmentation", help="pipeline (no GT) | gt (ORACLE masks) | none"
+            "pipeline",
+            "--segmentation",
+            help="pipeline (no GT) | gt (ORACLE masks) | none | gt_colour / gt_points (ORACLE mask for one use only)",
         ),
         init_perturb_mm: float = typer.Option(
             0.0, "--init-perturb-mm", help="with --init gt: start moved by this much (mm)"
@@ -124,6 +133,12 @@ def register(app: typer.Typer) -> None:
                     opts["few_touch_points"] = few_touch
                 if select_run:
                     opts["select_runs"] = True
+                if colour_grow < 0:
+                    raise InputError(
+                        "mask growth must be >= 0", field="--colour-grow", expected=">= 0", got=colour_grow
+                    )
+                if colour_grow > 0:
+                    opts["segmentation_opts"] = {"colour_grow_px": colour_grow}
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
 
