@@ -47,6 +47,8 @@ SEGMENTATIONS = ("pipeline", "gt", "none", "gt_colour", "gt_points")
 #: oracle ablations that split the mask's two uses: ``gt_colour`` follows the colour feature tracks on the renderer's
 #: mask and takes the depth points from the pipeline's; ``gt_points`` the reverse
 SPLIT_ORACLES = ("gt_colour", "gt_points")
+#: segmentations that read the renderer's masks: a run using one is an oracle ablation, never blind
+ORACLE_SEGMENTATIONS = ("gt", *SPLIT_ORACLES)
 #: a colour track's full-resolution depth must agree with the depth-stride sample this well (m)
 _COLOUR_DEPTH_AGREE_M = 0.005
 
@@ -306,7 +308,7 @@ class SessionFrames:
     # ------------------------------------------------------------------ set-up
     def _setup_segmentation(self) -> None:
         for c in self.cams:
-            if self.segmentation in ("gt", *SPLIT_ORACLES):  # oracle ablation: the renderer's exact mask
+            if self.segmentation in ORACLE_SEGMENTATIONS:  # oracle ablation: the renderer's exact mask
                 from vtrack.eval.oracle import gt_mask_stream
 
                 c.gt_mask = gt_mask_stream(self.reader, c.name)

@@ -168,7 +168,7 @@ def reconstruct_session(
     ``fscore`` at 1/2/5/10 mm, ``precision``, ``recall``, ``chamfer_mm``, ``normal_consistency``.
     """
     from vtrack.eval.session_gt import SessionGroundTruth
-    from vtrack.frames.session import SessionFrames
+    from vtrack.frames.session import ORACLE_SEGMENTATIONS, SessionFrames
     from vtrack.fusion.observations import SessionObservations, observations_from_frames
     from vtrack.io.export import export_mesh
     from vtrack.io.poses import PoseTrack, read_poses_csv, write_poses_csv
@@ -184,8 +184,9 @@ def reconstruct_session(
         raise InputError("unknown reconstruction method", field="method", expected=" or ".join(METHODS), got=method)
     out = Path(out_dir)
     gt_data = SessionGroundTruth.find(gt, session_dir)
-    # "gt" and the split segmentation oracles (gt_colour / gt_points) all read the renderer's masks
-    oracle = [n for n, v in (("tactile", tactile_source), ("segmentation", segmentation)) if v.startswith("gt")]
+    oracle = (["tactile"] if tactile_source == "gt" else []) + (
+        ["segmentation"] if segmentation in ORACLE_SEGMENTATIONS else []
+    )
     track_metrics: dict[str, Any] | None = None
     mesh_frame: Path | None = None
     if str(poses) == "track":

@@ -276,7 +276,7 @@ def track_session(
             the metrics say ``select_scores_mm`` and ``selected_run`` (0 = the default setting).
         **opts: tracker options (:class:`~vtrack.tracking.window.TrackerOptions` fields, ...).
     """
-    from vtrack.frames.session import SessionFrames
+    from vtrack.frames.session import ORACLE_SEGMENTATIONS, SessionFrames
 
     if shape not in SHAPES:
         raise InputError("unknown shape mode", field="shape", expected="known_shape|slam", got=shape)
@@ -338,7 +338,7 @@ def track_session(
         init_from += f" perturbed by {init_perturb[0] * 1e3:.1f} mm / {np.degrees(init_perturb[1]):.1f} deg"
     if tactile_source == "gt":
         oracle.append("tactile")
-    if segmentation.startswith("gt"):  # gt, or a split oracle (gt_colour / gt_points)
+    if segmentation in ORACLE_SEGMENTATIONS:
         oracle.append("segmentation")
     if shape == "known_shape" and method == "ours":
         known_shape_touch_defaults(opts, modalities)
