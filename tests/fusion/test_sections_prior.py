@@ -79,3 +79,35 @@ def test_no_sections_for_box_ball_or_few_points():
     assert fit_sections(closed) is None
     assert fit_sections(np.zeros((10, 3))) is None
     assert fit_sections(np.full((500, 3), np.nan)) is None
+
+
+def _half_edge_on_tube(rng, far_scale=1.0):
+    """Tube (38 x 30 mm section, bent) whose x < 0 half is seen over 2/3 of each section and whose x >= 0 half only
+    over a short arc (seen edge-on: its fitted curves extrapolate past ``max_grow``); the x >= 0 half's section is
+    ``far_scale`` times larger. Returns seen points (noisy) and the never-seen rest."""
+    x = rng.uniform(-0.09, 0.09, 40000)
+    a = rng.uniform(-np.pi, np.pi, 40000)
+    k = np.where(x < 0.0, 1.0, far_scale)
+    P = np.column_stack([x, 0.4 * x**2 + 0.019 * k * np.cos(a), 0.015 * k * np.sin(a)])
+    seen = np.where(x < 0.0, np.cos(a) > -0.45, np.cos(a) > 0.2)
+    return P[seen][:8000] + rng.normal(0, 0.0004, (8000, 3)), P[~seen]
+
+
+def test_short_arcs_are_trusted_when_their_size_agrees_with_a_neighbour():
+    """Sections seen over a short arc are refused by the growth test alone (the x >= 0 half stays open); with
+    ``consistent_grow`` they are accepted because their semi-axes agree with the accepted neighbour's, and the unseen
+    back there is then within 2 mm of the prior's surface. A short arc of a different size is still refused."""
+    seen, back = _half_edge_on_tube(np.random.default_rng(3))
+    far = (back[:, 0] > 0.02) & (back[:, 0] < 0.07)
+    S0 = fit_sections(seen, consistent_grow=0.0)
+    assert S0 is not None and S0.s.max() < 0.03
+    assert not np.isfinite(S0.sdf(back[far])).any()
+    S = fit_sections(seen, consistent_grow=2.5)
+    assert S is not None and S.s.max() > 0.07 and np.all(np.diff(S.s) > 0)
+    d = S.sdf(back[far])
+    assert np.isfinite(d).all()
+    assert np.percentile(np.abs(d), 90) < 0.002
+    # the same short arcs on a section 1.5x larger do not borrow the neighbour's trust
+    seen, _ = _half_edge_on_tube(np.random.default_rng(3), far_scale=1.5)
+    S = fit_sections(seen, consistent_grow=2.5)
+    assert S is None or S.s.max() < 0.01
