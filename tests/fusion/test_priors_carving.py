@@ -104,3 +104,15 @@ def test_unknown_prior_is_an_input_error():
 
     with pytest.raises(InputError, match="prior"):
         NeuralSDFReconstructor(prior="cube")
+
+
+@pytest.mark.parametrize(
+    "opts", [{"prior_weight": -1.0}, {"prior_weight": float("nan")}, {"sections_grow": -0.5}, {"prior_far_mm": 0.0}]
+)
+def test_bad_prior_option_names_the_field(opts):
+    from vtrack.errors import InputError
+    from vtrack.fusion.neural_sdf import NeuralSDFReconstructor
+
+    (name,) = opts
+    with pytest.raises(InputError, match=name):
+        NeuralSDFReconstructor(**opts)

@@ -146,7 +146,8 @@ class NeuralSDFConfig:
     carve_crop: the mesh is cut to the carved hull grown by one cell. mesh_band: narrow-band mesh extraction
     (:meth:`~NeuralSDFReconstructor.sdf_grid`: exact network queries only near the surface). sections (prior
     ``symmetric`` only, when no surface of revolution is found): unite the hull with the elliptic cross-sections of
-    an elongated cloud (:mod:`vtrack.fusion.sections`: the unseen back of a banana or a bottle).
+    an elongated cloud (:mod:`vtrack.fusion.sections`: the unseen back of a banana or a bottle); sections_grow: their
+    ``consistent_grow`` (0 = short seen arcs never trusted).
     prior_weight, prior_far_mm (offline, ``symmetric`` prior with elliptic sections): loss ``|sdf - prior|`` on
     uniform samples within the truncation band of the prior's surface where the sections extend the hull, weighted
     from 0 at ``prior_far_mm`` to 1 at twice that distance from every observed point: where nothing was seen the
@@ -187,6 +188,7 @@ class NeuralSDFConfig:
     carve_crop: bool = True
     mesh_band: bool = True
     sections: bool = True
+    sections_grow: float = 2.5
     box: bool = True
     box_free_max: float = 0.5
     prior_weight: float = 1.0
@@ -215,6 +217,12 @@ class NeuralSDFReconstructor:
             raise InputError(
                 "unknown neural SDF prior", field="prior", expected=" | ".join(PRIORS), got=self.config.prior
             )
+        for name in ("prior_weight", "sections_grow", "prior_far_mm"):
+            v = getattr(self.config, name)
+            if not (np.isfinite(v) and v >= 0 and (v > 0 or name != "prior_far_mm")):
+                raise InputError(
+                    "bad neural SDF option", field=name, expected="a finite number >= 0 (> 0 for prior_far_mm)", got=v
+                )
         self.opts = asdict(self.config)
         seed = self.config.seed
         if threads:
@@ -239,6 +247,8 @@ class NeuralSDFReconstructor:
         self._carve: Any = None  # vtrack.fusion.carve.CarveGrid once fit() carved the box
         self._hull_prior: Any = None  # ((r + 1)^3, 1) torch table of the convex-hull prior over the box
         self._hull_res = 0
+        self._obs_dist: Any = None  # ((r + 1)^3, 1) torch table: distance (m) to the observations where the
+        # sections make the prior, 0 elsewhere (prior_weight)
         self.revolution: Any = None  # vtrack.fusion.symmetry.Revolution found by the symmetric prior, if any
         self.sections: Any = None  # vtrack.fusion.sections.Sections found by the symmetric prior, if any
         self.box: Any = None  # vtrack.fusion.boxprior.Box found by the symmetric prior, if any
@@ -524,7 +534,7 @@ class NeuralSDFReconstructor:
             far_l = torch.relu(lo_t - fr) + torch.relu(fr - hi_t)
             l_free = torch.where(nm, near_l, far_l).mean() / sc
         l_prior = torch.zeros(())
-        if o["prior_weight"] > 0 and getattr(self, "_obs_dist", None) is not None:
+        if o["prior_weight"] > 0 and self._obs_dist is not None:
             # far from every observation the surface is the prior's (see NeuralSDFConfig.prior_weight)
             with torch.no_grad():
                 ue = ((x[B:] - torch.as_tensor(self.lo, dtype=x.dtype)) / self.size).clamp(0.0, 1.0)
@@ -647,7 +657,7 @@ class NeuralSDFReconstructor:
             if self.revolution is None and self.box is None and self.opts["sections"]:
                 from vtrack.fusion.sections import fit_sections
 
-                self.sections = fit_sections(P)
+                self.sections = fit_sections(P, consistent_grow=self.opts["sections_grow"])
                 if self.sections is not None:
                     before_sections = val.copy()
                     np.minimum(val, self.sections.sdf(G).astype(np.float32), out=val)
