@@ -36,31 +36,23 @@ def _run(args: tuple) -> dict:
 def _write(prefix: str, rows: list[dict]) -> None:
     import csv
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+    from ablation_plot import grouped_bars_png
 
     with open(prefix + ".csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["object", "seed", "segmentation", "blind", "motion_err_mm"])
         for r in sorted(rows, key=lambda r: (r["obj"], r["seed"], MASKS.index(r["segmentation"]))):
             w.writerow([r["obj"], r["seed"], r["segmentation"], int(r["blind"]), f"{r['err_mm']:.4f}"])
-    objs = sorted({r["obj"] for r in rows})
-    settings = [g for g in MASKS if any(r["segmentation"] == g for r in rows)]
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    width = 0.8 / len(settings)
-    for k, seg in enumerate(settings):
-        y = [np.mean([r["err_mm"] for r in rows if r["obj"] == o and r["segmentation"] == seg]) for o in objs]
-        label = f"{seg} (oracle)" if seg.startswith("gt") else f"{seg} (blind)"
-        ax.bar(np.arange(len(objs)) + (k - (len(settings) - 1) / 2) * width, y, width, label=label)
-    ax.set_xticks(np.arange(len(objs)), [o.split("_", 1)[1] for o in objs], rotation=20)
-    ax.set_ylabel("object-motion error (mm), mean over seeds")
-    ax.legend()
-    ax.set_title("SLAM under occlusion: which use of the mask costs the error")
-    fig.tight_layout()
-    fig.savefig(prefix + ".png", dpi=120)
+    grouped_bars_png(
+        prefix + ".png",
+        sorted({r["obj"] for r in rows}),
+        [g for g in MASKS if any(r["segmentation"] == g for r in rows)],
+        lambda o, g: float(np.mean([r["err_mm"] for r in rows if r["obj"] == o and r["segmentation"] == g])),
+        ylabel="object-motion error (mm), mean over seeds",
+        title="SLAM under occlusion: which use of the mask costs the error",
+        label=lambda g: f"{g} (oracle)" if g.startswith("gt") else f"{g} (blind)",
+    )
 
 
 def main() -> None:

@@ -78,11 +78,8 @@ def _run(args: tuple) -> list[dict]:
 def _write(prefix: str, rows: list[dict], settings: list[str]) -> None:
     import csv
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
+    from ablation_plot import grouped_bars_png
 
     with open(prefix + ".csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -92,20 +89,16 @@ def _write(prefix: str, rows: list[dict], settings: list[str]) -> None:
                 [r["obj"], r["seed"], r["setting"], r["prior"]]
                 + [f"{r[k]:.4f}" for k in ("fscore_5mm", "precision", "recall", "chamfer_mm")]
             )
-    objs = sorted({r["obj"] for r in rows})
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    width = 0.8 / len(settings)
-    for k, g in enumerate(settings):
-        y = [np.mean([r["fscore_5mm"] for r in rows if r["obj"] == o and r["setting"] == g]) for o in objs]
-        ax.bar(np.arange(len(objs)) + (k - (len(settings) - 1) / 2) * width, y, width, label=g)
-    ax.axhline(0.9, color="k", lw=0.8, ls="--")
-    ax.set_ylim(0.6, 1.0)
-    ax.set_xticks(np.arange(len(objs)), [o.split("_", 1)[1] for o in objs], rotation=20)
-    ax.set_ylabel("F@5 mm, mean over seeds (blind)")
-    ax.legend()
-    ax.set_title("neural SDF shape prior: elliptic sections, short arcs and holding the unseen back")
-    fig.tight_layout()
-    fig.savefig(prefix + ".png", dpi=120)
+    grouped_bars_png(
+        prefix + ".png",
+        sorted({r["obj"] for r in rows}),
+        settings,
+        lambda o, g: float(np.mean([r["fscore_5mm"] for r in rows if r["obj"] == o and r["setting"] == g])),
+        ylabel="F@5 mm, mean over seeds (blind)",
+        title="neural SDF shape prior: elliptic sections, short arcs and holding the unseen back",
+        ylim=(0.6, 1.0),
+        hline=0.9,
+    )
 
 
 def main() -> None:
