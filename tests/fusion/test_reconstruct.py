@@ -158,3 +158,36 @@ def test_pose_refinement_writes_the_corrected_poses(tiny_session, tmp_path):
     assert np.allclose(tr.T[0], T_gt[0], atol=1e-5)
     # GT poses only need small corrections (< 2 cm anywhere), and every pose is rigid and finite
     assert np.all(np.isfinite(tr.T)) and np.max(np.linalg.norm(tr.T[:, :3, 3] - T_gt[:, :3, 3], axis=1)) < 0.02
+
+
+def test_colour_grow_flag_reaches_tracking_and_is_checked(tmp_path, monkeypatch):
+    """``vtrack reconstruct --colour-grow N`` hands the segmenter option to tracking (with the second pass when given);
+    a negative value, or growth without tracked poses, is an InputError naming the flag."""
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    import vtrack.fusion.reconstruct as rec
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake(session, out, **kw):
+        seen.update(kw)
+        raise Stop
+
+    monkeypatch.setattr(rec, "reconstruct_session", fake)
+    base = ["reconstruct", str(tmp_path), "--out", str(tmp_path / "o")]
+    r = CliRunner().invoke(app, [*base, "--colour-grow", "1", "--second-pass", "2"])
+    assert isinstance(r.exception, Stop)
+    assert seen["track_opts"] == {"second_pass_s": 2.0, "segmentation_opts": {"colour_grow_px": 1}}
+    seen.clear()
+    r = CliRunner().invoke(app, base)
+    assert isinstance(r.exception, Stop) and seen["track_opts"] is None
+    from vtrack.errors import InputError
+
+    for extra in (["--colour-grow", "-1"], ["--colour-grow", "1", "--poses", "gt"]):
+        r = CliRunner().invoke(app, [*base, *extra])
+        # InputError: the entry point prints it as one line and exits 2 (tests/hostile)
+        assert isinstance(r.exception, InputError) and "--colour-grow" in str(r.exception), r.output

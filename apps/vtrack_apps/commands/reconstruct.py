@@ -36,6 +36,12 @@ def register(app: typer.Typer) -> None:
             help="--poses track with SLAM: track the first SECONDS again, backwards, against the final map before "
             "fusing (default: the whole session; 0 = off)",
         ),
+        colour_grow: int = typer.Option(
+            0,
+            "--colour-grow",
+            help="--poses track, heavy occlusion (opt-in): grow the colour tracks' mask by this many depth pixels "
+            "(as `vtrack track --colour-grow`; docs/benchmarks/heavy_mask_ablation.md)",
+        ),
         no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
     ) -> None:
@@ -51,6 +57,20 @@ def register(app: typer.Typer) -> None:
                 field="--second-pass",
                 expected="--poses track without --mesh",
             )
+        if colour_grow < 0 or (colour_grow > 0 and poses != "track"):
+            from vtrack.errors import InputError
+
+            raise InputError(
+                "the colour tracks' mask growth applies to tracking",
+                field="--colour-grow",
+                expected=">= 0, and > 0 only with --poses track",
+                got=colour_grow,
+            )
+        track_opts: dict = {}
+        if second_pass is not None and mesh is None and poses == "track":
+            track_opts["second_pass_s"] = second_pass
+        if colour_grow > 0:
+            track_opts["segmentation_opts"] = {"colour_grow_px": colour_grow}
         opts = {}
         if iters > 0:
             opts["n_iters"] = iters
@@ -68,10 +88,8 @@ def register(app: typer.Typer) -> None:
             segmentation=segmentation,
             online=online,
             screenshot=not no_screenshot,
-            # SLAM's own default (the whole session) unless given; a known shape has no second pass
-            track_opts=None
-            if second_pass is None or mesh is not None or poses != "track"
-            else {"second_pass_s": second_pass},
+            # SLAM's own second pass (the whole session) unless given; a known shape has none
+            track_opts=track_opts or None,
             **opts,
         )
         keys = (
