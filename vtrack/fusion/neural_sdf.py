@@ -623,7 +623,7 @@ class NeuralSDFReconstructor:
         G32, eq32 = G.astype(np.float32), eq.astype(np.float32)
         for a in range(0, len(eq), 128):
             np.maximum(val, (G32 @ eq32[a : a + 128, :3].T + eq32[a : a + 128, 3]).max(1), out=val)
-        before_sections = None
+        sections_add = None  # grid nodes where the sections extend the hull (held by prior_weight)
         if self.opts["prior"] == "symmetric":
             from vtrack.fusion.symmetry import fit_revolution
 
@@ -659,13 +659,14 @@ class NeuralSDFReconstructor:
 
                 self.sections = fit_sections(P, consistent_grow=self.opts["sections_grow"])
                 if self.sections is not None:
-                    before_sections = val.copy()
-                    np.minimum(val, self.sections.sdf(G).astype(np.float32), out=val)
+                    sv = self.sections.sdf(G).astype(np.float32)
+                    sections_add = sv < val - 1e-4
+                    np.minimum(val, sv, out=val)
         torch = _torch()
         self._hull_prior = torch.tensor(val[:, None], dtype=torch.float32)
         self._hull_res = r
         self._obs_dist = None
-        if self.opts["prior_weight"] > 0 and before_sections is not None:
+        if self.opts["prior_weight"] > 0 and sections_add is not None:
             from scipy.spatial import cKDTree
 
             # distance (m) from each grid node to the nearest observed point, capped (only "far" matters)
@@ -674,7 +675,7 @@ class NeuralSDFReconstructor:
             # only where the sections (not the hull) make the prior: the hull over-fills concave unseen parts (a
             # banana's inner curve), which the data must stay free to carve; revolution and box completions lost
             # F@5 when held like this (soup can, mug, potted meat can; docs/benchmarks/sections_hold.md)
-            dist = np.where(val < before_sections - 1e-4, dist, 0.0)
+            dist = np.where(sections_add, dist, 0.0)
             self._obs_dist = torch.tensor(dist[:, None], dtype=torch.float32)
         return True
 

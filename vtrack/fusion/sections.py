@@ -234,7 +234,7 @@ def fit_sections(
     s, q = L[:, 0], L[:, 1:]
     centres = np.arange(s.min() + 0.5 * slab, s.max() - 0.5 * slab + 1e-9, step)
     kept_s, kept_e = [], []
-    grown: list[tuple[float, np.ndarray, np.ndarray, float]] = []  # refused for growth only: (s, ellipse, mask, grow)
+    grown: list[tuple[float, np.ndarray, np.ndarray]] = []  # refused for growth only: (s, ellipse, point mask)
     covered = np.zeros(len(P), bool)
     open_ = np.zeros(len(P), bool)  # points in slabs whose section is open (seen over less than the full turn)
     for sc_ in centres:
@@ -274,12 +274,12 @@ def fit_sections(
             kept_e.append(ell)
             covered |= m
         elif rms <= tol and arc >= min_arc and grow <= consistent_grow:
-            grown.append((sc_, ell, m, grow))
+            grown.append((sc_, ell, m))
     if kept_s and grown:
         # second pass: a short arc's curve is trusted when it agrees in size with an accepted neighbour
         ks = np.asarray(kept_s)
         ke = np.asarray(kept_e)
-        for sc_, ell, m, _ in grown:
+        for sc_, ell, m in grown:
             # the nearest accepted slab on each side (a tapering end may disagree with one of them)
             left, right = ks <= sc_, ks >= sc_
             refs = [ke[left][np.argmax(ks[left])]] if left.any() else []
