@@ -57,20 +57,20 @@ def register(app: typer.Typer) -> None:
                 field="--second-pass",
                 expected="--poses track without --mesh",
             )
-        if colour_grow < 0 or (colour_grow > 0 and poses != "track"):
+        from vtrack_apps.commands.track import colour_grow_opts
+
+        if colour_grow > 0 and poses != "track":
             from vtrack.errors import InputError
 
             raise InputError(
                 "the colour tracks' mask growth applies to tracking",
                 field="--colour-grow",
-                expected=">= 0, and > 0 only with --poses track",
-                got=colour_grow,
+                expected="--poses track",
+                got=poses,
             )
-        track_opts: dict = {}
+        track_opts = colour_grow_opts(colour_grow)
         if second_pass is not None and mesh is None and poses == "track":
             track_opts["second_pass_s"] = second_pass
-        if colour_grow > 0:
-            track_opts["segmentation_opts"] = {"colour_grow_px": colour_grow}
         opts = {}
         if iters > 0:
             opts["n_iters"] = iters

@@ -7,6 +7,16 @@ from pathlib import Path
 import typer
 
 
+def colour_grow_opts(colour_grow: int) -> dict:
+    """``track_session`` options of ``--colour-grow N`` (the opt-in colour-mask growth; shared with ``vtrack
+    reconstruct``): ``{}`` for 0; a negative N is an InputError naming the flag."""
+    if colour_grow < 0:
+        from vtrack.errors import InputError
+
+        raise InputError("mask growth must be >= 0", field="--colour-grow", expected=">= 0", got=colour_grow)
+    return {"segmentation_opts": {"colour_grow_px": colour_grow}} if colour_grow > 0 else {}
+
+
 def register(app: typer.Typer) -> None:
     @app.command("track")
     def track(
@@ -133,12 +143,7 @@ def register(app: typer.Typer) -> None:
                     opts["few_touch_points"] = few_touch
                 if select_run:
                     opts["select_runs"] = True
-                if colour_grow < 0:
-                    raise InputError(
-                        "mask growth must be >= 0", field="--colour-grow", expected=">= 0", got=colour_grow
-                    )
-                if colour_grow > 0:
-                    opts["segmentation_opts"] = {"colour_grow_px": colour_grow}
+                opts.update(colour_grow_opts(colour_grow))
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
 
