@@ -42,7 +42,10 @@ def test_refreshed_anchor_stops_even_and_odd_frames_drifting_apart(can_seq_mediu
     seq = can_seq_medium
     alt, err = {}, {}
     for refresh in (False, True):
-        tr = SLAMTracker(seq.gt[0], anchor_refresh=refresh)
+        # without the observed-surface gate: past the occluder's edge the map's extrapolated band is what the free
+        # spin read, and that is where the two chains parted (with the gate even the stale anchor zig-zags by only
+        # 0.23 deg here; tests/tracking/test_observed_gate.py)
+        tr = SLAMTracker(seq.gt[0], anchor_refresh=refresh, observed_gate=0.0)
         E, e = run_sequence(tr, seq)
         assert np.isfinite(E).all()
         alt[refresh], err[refresh] = _alternation_deg(E, seq.gt), float(e.mean())

@@ -21,7 +21,10 @@ def matured(mustard_seq):
     from vtrack.testing.sequences import run_sequence
     from vtrack.tracking.slam import SLAMTracker
 
-    tr = SLAMTracker(mustard_seq.gt[0], second_pass_s=0.5)
+    # without the observed-surface gate: on this sparse 120 x 90 sequence (no occluder, 2-3 mm between depth points)
+    # the gate drops valid points between the surfels and the first pass itself tracks worse (mean centre error
+    # 0.39 -> 0.74 mm; the YCB 2 s unoccluded sessions are unchanged, docs/benchmarks/slam_observed_gate.md)
+    tr = SLAMTracker(mustard_seq.gt[0], second_pass_s=0.5, observed_gate=0.0)
     E, err = run_sequence(tr, mustard_seq)
     return tr, E, err
 

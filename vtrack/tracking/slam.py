@@ -300,6 +300,15 @@ class SLAMOptions:
     #: sphere (docs/benchmarks/sphere_prior.md): 5 s 2.113 / 1.800 / 1.501 -> 0.759 / 0.686 / 1.139 mm; the other
     #: five YCB objects never trigger it
     shape_prior: str = "sphere"
+    #: track only the depth points within this distance of a fused surfel, m (0 = off). Beyond the map's
+    #: frontier the band's SDF is the frontier surfels' tangent planes extended: the surface that turns into view
+    #: there is read against the old faces' planes, and each frame drags the rotation back (5 s medium: the mug and
+    #: the potted meat turned 6-10 % too little, the banana lost its roll; docs/benchmarks/slam_observed_gate.md).
+    #: Not applied while the sphere prior holds (the ball's completion is a real surface, not an extrapolation)
+    observed_gate: float = 0.0025
+    #: the gate is waived in a frame where it would keep less than this fraction of the depth points (the
+    #: prediction is off the surface, not past its frontier)
+    observed_keep: float = 0.5
 
     @staticmethod
     def split(opts: dict) -> tuple[SLAMOptions, BackendOptions, TrackerOptions]:
@@ -320,6 +329,20 @@ class SLAMOptions:
                 field="second_pass_max_move",
                 expected=">= 0 (0 = no gate)",
                 got=so.second_pass_max_move,
+            )
+        if not 0.0 <= float(so.observed_keep) <= 1.0:
+            raise InputError(
+                "observed-surface gate's kept fraction must be in [0, 1]",
+                field="observed_keep",
+                expected="0..1 (0 = never waived)",
+                got=so.observed_keep,
+            )
+        if not 0.0 <= float(so.observed_gate) < math.inf:
+            raise InputError(
+                "observed-surface gate must be a distance >= 0 m",
+                field="observed_gate",
+                expected="a finite distance >= 0 m (0 = off)",
+                got=so.observed_gate,
             )
         if not 0.0 <= float(so.second_pass_blend) <= 1.0:
             raise InputError(
@@ -439,6 +462,8 @@ class SLAMTracker(WindowTracker):
         self._ref_P = self._ref_N = np.zeros((0, 3))
         self._data_values: np.ndarray | None = None  #: the grid from the surfels alone (before the shape prior)
         self.shape_prior = SpherePrior(so.shape_prior)
+        self.observed_gate, self.observed_keep = float(so.observed_gate), float(so.observed_keep)
+        self._surfel_tree = None
         self.kf_graph: list[Keyframe] = []  #: back-end keyframes (world points + normals, front-end pose)
         self.kf_thinned = 0  #: keyframes dropped to stay within kf_max (reported by the back end)
         self.backend_report: dict[str, Any] = {}
@@ -466,7 +491,8 @@ class SLAMTracker(WindowTracker):
 
     # -- tracking with map-aware gating ---------------------------------------------------
     def _gate(self, fr: TrackingFrame, T_pred: np.ndarray) -> TrackingFrame:
-        """Drop points in unmapped space (SDF at the truncation value) besides the usual gate."""
+        """Drop points in unmapped space (SDF at the truncation value) and depth points off the observed surface
+        (``observed_gate``) besides the usual gate."""
         fr = super()._gate(fr, T_pred)
         if len(self.map) == 0:
             return fr
@@ -474,12 +500,33 @@ class SLAMTracker(WindowTracker):
             P = getattr(fr, name)
             if P is None or len(P) == 0:
                 continue
-            d, _ = self.sdf.query(se3.transform_points(se3.invert(T_pred), P), with_grad=False)
+            Q = se3.transform_points(se3.invert(T_pred), P)
+            d, _ = self.sdf.query(Q, with_grad=False)
             keep = d < 0.95 * self.trunc
+            if name == "vision_points" and self._gating_observed():
+                # Distance in 3-D, not along the surface: a face turning into view behind the old face's plane
+                # projects onto that face's edge. A prediction off by more than the gate along the normal would
+                # lose most points too; then the gate is waived (like the distance gate, recovery decides).
+                obs = self._observed(Q)
+                if (keep & obs).sum() >= self.observed_keep * keep.sum():
+                    keep &= obs
             setattr(fr, name, P[keep])
             if name == "touch_points" and fr.touch_normals is not None and len(fr.touch_normals) == len(keep):
                 fr.touch_normals = fr.touch_normals[keep]
         return fr
+
+    def _gating_observed(self) -> bool:
+        """Whether the observed-surface gate is in force: on, after the first grid update, and not while the sphere
+        prior holds (the ball's completion is a surface, not an extrapolation)."""
+        return self.observed_gate > 0 and self._surfel_tree is not None and self.shape_prior.sphere is None
+
+    def _observed(self, Q: np.ndarray) -> np.ndarray:
+        """(N,) bool: object-frame points ``Q`` (N, 3) within ``observed_gate`` of a surfel of the last grid
+        update (all True when the gate is not in force, :meth:`_gating_observed`)."""
+        if not self._gating_observed():
+            return np.ones(len(Q), bool)
+        d, _ = self._surfel_tree.query(Q, k=1, distance_upper_bound=self.observed_gate)
+        return np.isfinite(d)
 
     def step(self, frame: TrackingFrame) -> np.ndarray:
         first = len(self.map) == 0
@@ -753,6 +800,14 @@ class SLAMTracker(WindowTracker):
             src = np.concatenate([S.take(mi, 0), self._ref_P.take(pos[mi[old[mi]]], 0)]) if len(mi) else S[:0]
         self._ref_keys, self._ref_P, self._ref_N = keys.copy(), S, N
         self.map.n_new = 0
+        tree = None
+        if len(src) or self.observed_gate > 0:
+            from scipy.spatial import cKDTree
+
+            # larger leaves than the default 16, and no median balancing / node compaction: faster queries on
+            # 10^4 surfels (exact nearest neighbours either way); shared by the band values and the observed gate
+            tree = cKDTree(S, leafsize=32, balanced_tree=False, compact_nodes=False)
+        self._surfel_tree = tree
         if full or self._data_values is None:
             grid = np.full(tuple(n), self.trunc, np.float32)
         else:
@@ -769,7 +824,7 @@ class SLAMTracker(WindowTracker):
                 ball=full,
             )
             X = lo + v * bi
-            val, wsum = surfel_band_sdf(X, S, N, W, self.trunc, 0.5 * self.map.voxel)
+            val, wsum = surfel_band_sdf(X, S, N, W, self.trunc, 0.5 * self.map.voxel, tree=tree)
             if neural:
                 near = wsum > 0
                 nv, _ = self.neural.query(X[near], with_grad=False)
