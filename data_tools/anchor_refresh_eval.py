@@ -92,23 +92,7 @@ def main(secs: float, occ: str, seeds: list[int], objs: list[str], mods: tuple, 
 
 
 if __name__ == "__main__":
-    import argparse
+    from sweep_cli import parse_sweep, sweep_parser
 
-    from vtrack.testing.sim import ycb_objects
-
-    ap = argparse.ArgumentParser(description="SLAM window anchor: stale against refreshed, per session.")
-    ap.add_argument("seconds", type=float)
-    ap.add_argument("occlusion")
-    ap.add_argument("seeds", help="comma-separated simulator seeds")
-    ap.add_argument("objects", nargs="?", default="", help="comma-separated YCB names (default: all shared)")
-    ap.add_argument("--vision", action="store_true", help="vision only")
-    ap.add_argument("--out", default=None, help="write PREFIX.csv and PREFIX.png")
-    a = ap.parse_args()
-    main(
-        a.seconds,
-        a.occlusion,
-        [int(s) for s in a.seeds.split(",")],
-        a.objects.split(",") if a.objects else ycb_objects(),
-        ("vision",) if a.vision else ("vision", "touch"),
-        a.out,
-    )
+    sw, _ = parse_sweep(sweep_parser("SLAM window anchor: stale against refreshed, per session."))
+    main(sw.seconds, sw.occlusion, sw.seeds, sw.objects, sw.modalities, sw.out)

@@ -96,25 +96,9 @@ def main(
 
 
 if __name__ == "__main__":
-    import argparse
+    from sweep_cli import parse_sweep, sweep_parser
 
-    from vtrack.testing.sim import ycb_objects
-
-    ap = argparse.ArgumentParser(description="SLAM observed-surface gate: off against on, per session.")
-    ap.add_argument("seconds", type=float)
-    ap.add_argument("occlusion")
-    ap.add_argument("seeds", help="comma-separated simulator seeds")
-    ap.add_argument("objects", nargs="?", default="", help="comma-separated YCB names (default: all shared)")
-    ap.add_argument("--vision", action="store_true", help="vision only")
+    ap = sweep_parser("SLAM observed-surface gate: off against on, per session.")
     ap.add_argument("--gates", default="0,0.0025", help="comma-separated gates, m (0 = off)")
-    ap.add_argument("--out", default=None, help="write PREFIX.csv and PREFIX.png")
-    a = ap.parse_args()
-    main(
-        a.seconds,
-        a.occlusion,
-        [int(s) for s in a.seeds.split(",")],
-        a.objects.split(",") if a.objects else ycb_objects(),
-        ("vision",) if a.vision else ("vision", "touch"),
-        [float(g) for g in a.gates.split(",")],
-        a.out,
-    )
+    sw, a = parse_sweep(ap)
+    main(sw.seconds, sw.occlusion, sw.seeds, sw.objects, sw.modalities, [float(g) for g in a.gates.split(",")], sw.out)

@@ -62,12 +62,36 @@ def test_sphere_prior_completion_is_not_gated():
     assert tr._observed(Q).tolist() == [True, True]
 
 
-@pytest.mark.parametrize("bad", [-0.001, float("nan"), float("inf")])
-def test_bad_gate_names_the_field(bad):
+@pytest.mark.parametrize(
+    "field,bad",
+    [
+        ("observed_gate", -0.001),
+        ("observed_gate", float("nan")),
+        ("observed_gate", float("inf")),
+        ("observed_keep", 1.5),
+        ("observed_min_vision", -1),
+    ],
+)
+def test_bad_gate_names_the_field(field, bad):
     from vtrack.tracking.slam import SLAMTracker
 
-    with pytest.raises(InputError, match="observed_gate"):
-        SLAMTracker(np.eye(4), observed_gate=bad)
+    with pytest.raises(InputError, match=field):
+        SLAMTracker(np.eye(4), **{field: bad})
+
+
+def test_a_frame_with_few_points_is_not_gated():
+    """Heavy occlusion: a frame that sees a few strips of the object sees mostly new surface; all of it is tracked."""
+    from vtrack.tracking.slam import SLAMTracker
+
+    tr = SLAMTracker(np.eye(4))
+    tr.step(_plane_frame(np.arange(-0.02, 0.0001, 0.001)))
+    X, Y = np.meshgrid(np.arange(-0.004, 0.0101, 0.002), np.arange(-0.01, 0.0101, 0.002))  # 8 x 11 = 88 points
+    P = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
+    kept = tr._gate(TrackingFrame(t=1 / 30, vision_points=P.copy()), np.eye(4))
+    assert len(kept.vision_points) == len(P) < tr.observed_min_vision
+    tr.observed_min_vision = 0  # the same frame, gated: the points past the frontier go
+    kept = tr._gate(TrackingFrame(t=1 / 30, vision_points=P.copy()), np.eye(4))
+    assert 0 < len(kept.vision_points) < len(P)
 
 
 @pytest.fixture(scope="module")
