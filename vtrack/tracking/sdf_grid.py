@@ -240,6 +240,15 @@ def band_voxels(src_ijk: np.ndarray, shape: np.ndarray, radius: float, ball: boo
     return np.argwhere(band) + b0
 
 
+def surfel_tree(S: np.ndarray):
+    """KD-tree (scipy ``cKDTree``) of surfel positions ``S`` (K, 3) for nearest-surfel queries."""
+    from scipy.spatial import cKDTree
+
+    # larger leaves than the default 16, and no median balancing / node compaction: 20 % and a further ~10 % faster
+    # queries on 10^4 surfels (exact k nearest either way: the same neighbours)
+    return cKDTree(S, leafsize=32, balanced_tree=False, compact_nodes=False)
+
+
 def surfel_band_sdf(
     X: np.ndarray,
     S: np.ndarray,
@@ -264,15 +273,12 @@ def surfel_band_sdf(
         values (M,) float32 in ``[-trunc, trunc]`` (``trunc`` where no surfel is within reach) and the
         weight sums (M,) (0 there).
     """
-    from scipy.spatial import cKDTree
 
     k = min(int(k), len(S))
     if len(X) == 0 or k == 0:
         return np.full(len(X), trunc, np.float32), np.zeros(len(X))
     if tree is None:
-        # larger leaves than the default 16, and no median balancing / node compaction: 20 % and a further ~10 %
-        # faster queries on 10^4 surfels (exact k nearest either way: the same neighbours)
-        tree = cKDTree(S, leafsize=32, balanced_tree=False, compact_nodes=False)
+        tree = surfel_tree(S)
     dist, idx = tree.query(X, k=k, distance_upper_bound=trunc)
     dist = dist.reshape(len(X), k)
     idx = idx.reshape(len(X), k)

@@ -34,7 +34,7 @@ from vtrack.geometry import se3
 from vtrack.geometry.pointcloud import row_norms
 from vtrack.tracking.frame import TrackingFrame
 from vtrack.tracking.posegraph import BackendOptions, Keyframe, interpolate_corrections, refine_keyframes
-from vtrack.tracking.sdf_grid import SDFGrid, band_voxels, surfel_band_sdf
+from vtrack.tracking.sdf_grid import SDFGrid, band_voxels, surfel_band_sdf, surfel_tree
 from vtrack.tracking.shape_prior import MODES as SHAPE_PRIOR_MODES
 from vtrack.tracking.shape_prior import SpherePrior
 from vtrack.tracking.window import TrackerOptions, WindowTracker
@@ -520,10 +520,11 @@ class SLAMTracker(WindowTracker):
                 # projects onto that face's edge. A prediction off by more than the gate along the normal would
                 # lose most points too; then the gate is waived (like the distance gate, recovery decides), and in a
                 # frame with few points, most of them new surface.
-                obs = self._observed(Q)
                 n = int(keep.sum())
-                if n >= self.observed_min_vision and (keep & obs).sum() >= self.observed_keep * n:
-                    keep &= obs
+                if n >= self.observed_min_vision:  # (the tree query only in frames the gate may apply to)
+                    obs = self._observed(Q)
+                    if (keep & obs).sum() >= self.observed_keep * n:
+                        keep &= obs
             setattr(fr, name, P[keep])
             if name == "touch_points" and fr.touch_normals is not None and len(fr.touch_normals) == len(keep):
                 fr.touch_normals = fr.touch_normals[keep]
@@ -816,11 +817,7 @@ class SLAMTracker(WindowTracker):
         self.map.n_new = 0
         tree = None
         if len(src) or self.observed_gate > 0:
-            from scipy.spatial import cKDTree
-
-            # larger leaves than the default 16, and no median balancing / node compaction: faster queries on
-            # 10^4 surfels (exact nearest neighbours either way); shared by the band values and the observed gate
-            tree = cKDTree(S, leafsize=32, balanced_tree=False, compact_nodes=False)
+            tree = surfel_tree(S)  # shared by the band values and the observed gate
         self._surfel_tree = tree
         if full or self._data_values is None:
             grid = np.full(tuple(n), self.trunc, np.float32)
