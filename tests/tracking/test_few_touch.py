@@ -1,4 +1,4 @@
-"""The contact budget of frames that see little (``TrackerOptions.few_touch_points``, SLAM's ``SLAM_FEW_TOUCH``).
+"""The contact budget of frames that see little (``TrackerOptions.few_touch_points``; SLAM default ``SLAM_FEW_TOUCH``).
 
 A sliding contact patch matched against a map the contacts built is off as a whole; its 120 pixels are not 120
 measurements. With the budget a touch-only frame steers the pose only as far as a few measurements would.
@@ -43,7 +43,8 @@ def _vision(n: int) -> np.ndarray:
 def test_budget_applies_only_to_frames_that_see_little():
     o = SLAMOptions.split(dict(SLAM_FEW_TOUCH))[2]
     assert o.few_touch_points == 12 and o.few_touch_min_vision == 300
-    assert SLAMOptions.split({})[2].few_touch_points == 0 and TrackerOptions().few_touch_points == 0  # opt-in
+    # SLAM's default since 2026-11-28; the known-shape tracker keeps every contact (its shape is not built by them)
+    assert SLAMOptions.split({})[2].few_touch_points == 12 and TrackerOptions().few_touch_points == 0
     tr = WindowTracker(_Sphere(), np.eye(4), o)
     fr = _touch_frame(0.0, 0.0)
     assert tr._touch_budget(fr) == 12  # touch only
@@ -52,7 +53,7 @@ def test_budget_applies_only_to_frames_that_see_little():
         assert tr._touch_budget(fr) == want, nv
     fr.vision_points = np.full((500, 3), np.nan)  # 500 rows, none finite: the frame sees nothing
     assert tr._touch_budget(fr) == 12
-    off = WindowTracker(_Sphere(), np.eye(4), SLAMOptions.split({})[2])
+    off = WindowTracker(_Sphere(), np.eye(4), SLAMOptions.split({"few_touch_points": 0})[2])
     assert off._touch_budget(_touch_frame(0.0, 0.0)) == 120
 
 

@@ -30,20 +30,24 @@ def run(quick: bool = False) -> BenchTable:
     from vtrack.paths import shared_data_dir
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
     from vtrack.tracking.run import track_session
-    from vtrack.tracking.slam import SLAM_FEW_TOUCH, SLAM_TOUCH_WEAK_VISION
+    from vtrack.tracking.slam import SLAM_TOUCH_WEAK_VISION
 
     table = BenchTable(stage="heavy_occlusion", error_key="motion_err_mm", time_key="ms", threads=1)
     seconds = float(os.environ.get("VTRACK_BENCH_HEAVY_SECONDS", "2"))
     occs = os.environ.get("VTRACK_BENCH_HEAVY_OCC", "heavy" if quick else "none,medium,heavy").split(",")
     objects = [DEFAULT_OBJECT] if quick else ycb_objects()
     runs = [(f"slam/{m}", dict(shape="slam", modalities=mods)) for m, mods in MODES.items()]
-    # the SLAM heavy-occlusion preset (opt-in) beside the default
+    # the SLAM heavy-occlusion preset (opt-in) beside the default, and the default without its contact budget (every
+    # contact in frames that see little: SLAM's default before 2026-11-28, docs/benchmarks/few_touch.md)
     runs += [
         (
             "slam/vision+touch weak-vision preset",
             dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_TOUCH_WEAK_VISION),
         ),
-        ("slam/vision+touch few-touch preset", dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_FEW_TOUCH)),
+        (
+            "slam/vision+touch all contacts (few_touch_points=0)",
+            dict(shape="slam", modalities=MODES["vision+touch"], few_touch_points=0),
+        ),
     ]
     runs += [(f"known/{m}", dict(shape="known_shape", modalities=MODES[m])) for m in ("vision", "vision+touch")]
     if quick:

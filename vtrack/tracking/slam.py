@@ -174,14 +174,15 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 }
 
 
-#: Opt-in heavy-occlusion setting of SLAM (``track_session(..., **SLAM_FEW_TOUCH)``, ``vtrack track --few-touch
-#: 12``): a frame that sees fewer than 300 segmented depth points keeps at most 12 contact points instead of 120
-#: (``TrackerOptions.few_touch_points``), so that touch steers the pose no further from the motion prior than a few
-#: measurements would (a sliding patch read against the map it built is off as a whole). While a sphere prior is in
-#: force the contacts keep their full budget. Blind 2 s heavy-occlusion sessions, 6 YCB objects x seeds 0-2, mean
-#: motion error (docs/benchmarks/few_touch.md): vision only 3.27 mm, vision + touch 4.08 -> 2.97 mm. Not the
-#: default: on the 5 s medium sessions it shuffles the chaotic front end (mean 2.08 -> 2.44 mm; banana, seed 2:
-#: 3.9 -> 11.4 mm).
+#: SLAM's contact budget in frames that see little (default since 2026-11-28; ``few_touch_points=0`` turns it off,
+#: ``vtrack track --few-touch 0``): a frame that sees fewer than 300 segmented depth points keeps at most 12 contact
+#: points instead of 120 (``TrackerOptions.few_touch_points``), so that touch steers the pose no further from the
+#: motion prior than a few measurements would (a sliding patch read against the map it built is off as a whole).
+#: While a sphere prior is in force the contacts keep their full budget. Blind YCB sessions, 6 objects x seeds 0-2,
+#: mean motion error with the observed-surface gate, 120 -> 12 contacts (docs/benchmarks/few_touch.md, 2026-11-28):
+#: 2 s heavy vision + touch 4.046 -> 3.006 mm (vision only 3.012; the potted meat, seed 1, 15.97 -> 4.12), 5 s medium
+#: 1.564 -> 1.532, 2 s medium 0.828 -> 0.823, 2 s none 0.448 -> 0.448. Before the gate it was opt-in: the 5 s medium
+#: front end went 2.08 -> 2.44 mm with it.
 SLAM_FEW_TOUCH: dict[str, int] = {"few_touch_points": 12}
 #: Opt-in offline run selection (``track_session(..., select_runs=True)``, ``vtrack track --select-run``): the
 #: session is tracked again with each of these settings (on top of the user's) and the run whose final map agrees
@@ -421,6 +422,9 @@ class SLAMOptions:
         # apart along directions the data leaves free (TrackerOptions.anchor_refresh; 5 s medium 2.078 -> 2.019 mm,
         # frame-to-frame jitter 0.399 -> 0.293 deg; 2 s heavy 4.077 -> 3.662; docs/benchmarks/anchor_refresh.md)
         rest.setdefault("anchor_refresh", True)
+        # A contact patch's pixels do not carry independent errors: in a frame that sees little, 12 of them, not 120
+        # (SLAM_FEW_TOUCH above: 2 s heavy vision + touch 4.046 -> 3.006 mm, the other regimes unchanged or better)
+        rest.setdefault("few_touch_points", SLAM_FEW_TOUCH["few_touch_points"])
         # Colour feature tracks observe what the map cannot: a body of revolution's spin (the mug once its handle is
         # hidden; SLAM_COLOUR_SIGMA above for the measurements). No tracks in the frames (no RGB, no texture, frames
         # built without colour): no term, the same poses as without it.

@@ -67,11 +67,11 @@ def register(app: typer.Typer) -> None:
             help="SLAM: sphere (when the map is a ball, track against the first well-measured ball) | sphere-fill "
             "(ablation: fill the unobserved map only) | none (docs/benchmarks/sphere_prior.md)",
         ),
-        few_touch: int = typer.Option(
-            0,
+        few_touch: int | None = typer.Option(
+            None,
             "--few-touch",
-            help="SLAM, heavy occlusion (opt-in): contact points kept in frames that see fewer than 300 depth points "
-            "(12 is the measured setting, 0 = all 120; docs/benchmarks/few_touch.md)",
+            help="SLAM: contact points kept in frames that see fewer than 300 depth points (default 12, "
+            "0 = all 120; docs/benchmarks/few_touch.md)",
         ),
         colour_grow: int = typer.Option(
             0,
@@ -137,9 +137,11 @@ def register(app: typer.Typer) -> None:
                 )
                 if second_pass is not None:
                     opts["second_pass_s"] = second_pass
-                if few_touch < 0:
-                    raise InputError("contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch)
-                if few_touch > 0:
+                if few_touch is not None:
+                    if few_touch < 0:
+                        raise InputError(
+                            "contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch
+                        )
                     opts["few_touch_points"] = few_touch
                 if select_run:
                     opts["select_runs"] = True
