@@ -54,3 +54,24 @@ def require_finite(name: str, value, *, path: str | Path | None = None) -> None:
     if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise InputError(f"{bad} non-finite value(s)", path=path, field=name, expected="finite numbers")
+
+
+def require_range(
+    name: str,
+    value,
+    message: str,
+    expected: str,
+    lo: float = 0.0,
+    hi: float = float("inf"),
+    *,
+    hi_inclusive: bool = True,
+) -> float:
+    """``float(value)`` if it is a number in ``[lo, hi]`` (``[lo, hi)`` with ``hi_inclusive=False``), else an
+    InputError naming the field ``name`` with ``message`` and ``expected``; NaN and non-numbers are errors too."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(message, field=name, expected=expected, got=value) from None
+    if not (lo <= x <= hi if hi_inclusive else lo <= x < hi):  # NaN fails both comparisons
+        raise InputError(message, field=name, expected=expected, got=value)
+    return x

@@ -70,6 +70,8 @@ def test_sphere_prior_completion_is_not_gated():
         ("observed_gate", float("inf")),
         ("observed_keep", 1.5),
         ("observed_min_vision", -1),
+        ("observed_gate", "2mm"),  # not a number: the field named, not a ValueError from float()
+        ("observed_keep", None),
     ],
 )
 def test_bad_gate_names_the_field(field, bad):

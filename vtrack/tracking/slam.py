@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from vtrack.errors import InputError
+from vtrack.errors import InputError, require_range
 from vtrack.geometry import se3
 from vtrack.geometry.pointcloud import row_norms
 from vtrack.tracking.frame import TrackingFrame
@@ -321,55 +321,59 @@ class SLAMOptions:
         names = {f.name for f in fields(SLAMOptions)}
         bnames = {f.name for f in fields(BackendOptions)}
         so = SLAMOptions(**{k: v for k, v in opts.items() if k in names})
-        if not float(so.second_pass_s) >= 0:
-            raise InputError(
+        # (field, message, expected, lo, hi, hi inclusive): a bad value is an InputError naming the field
+        for name, msg, expected, lo, hi, hi_in in (
+            (
+                "second_pass_s",
                 "second pass length must be a number of seconds >= 0",
-                field="second_pass_s",
-                expected=">= 0 (0 = off, inf = the whole session)",
-                got=so.second_pass_s,
-            )
-        if not float(so.second_pass_max_move) >= 0.0:
-            raise InputError(
-                "second pass gate must be >= 0 m",
-                field="second_pass_max_move",
-                expected=">= 0 (0 = no gate)",
-                got=so.second_pass_max_move,
-            )
-        if not 0.0 <= float(so.observed_keep) <= 1.0:
-            raise InputError(
+                ">= 0 (0 = off, inf = the whole session)",
+                0.0,
+                math.inf,
+                True,
+            ),
+            ("second_pass_max_move", "second pass gate must be >= 0 m", ">= 0 (0 = no gate)", 0.0, math.inf, True),
+            (
+                "observed_keep",
                 "observed-surface gate's kept fraction must be in [0, 1]",
-                field="observed_keep",
-                expected="0..1 (0 = never waived)",
-                got=so.observed_keep,
-            )
-        if not float(so.observed_min_vision) >= 0:
-            raise InputError(
+                "0..1 (0 = never waived)",
+                0.0,
+                1.0,
+                True,
+            ),
+            (
+                "observed_min_vision",
                 "observed-surface gate's minimum point count must be >= 0",
-                field="observed_min_vision",
-                expected="a count >= 0 (0 = every frame)",
-                got=so.observed_min_vision,
-            )
-        if not 0.0 <= float(so.observed_gate) < math.inf:
-            raise InputError(
+                "a count >= 0 (0 = every frame)",
+                0.0,
+                math.inf,
+                True,
+            ),
+            (
+                "observed_gate",
                 "observed-surface gate must be a distance >= 0 m",
-                field="observed_gate",
-                expected="a finite distance >= 0 m (0 = off)",
-                got=so.observed_gate,
-            )
-        if not 0.0 <= float(so.second_pass_blend) <= 1.0:
-            raise InputError(
+                "a finite distance >= 0 m (0 = off)",
+                0.0,
+                math.inf,
+                False,
+            ),
+            (
+                "second_pass_blend",
                 "second pass blend weight must be in [0, 1]",
-                field="second_pass_blend",
-                expected="0..1 (1 = the second pass's poses)",
-                got=so.second_pass_blend,
-            )
-        if not float(so.second_pass_max_degenerate_rise) >= 0.0:
-            raise InputError(
+                "0..1 (1 = the second pass's poses)",
+                0.0,
+                1.0,
+                True,
+            ),
+            (
+                "second_pass_max_degenerate_rise",
                 "second pass confidence gate must be >= 0",
-                field="second_pass_max_degenerate_rise",
-                expected=">= 0 (a fraction of the re-tracked frames; > 1 = no gate)",
-                got=so.second_pass_max_degenerate_rise,
-            )
+                ">= 0 (a fraction of the re-tracked frames; > 1 = no gate)",
+                0.0,
+                math.inf,
+                True,
+            ),
+        ):
+            require_range(name, getattr(so, name), msg, expected, lo, hi, hi_inclusive=hi_in)
         if so.shape_prior not in SHAPE_PRIOR_MODES:
             raise InputError(
                 "unknown SLAM shape prior",
