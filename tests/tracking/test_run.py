@@ -153,8 +153,9 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
     assert m["frames"] == 10 and 0 <= m["selected_run"] < len(m["select_scores_mm"]) == 3
 
 
-def test_cli_few_touch_reaches_the_tracker(blind_session, tmp_path, monkeypatch):
-    """``--few-touch N`` sets SLAM's contact budget (0 = every contact); without it SLAM's default (12) holds."""
+def test_cli_few_touch_reaches_the_tracker(blind_session, user_mesh, tmp_path, monkeypatch):
+    """``--few-touch N`` sets the tracker's contact budget (0 = every contact), SLAM's or the known-shape tracker's;
+    without it SLAM's default (12) holds."""
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
@@ -168,11 +169,17 @@ def test_cli_few_touch_reaches_the_tracker(blind_session, tmp_path, monkeypatch)
         raise SystemExit(0)  # stop before any tracking: only the options matter here
 
     monkeypatch.setattr(run_mod, "track_session", fake)
-    for extra in ([], ["--few-touch", "0"], ["--few-touch", "30"]):
+    for extra in (
+        [],
+        ["--few-touch", "0"],
+        ["--few-touch", "30"],
+        ["--shape", "known_shape", "--mesh", str(user_mesh), "--few-touch", "12"],
+    ):
         CliRunner().invoke(app, ["track", str(blind_session), "--shape", "slam", *extra, "--out", str(tmp_path)])
     assert "few_touch_points" not in seen[0] and SLAMOptions.split({})[2].few_touch_points == 12
     assert seen[1]["few_touch_points"] == 0 and SLAMOptions.split({"few_touch_points": 0})[2].few_touch_points == 0
     assert seen[2]["few_touch_points"] == 30
+    assert seen[3]["shape"] == "known_shape" and seen[3]["few_touch_points"] == 12  # the known-shape tracker's too
 
 
 def test_known_shape_needs_a_mesh(blind_session, tmp_path):

@@ -70,8 +70,8 @@ def register(app: typer.Typer) -> None:
         few_touch: int | None = typer.Option(
             None,
             "--few-touch",
-            help="SLAM: contact points kept in frames that see fewer than 300 depth points (default 12, "
-            "0 = all 120; docs/benchmarks/few_touch.md)",
+            help="contact points kept in frames that see fewer than 300 depth points (default: 12 for SLAM, all "
+            "for a known shape; 0 = all 120; docs/benchmarks/few_touch.md)",
         ),
         colour_grow: int = typer.Option(
             0,
@@ -127,6 +127,10 @@ def register(app: typer.Typer) -> None:
         opts = {}
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
+            if few_touch is not None:  # a tracker option of both shapes (SLAM's default 12, known shape's 0)
+                if few_touch < 0:
+                    raise InputError("contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch)
+                opts["few_touch_points"] = few_touch
             if shape == "slam":
                 opts.update(
                     mapper=mapper,
@@ -137,12 +141,6 @@ def register(app: typer.Typer) -> None:
                 )
                 if second_pass is not None:
                     opts["second_pass_s"] = second_pass
-                if few_touch is not None:
-                    if few_touch < 0:
-                        raise InputError(
-                            "contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch
-                        )
-                    opts["few_touch_points"] = few_touch
                 if select_run:
                     opts["select_runs"] = True
                 opts.update(colour_grow_opts(colour_grow))
