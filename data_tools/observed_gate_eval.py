@@ -15,6 +15,7 @@ if __name__ == "__main__":
         "0,0.0025",
         "SLAM observed-surface gate: off against on, per session.",
         values_flag="--gates",
+        what="observed-surface gate",
         label=lambda g: "gate off" if float(g) == 0 else f"observed_gate {float(g) * 1e3:g} mm",
         column="observed_gate_m",
     )

@@ -55,7 +55,7 @@ def _run(args: tuple) -> dict:
 
 
 def _write(
-    prefix: str, res: dict, objs: list[str], seeds: list[int], option: str, values: list, title: str, label, column: str
+    prefix: str, res: dict, objs: list[str], seeds: list[int], values: list, title: str, label, column: str
 ) -> None:
     import csv
 
@@ -88,12 +88,13 @@ def main(
     option: str,
     values: list,
     out: str | None,
-    title: str | None = None,
+    what: str | None = None,
     label=None,
     column: str | None = None,
 ) -> None:
     """Track every (object, seed, value) session (2 processes); print per-seed means and the spin ratio; write
-    ``out``.csv / .png. ``label`` names a value in the plot, ``column`` is the CSV's value column."""
+    ``out``.csv / .png. ``what`` names the option in the plot's title, ``label`` a value in the plot and the printout,
+    ``column`` is the CSV's value column (all three default to the option's name)."""
     label = label or (lambda v: f"{option}={v:g}")
     jobs = [(o, occ, secs, s, option, v, mods) for s in seeds for o in objs for v in values]
     res: dict = {}
@@ -115,29 +116,27 @@ def main(
         print(f"{label(v)}: spin ratio of the non-symmetric objects, mean {sum(r) / len(r):.3f}")
     if out:
         mode = "vision" if mods == ("vision",) else "vision + touch"
-        _write(
-            out,
-            res,
-            objs,
-            seeds,
-            option,
-            values,
-            title or f"SLAM {option}: {secs:g} s {occ}, {mode}, blind",
-            label,
-            column or option,
-        )
+        title = f"SLAM {what or option}: {secs:g} s {occ}, {mode}, blind"
+        _write(out, res, objs, seeds, values, title, label, column or option)
 
 
-def cli(option: str | None = None, default_values: str | None = None, description: str = "", **kw) -> None:
-    """Command line: the shared sweep arguments (sweep_cli) plus ``--option`` / ``--values`` (fixed by a wrapper
-    that passes ``option``; ``--values`` then defaults to ``default_values``)."""
+def cli(
+    option: str | None = None,
+    default_values: str | None = None,
+    description: str = "",
+    values_flag: str = "--values",
+    **kw,
+) -> None:
+    """Command line: the shared sweep arguments (sweep_cli) plus ``--option`` / ``values_flag`` (a wrapper passes
+    ``option`` and may rename the values flag; it then defaults to ``default_values``); ``kw``: :func:`main`'s
+    ``what`` / ``label`` / ``column``."""
     from sweep_cli import parse_sweep, sweep_parser
 
     ap = sweep_parser(description or "One SLAM option at several values, per session.")
     if option is None:
         ap.add_argument("--option", required=True, help="a track_session / SLAM option name")
     ap.add_argument(
-        kw.pop("values_flag", "--values"),
+        values_flag,
         dest="values",
         default=default_values,
         required=default_values is None,

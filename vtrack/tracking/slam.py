@@ -325,59 +325,49 @@ class SLAMOptions:
         names = {f.name for f in fields(SLAMOptions)}
         bnames = {f.name for f in fields(BackendOptions)}
         so = SLAMOptions(**{k: v for k, v in opts.items() if k in names})
-        # (field, message, expected, lo, hi, hi inclusive): a bad value is an InputError naming the field
-        for name, msg, expected, lo, hi, hi_in in (
-            (
-                "second_pass_s",
-                "second pass length must be a number of seconds >= 0",
-                ">= 0 (0 = off, inf = the whole session)",
-                0.0,
-                math.inf,
-                True,
-            ),
-            ("second_pass_max_move", "second pass gate must be >= 0 m", ">= 0 (0 = no gate)", 0.0, math.inf, True),
-            (
-                "observed_keep",
-                "observed-surface gate's kept fraction must be in [0, 1]",
-                "0..1 (0 = never waived)",
-                0.0,
-                1.0,
-                True,
-            ),
-            (
-                "observed_min_vision",
-                "observed-surface gate's minimum point count must be >= 0",
-                "a count >= 0 (0 = every frame)",
-                0.0,
-                math.inf,
-                True,
-            ),
-            (
-                "observed_gate",
-                "observed-surface gate must be a distance >= 0 m",
-                "a finite distance >= 0 m (0 = off)",
-                0.0,
-                math.inf,
-                False,
-            ),
-            (
-                "second_pass_blend",
-                "second pass blend weight must be in [0, 1]",
-                "0..1 (1 = the second pass's poses)",
-                0.0,
-                1.0,
-                True,
-            ),
-            (
-                "second_pass_max_degenerate_rise",
-                "second pass confidence gate must be >= 0",
-                ">= 0 (a fraction of the re-tracked frames; > 1 = no gate)",
-                0.0,
-                math.inf,
-                True,
-            ),
-        ):
-            require_range(name, getattr(so, name), msg, expected, lo, hi, hi_inclusive=hi_in)
+        # a bad value is an InputError naming the field (lo 0, hi inf inclusive unless given)
+        require_range(
+            "second_pass_s",
+            so.second_pass_s,
+            "second pass length must be a number of seconds >= 0",
+            ">= 0 (0 = off, inf = the whole session)",
+        )
+        require_range(
+            "second_pass_max_move", so.second_pass_max_move, "second pass gate must be >= 0 m", ">= 0 (0 = no gate)"
+        )
+        require_range(
+            "observed_keep",
+            so.observed_keep,
+            "observed-surface gate's kept fraction must be in [0, 1]",
+            "0..1 (0 = never waived)",
+            hi=1.0,
+        )
+        require_range(
+            "observed_min_vision",
+            so.observed_min_vision,
+            "observed-surface gate's minimum point count must be >= 0",
+            "a count >= 0 (0 = every frame)",
+        )
+        require_range(
+            "observed_gate",
+            so.observed_gate,
+            "observed-surface gate must be a distance >= 0 m",
+            "a finite distance >= 0 m (0 = off)",
+            hi_inclusive=False,
+        )
+        require_range(
+            "second_pass_blend",
+            so.second_pass_blend,
+            "second pass blend weight must be in [0, 1]",
+            "0..1 (1 = the second pass's poses)",
+            hi=1.0,
+        )
+        require_range(
+            "second_pass_max_degenerate_rise",
+            so.second_pass_max_degenerate_rise,
+            "second pass confidence gate must be >= 0",
+            ">= 0 (a fraction of the re-tracked frames; > 1 = no gate)",
+        )
         if so.shape_prior not in SHAPE_PRIOR_MODES:
             raise InputError(
                 "unknown SLAM shape prior",

@@ -109,7 +109,7 @@ def register(app: typer.Typer) -> None:
         """Track the object pose from raw streams (segmentation and touch without ground truth)."""
         import math
 
-        from vtrack.errors import InputError
+        from vtrack.errors import InputError, require_range
         from vtrack.io.poses import parse_pose
         from vtrack.tracking.run import track_session
         from vtrack_apps.output import report, write_json
@@ -128,8 +128,7 @@ def register(app: typer.Typer) -> None:
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
             if few_touch is not None:  # a tracker option of both shapes (SLAM's default 12, known shape's 0)
-                if few_touch < 0:
-                    raise InputError("contact budget must be >= 0", field="--few-touch", expected=">= 0", got=few_touch)
+                require_range("--few-touch", few_touch, "contact budget must be >= 0", ">= 0")
                 opts["few_touch_points"] = few_touch
             if shape == "slam":
                 opts.update(
