@@ -65,13 +65,17 @@ def require_range(
     hi: float = float("inf"),
     *,
     hi_inclusive: bool = True,
+    lo_inclusive: bool = True,
 ) -> float:
-    """``float(value)`` if it is a number in ``[lo, hi]`` (``[lo, hi)`` with ``hi_inclusive=False``), else an
-    InputError naming the field ``name`` with ``message`` and ``expected``; NaN and non-numbers are errors too."""
+    """``float(value)`` if it is a number in ``[lo, hi]`` (an open end with ``hi_inclusive=False`` /
+    ``lo_inclusive=False``: ``hi_inclusive=False`` with the default ``hi`` = finite), else an InputError naming the
+    field ``name`` with ``message`` and ``expected``; NaN and non-numbers are errors too."""
     try:
         x = float(value)
     except (TypeError, ValueError):
         raise InputError(message, field=name, expected=expected, got=value) from None
-    if not (lo <= x <= hi if hi_inclusive else lo <= x < hi):  # NaN fails both comparisons
+    above = lo <= x if lo_inclusive else lo < x
+    below = x <= hi if hi_inclusive else x < hi
+    if not (above and below):  # NaN fails every comparison
         raise InputError(message, field=name, expected=expected, got=value)
     return x

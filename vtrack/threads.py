@@ -21,6 +21,15 @@ THREAD_ENV = (
 )
 
 
+#: the cap set by :func:`limit_threads` in this process (None: never called)
+_LIMIT: int | None = None
+
+
+def thread_limit() -> int | None:
+    """The thread cap :func:`limit_threads` set in this process (e.g. ``vtrack --threads 1``), or None."""
+    return _LIMIT
+
+
 def thread_env(threads: int) -> dict[str, str]:
     """The environment that caps BLAS/OpenMP pools at ``threads`` (for child processes, or before imports)."""
     return {k: str(max(1, int(threads))) for k in THREAD_ENV}
@@ -36,7 +45,9 @@ def limit_threads(threads: int) -> None:
     run-time cap both kept two BLAS threads (the tactile pipeline in the live touch process: 6.1-6.4 vs
     2.7-3.2 ms CPU per image, measured interleaved on the loaded 2-core machine).
     """
+    global _LIMIT
     n = max(1, int(threads))
+    _LIMIT = n
     os.environ.update(thread_env(n))
     try:
         import cv2

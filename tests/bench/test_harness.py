@@ -50,6 +50,13 @@ def test_write_results_files(tmp_path: Path) -> None:
     write_results(BenchTable("other", error_key="err", rows=[dict(method="m", setting="s", ms=1.0, err=0.5)]), tmp_path)
     text = index.read_text()
     assert "[plot](demo_stage.png) (the 20 s run)" in text and "[other](other.md)" in text
+    # ... and so does a description between the page link and its links (it was dropped: the entry did not start
+    # with the generated line any more)
+    index.write_text(text.replace("- [other](other.md) —", "- [other](other.md) (what it measures) —"))
+    write_results(BenchTable("third", error_key="err", rows=[dict(method="m", setting="s", ms=1.0, err=0.5)]), tmp_path)
+    text = index.read_text()
+    assert "- [other](other.md) (what it measures) — [csv](other.csv), [plot](other.png)" in text
+    assert "[plot](demo_stage.png) (the 20 s run)" in text and "[third](third.md)" in text
 
 
 def test_add_group_means():

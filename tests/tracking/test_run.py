@@ -182,6 +182,39 @@ def test_cli_few_touch_reaches_the_tracker(blind_session, user_mesh, tmp_path, m
     assert seen[3]["shape"] == "known_shape" and seen[3]["few_touch_points"] == 12  # the known-shape tracker's too
 
 
+def test_cli_prefetch_reaches_track_and_reconstruct(blind_session, tmp_path, monkeypatch):
+    """``--prefetch`` (default ``auto``) reaches ``track_session`` from ``vtrack track`` and ``vtrack reconstruct``;
+    an unknown mode is an InputError naming the flag, before any work."""
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    import vtrack.fusion.reconstruct as rec_mod
+    import vtrack.tracking.run as run_mod
+
+    seen = []
+
+    def fake(path, out, **kw):
+        seen.append(kw)
+        raise SystemExit(0)  # stop before any tracking: only the options matter here
+
+    monkeypatch.setattr(run_mod, "track_session", fake)
+    monkeypatch.setattr(rec_mod, "reconstruct_session", fake)
+    for args in (
+        ["track", str(blind_session)],
+        ["track", str(blind_session), "--prefetch", "off"],
+        ["reconstruct", str(blind_session), "--prefetch", "on"],
+        ["reconstruct", str(blind_session), "--poses", "some.csv"],
+    ):
+        CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+    assert seen[0]["prefetch"] == "auto" and seen[1]["prefetch"] == "off"
+    assert seen[2]["track_opts"]["prefetch"] == "on"
+    assert "prefetch" not in (seen[3]["track_opts"] or {})  # poses from a file: nothing is tracked
+    for cmd in ("track", "reconstruct"):
+        bad = CliRunner().invoke(app, [cmd, str(blind_session), "--prefetch", "maybe", "--out", str(tmp_path)])
+        assert isinstance(bad.exception, InputError) and "--prefetch" in str(bad.exception)
+    assert len(seen) == 4
+
+
 def test_known_shape_needs_a_mesh(blind_session, tmp_path):
     from vtrack.tracking.run import track_session
 

@@ -74,6 +74,29 @@ def test_options_validation(mustard_grid):
         WindowTracker(mustard_grid, np.full((4, 4), np.nan))
 
 
+@pytest.mark.parametrize(
+    "field, bad",
+    [
+        ("window", 0),
+        ("iterations", 0),
+        ("colour_few_min_vision", -5),
+        ("colour_max_age", -1),
+        ("colour_reanchor", float("inf")),
+        ("sigma_colour", float("nan")),
+        ("stick_patch_move", 0.0),
+        ("stick_min_step", -0.001),
+        ("colour_drop_motion", 0.0),
+        ("touch_vision_ratio", "many"),
+    ],
+)
+def test_an_option_out_of_range_is_named(field, bad):
+    """Each range check names the option that is wrong (they were grouped: colour_few_min_vision=-5 was reported
+    as field 'colour_few_tracks', colour_max_age as 'colour_reanchor')."""
+    with pytest.raises(InputError) as e:
+        TrackerOptions.from_dict({field: bad})
+    assert e.value.field == field
+
+
 def test_from_scene_and_registry():
     from vtrack import registry
     from vtrack.paths import default_scene_path

@@ -18,4 +18,5 @@ STAGES: dict[str, str] = {
     "globalreg": "vtrack.bench.globalreg",
     "generate_downstream": "vtrack.bench.generate_downstream",
     "heavy": "vtrack.bench.heavy",
+    "speed": "vtrack.bench.speed",
 }

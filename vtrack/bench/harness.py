@@ -297,8 +297,14 @@ def _update_index(out_dir: Path) -> None:
             for kind, ext in (("csv", "csv"), ("plot", "png"))
             if (out_dir / f"{s}.{ext}").is_file()
         ]
-        line = f"- [{s}]({s}.md)" + (" — " + ", ".join(links) if links else "")
-        # a note written after a stage's links (e.g. which session a page is from) survives a re-run
-        note = next((o[len(line) :] for o in old if o.startswith(line) and not o[len(line) :].startswith(" — [")), "")
-        lines.append(line + note)
+        head = f"- [{s}]({s}.md)"
+        line = head + (" — " + ", ".join(links) if links else "")
+        # a hand-written entry (a description after the page link, a note after its links, more links) survives a
+        # re-run as long as it still links every file the stage has
+        targets = [link[link.index("(") :] for link in links]
+        kept = next(
+            (o for o in old if (o == head or o.startswith(head + " ")) and all(t in o for t in targets)),
+            None,
+        )
+        lines.append(kept if kept is not None else line)
     index.write_text("\n".join(lines) + "\n")

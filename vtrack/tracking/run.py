@@ -242,6 +242,7 @@ def track_session(
     keep_frames: dict | None = None,
     keep_step: int = 1,
     select_runs: bool = False,
+    prefetch: str | bool = "off",
     **opts: Any,
 ) -> Any:
     """Run a tracker over a session; return the metrics dict (also written to ``out_dir``).
@@ -274,6 +275,9 @@ def track_session(
             :data:`~vtrack.tracking.slam.SLAM_SELECT_ALTERNATIVES` (same frames, built once) and keep the run whose
             final map agrees best with its own depth points (:func:`~vtrack.tracking.slam.map_consistency_mm`; blind);
             the metrics say ``select_scores_mm`` and ``selected_run`` (0 = the default setting).
+        prefetch: build the frames in a child process ahead of the tracker (:mod:`vtrack.frames.prefetch`):
+            ``on`` / ``off`` / ``auto`` (long sessions on >= 2 CPUs; the CLI's default). The same poses; the
+            metrics' ``frames_wall_s`` and ``poses_per_s`` show the wall time.
         **opts: tracker options (:class:`~vtrack.tracking.window.TrackerOptions` fields, ...).
     """
     from vtrack.frames.session import ORACLE_SEGMENTATIONS, SessionFrames
@@ -289,8 +293,7 @@ def track_session(
     modalities = tuple(modalities)
     if method == "icp":
         modalities = ("vision",)
-    frames = SessionFrames(
-        session_dir,
+    frames_kwargs = dict(
         modalities=modalities,
         tactile_source=tactile_source,
         segmentation=segmentation,
@@ -303,6 +306,17 @@ def track_session(
         colour_opts=opts.pop("colour_opts", None),
         segmentation_opts=opts.pop("segmentation_opts", None),
     )
+    from vtrack.frames.prefetch import PrefetchedFrames, worth_prefetching
+
+    # frames built in a child process on the other core while this one tracks (offline, long sessions): the same
+    # frames, the wall time per frame about max(build, track) instead of their sum. Started first, so that its
+    # start (imports, opening the session: 2-3 s in a new process) overlaps this process's own set-up below; with
+    # ``auto`` it is ended again if the session turns out short.
+    ahead = PrefetchedFrames(session_dir, frames_kwargs) if worth_prefetching(prefetch, None) else None
+    frames = SessionFrames(session_dir, **frames_kwargs)
+    if ahead is not None and not worth_prefetching(prefetch, len(frames)):
+        ahead.close()
+        ahead = None
     mesh_path = resolve_mesh(mesh, frames.scene) if (shape == "known_shape" or method == "icp") else None
     if (shape == "known_shape" or method == "icp") and mesh_path is None:
         raise InputError(
@@ -366,13 +380,23 @@ def track_session(
         from vtrack.tracking.stick import StickingContacts
 
         sticker = StickingContacts(float(tracker.opts.stick_patch_move))
+    built = ahead.frames(expected=n) if ahead is not None else None
+    build_cpu = 0.0
+    t_loop = t_done = time.perf_counter()
     for i in range(n):
-        c0 = time.process_time()
-        raw = frames.read(i)  # disk read + decompression: not part of the per-frame tracking cost ...
-        cpu_read[i] = (time.process_time() - c0) * 1e3  # ... reported apart (a live pipeline gets decoded arrays)
-        c0, t0 = time.process_time(), time.perf_counter()
-        fr = frames.build(raw)
-        t1 = time.perf_counter()
+        if built is not None:
+            # the frame from the child: its read and build CPU come with it; the wall time of a frame is from the
+            # end of the previous one (the wait for this frame included)
+            t0 = t_done
+            _, fr, cpu_read[i], build_cpu = next(built)
+            c0, t1 = time.process_time(), time.perf_counter()
+        else:
+            c0 = time.process_time()
+            raw = frames.read(i)  # disk read + decompression: not part of the per-frame tracking cost ...
+            cpu_read[i] = (time.process_time() - c0) * 1e3  # ... reported apart (a live pipeline gets decoded arrays)
+            c0, t0 = time.process_time(), time.perf_counter()
+            fr = frames.build(raw)
+            t1 = time.perf_counter()
         tf = fr.tracking_frame()
         if sticker is not None:
             sticker.annotate(fr, tf)
@@ -381,9 +405,10 @@ def track_session(
         if reloc is not None:
             T_new, st = reloc.update(tf, est[i], st)
             est[i] = T_new
-        ms[i] = (time.perf_counter() - t0) * 1e3
+        t_done = time.perf_counter()
+        ms[i] = (t_done - t0) * 1e3
         ms_prep[i] = (t1 - t0) * 1e3
-        cpu_ms[i] = (time.process_time() - c0) * 1e3
+        cpu_ms[i] = (time.process_time() - c0) * 1e3 + build_cpu  # build + track, wherever the build ran
         status.append(st)
         if second_s > 0 and frames.times[i] - frames.times[0] <= second_s:
             early.append(tf)
@@ -391,6 +416,11 @@ def track_session(
             tfs.append(tf)
         if keep_frames is not None and i % max(1, int(keep_step)) == 0:
             keep_frames["built"].append((i, fr))
+    wall_loop = time.perf_counter() - t_loop
+    prefetch_cpu_s = 0.0
+    if ahead is not None:
+        next(built, None)  # the child's last message (its CPU time); the generator then ends it
+        prefetch_cpu_s = ahead.cpu_s
     if not np.all(np.isfinite(est)):
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
     est, second, est_front, backend = _offline_passes(tracker, early, est, frames.times, keep_frames)
@@ -447,6 +477,12 @@ def track_session(
         "cpu_ms_per_frame_mean": float(cpu_ms.mean()),
         "cpu_read_ms_per_frame_mean": float(cpu_read.mean()),  # reading + decoding the session (not included above)
         "poses_per_s": float(1e3 / max(ms.mean(), 1e-9)),
+        # frames built in a child process (prefetch) on the other core: the loop's wall time per frame is about
+        # max(build, track); cpu_ms_per_frame_mean counts both processes' work either way
+        "prefetch": ahead is not None,
+        "frames_wall_s": float(wall_loop),
+        "first_wait_s": float(ms_prep[0] / 1e3) if n else 0.0,  # the wait for the first frame (the child's start)
+        **({"prefetch_child_cpu_s": float(prefetch_cpu_s)} if ahead is not None else {}),
         "status_counts": {s: status.count(s) for s in sorted(set(status))},
         **({"reloc_attempts": reloc.attempts, "reloc_successes": reloc.successes} if reloc is not None else {}),
         "session": str(Path(session_dir)),

@@ -38,7 +38,7 @@ from typing import Protocol
 
 import numpy as np
 
-from vtrack.errors import InputError
+from vtrack.errors import InputError, require_range
 from vtrack.geometry import se3
 from vtrack.geometry.pointcloud import row_norms
 from vtrack.tracking.frame import TrackingFrame, sanitize
@@ -222,65 +222,50 @@ class TrackerOptions:
         from vtrack.config import checked_fields
 
         o = cls(**checked_fields(cls, opts, "tracker"))
-        if o.window < 1 or o.iterations < 1:
-            raise InputError(
-                "window and iterations must be >= 1", field="window/iterations", got=(o.window, o.iterations)
-            )
+        # a bad value is an InputError naming its own field (require_range: lo 0, hi inf inclusive unless given;
+        # hi_inclusive=False = finite)
+        R = require_range
+        R("window", o.window, "window must be >= 1", "an integer >= 1 (frames)", 1)
+        R("iterations", o.iterations, "iterations must be >= 1", "an integer >= 1", 1)
         if o.degenerate_mode not in ("project", "lift"):
             raise InputError(
                 "unknown degenerate mode", field="degenerate_mode", expected="project|lift", got=o.degenerate_mode
             )
-        if o.touch_weak_vision > 0 and not o.sigma_touch_weak > 0:
-            raise InputError(
+        if o.touch_weak_vision > 0:
+            R(
+                "sigma_touch_weak",
+                o.sigma_touch_weak,
                 "sigma_touch_weak must be > 0 when the weak-vision regime is on",
-                field="sigma_touch_weak",
-                expected="> 0 m",
-                got=o.sigma_touch_weak,
+                "> 0 m",
+                lo_inclusive=False,
+                hi_inclusive=False,
             )
-        if not (o.touch_vision_ratio >= 0 and np.isfinite(o.touch_vision_ratio)):
-            raise InputError(
-                "touch_vision_ratio must be >= 0 (0: off)", field="touch_vision_ratio", got=o.touch_vision_ratio
-            )
+        R(
+            "touch_vision_ratio",
+            o.touch_vision_ratio,
+            "touch_vision_ratio must be >= 0",
+            ">= 0 (0: off)",
+            hi_inclusive=False,
+        )
         if o.colour_residual not in ("ray", "point"):
             raise InputError(
                 "unknown colour residual", field="colour_residual", expected="ray|point", got=o.colour_residual
             )
-        if not (o.sigma_colour >= 0 and np.isfinite(o.sigma_colour)):
-            raise InputError("sigma_colour must be >= 0 (m; 0: off)", field="sigma_colour", got=o.sigma_colour)
-        if o.colour_few_tracks < 0 or o.colour_few_min_vision < 0:
-            raise InputError(
-                "colour few-track options out of range",
-                field="colour_few_tracks",
-                expected="colour_few_tracks >= 0, colour_few_min_vision >= 0",
-                got=(o.colour_few_tracks, o.colour_few_min_vision),
-            )
-        if not (o.colour_reanchor >= 0 and np.isfinite(o.colour_reanchor)) or o.colour_max_age < 0:
-            raise InputError(
-                "colour re-anchoring out of range",
-                field="colour_reanchor",
-                expected="colour_reanchor >= 0 (m), colour_max_age >= 0 (frames)",
-                got=(o.colour_reanchor, o.colour_max_age),
-            )
-        if not (o.sigma_stick >= 0 and np.isfinite(o.sigma_stick)) or not (
-            o.stick_step_gate > 0
-            and o.stick_gate > 0
-            and o.kernel_stick > 0
-            and o.stick_patch_move > 0
-            and o.stick_min_step >= 0
-        ):
-            raise InputError(
-                "sticking-contact options out of range",
-                field="sigma_stick",
-                expected="sigma_stick >= 0 (m; 0: off), stick gates, kernel and patch move > 0, min step >= 0",
-                got=(
-                    o.sigma_stick,
-                    o.stick_step_gate,
-                    o.stick_gate,
-                    o.kernel_stick,
-                    o.stick_patch_move,
-                    o.stick_min_step,
-                ),
-            )
+        R("sigma_colour", o.sigma_colour, "sigma_colour must be >= 0", ">= 0 m (0: off)", hi_inclusive=False)
+        R("colour_few_tracks", o.colour_few_tracks, "colour few-track count must be >= 0", ">= 0 (0: off)")
+        R("colour_few_min_vision", o.colour_few_min_vision, "colour few-track vision count must be >= 0", ">= 0")
+        R(
+            "colour_reanchor",
+            o.colour_reanchor,
+            "colour re-anchoring must be >= 0",
+            ">= 0 m (0: off)",
+            hi_inclusive=False,
+        )
+        R("colour_max_age", o.colour_max_age, "colour track age must be >= 0", ">= 0 frames (0: no limit)")
+        R("sigma_stick", o.sigma_stick, "sigma_stick must be >= 0", ">= 0 m (0: off)", hi_inclusive=False)
+        for name in ("stick_step_gate", "stick_gate", "kernel_stick", "stick_patch_move"):
+            R(name, getattr(o, name), f"{name} must be > 0", "> 0 m", lo_inclusive=False, hi_inclusive=False)
+        R("stick_min_step", o.stick_min_step, "stick_min_step must be >= 0", ">= 0 m", hi_inclusive=False)
         if o.stick_reference not in ("prediction", "data"):
             raise InputError(
                 "unknown stick reference", field="stick_reference", expected="prediction|data", got=o.stick_reference
@@ -291,17 +276,16 @@ class TrackerOptions:
             raise InputError(
                 "unknown robust kernel", field="robust_colour", expected="huber|cauchy|none|''", got=o.robust_colour
             )
-        if (
-            not (o.colour_drop_lag >= 0 and np.isfinite(o.colour_drop_lag))
-            or not (o.colour_drop_motion > 0 and np.isfinite(o.colour_drop_motion))
-            or o.colour_drop_keep < 0
-        ):
-            raise InputError(
-                "colour lag rejection out of range",
-                field="colour_drop_lag",
-                expected="colour_drop_lag >= 0 (0: off), colour_drop_motion > 0 (m), colour_drop_keep >= 0",
-                got=(o.colour_drop_lag, o.colour_drop_motion, o.colour_drop_keep),
-            )
+        R("colour_drop_lag", o.colour_drop_lag, "colour_drop_lag must be >= 0", ">= 0 (0: off)", hi_inclusive=False)
+        R(
+            "colour_drop_motion",
+            o.colour_drop_motion,
+            "colour_drop_motion must be > 0",
+            "> 0 m",
+            lo_inclusive=False,
+            hi_inclusive=False,
+        )
+        R("colour_drop_keep", o.colour_drop_keep, "colour_drop_keep must be >= 0", ">= 0")
         return o
 
 

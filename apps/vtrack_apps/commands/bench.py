@@ -25,7 +25,7 @@ def register(app: typer.Typer) -> None:
         seeds: str = typer.Option(
             None,
             "--seeds",
-            help="simulator seeds of the session benchmarks tracking, heavy and fusion, e.g. 0,1,2 (default 0): "
+            help="simulator seeds of the session benchmarks tracking, heavy, speed and fusion, e.g. 0,1,2 (default 0): "
             "per-seed means over objects, then their mean and sd over seeds",
         ),
     ) -> None:

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from vtrack_apps.commands.track import PREFETCH_HELP
+
 
 def register(app: typer.Typer) -> None:
     @app.command("reconstruct")
@@ -42,6 +44,7 @@ def register(app: typer.Typer) -> None:
             help="--poses track, heavy occlusion (opt-in): grow the colour tracks' mask by this many depth pixels "
             "(as `vtrack track --colour-grow`; docs/benchmarks/heavy_mask_ablation.md)",
         ),
+        prefetch: str = typer.Option("auto", "--prefetch", help="--poses track: " + PREFETCH_HELP),
         no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
     ) -> None:
@@ -57,7 +60,7 @@ def register(app: typer.Typer) -> None:
                 field="--second-pass",
                 expected="--poses track without --mesh",
             )
-        from vtrack_apps.commands.track import colour_grow_opts
+        from vtrack_apps.commands.track import colour_grow_opts, prefetch_mode
 
         if colour_grow > 0 and poses != "track":
             from vtrack.errors import InputError
@@ -69,6 +72,8 @@ def register(app: typer.Typer) -> None:
                 got=poses,
             )
         track_opts = colour_grow_opts(colour_grow)
+        if poses == "track":
+            track_opts["prefetch"] = prefetch_mode(prefetch)
         if second_pass is not None and mesh is None and poses == "track":
             track_opts["second_pass_s"] = second_pass
         opts = {}

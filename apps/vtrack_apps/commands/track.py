@@ -17,6 +17,22 @@ def colour_grow_opts(colour_grow: int) -> dict:
     return {"segmentation_opts": {"colour_grow_px": colour_grow}} if colour_grow > 0 else {}
 
 
+#: ``--prefetch`` of ``vtrack track`` and ``vtrack reconstruct`` (:mod:`vtrack.frames.prefetch`)
+PREFETCH_HELP = (
+    "build the frames (segmentation, tactile pipelines) in a second process ahead of the tracker: auto (sessions "
+    "of >= 120 frames on >= 2 CPUs, not with --threads 1) | on | off; the same poses"
+)
+
+
+def prefetch_mode(value: str) -> str:
+    """``--prefetch`` checked (``auto`` | ``on`` | ``off``; shared with ``vtrack reconstruct``)."""
+    if value not in ("auto", "on", "off"):
+        from vtrack.errors import InputError
+
+        raise InputError("unknown frame prefetch mode", field="--prefetch", expected="auto | on | off", got=value)
+    return value
+
+
 def register(app: typer.Typer) -> None:
     @app.command("track")
     def track(
@@ -86,6 +102,7 @@ def register(app: typer.Typer) -> None:
             help="SLAM, offline (opt-in): track again with each alternative setting and keep the run whose map agrees "
             "best with its own depth points (3x the tracking CPU; docs/benchmarks/slam_select_run.md)",
         ),
+        prefetch: str = typer.Option("auto", "--prefetch", help=PREFETCH_HELP),
         window: int = typer.Option(3, "--window", help="frames optimised jointly (sliding window)"),
         iterations: int = typer.Option(5, "--iterations", help="max LM iterations per frame"),
         gt: Path = typer.Option(None, "--gt", help="session with ground truth to score against (scoring only)"),
@@ -162,6 +179,7 @@ def register(app: typer.Typer) -> None:
             segmentation=segmentation,
             max_frames=max_frames,
             seed=seed,
+            prefetch=prefetch_mode(prefetch),
             **opts,
         )
         keys = (
@@ -176,6 +194,7 @@ def register(app: typer.Typer) -> None:
             "motion_err_mm",
             "ms_per_frame_mean",
             "poses_per_s",
+            "prefetch",
             "status_counts",
             "backend_s",
             "keyframes",

@@ -1,0 +1,76 @@
+"""Frames built in a child process ahead of the tracker (vtrack.frames.prefetch): the same poses as built in
+process, errors from the child as one clear line, no child left behind, and the ``auto`` rule."""
+
+import numpy as np
+import pytest
+
+from vtrack.errors import InputError
+
+
+@pytest.mark.parametrize("shape", ["slam", "known_shape"])
+def test_prefetched_frames_give_identical_poses(tiny_session, shape, tmp_path):
+    import shutil
+
+    from vtrack.tracking.run import track_session
+
+    kw = dict(shape=shape, write=False, return_poses=True, max_frames=12)
+    if shape == "known_shape":  # the shape a user gives (a copy of the object mesh, outside the session)
+        kw["mesh"] = shutil.copy(tiny_session / "gt" / "object.ply", tmp_path / "object.ply")
+    m_off, (t_off, T_off) = track_session(tiny_session, "", prefetch="off", **kw)
+    m_on, (t_on, T_on) = track_session(tiny_session, "", prefetch="on", **kw)
+    assert m_off["prefetch"] is False and m_on["prefetch"] is True
+    assert m_on["frames"] == m_off["frames"] == 12
+    assert np.array_equal(t_on, t_off)
+    # the child's SessionFrames starts from frame 0 as a fresh one does (the known shape's initialisation built
+    # and reset the parent's first frames): the same poses, up to the last bit of a BLAS sum (the child runs one
+    # thread, this process may run more; measured <= 6e-16)
+    np.testing.assert_allclose(T_on, T_off, rtol=0, atol=1e-12)
+    assert m_on["prefetch_child_cpu_s"] > 0  # the build's CPU, spent in the child
+    assert m_on["frames_wall_s"] > 0 and np.isfinite(m_on["poses_per_s"])
+
+
+def test_child_error_is_one_clear_line(tiny_session):
+    from vtrack.frames.prefetch import PrefetchedFrames
+
+    pf = PrefetchedFrames(tiny_session, {"modalities": ("vision", "smell")})
+    with pytest.raises(InputError, match="unknown modality"):
+        next(pf.frames())
+    assert not pf._proc.is_alive()
+
+
+def test_frame_count_mismatch_is_reported(tiny_session):
+    from vtrack.frames.prefetch import PrefetchedFrames
+
+    pf = PrefetchedFrames(tiny_session, {"max_frames": 5})
+    with pytest.raises(RuntimeError, match="5 frames, expected 7"):
+        next(pf.frames(expected=7))
+    assert not pf._proc.is_alive()
+
+
+def test_leaving_early_ends_the_child(tiny_session):
+    from vtrack.frames.prefetch import PrefetchedFrames
+
+    pf = PrefetchedFrames(tiny_session, {"max_frames": 30}, queue_frames=2)
+    it = pf.frames()
+    i, fr, read_ms, build_ms = next(it)
+    assert i == 0 and len(fr.vision_points) > 0 and read_ms >= 0 and build_ms > 0
+    it.close()  # the consumer stops after one frame: the child (blocked on a full queue) is ended
+    assert not pf._proc.is_alive()
+
+
+def test_auto_rule(monkeypatch):
+    import vtrack.frames.prefetch as pf
+    import vtrack.threads as th
+
+    monkeypatch.setattr(pf, "available_cpus", lambda: 2)
+    monkeypatch.setattr(th, "_LIMIT", None)
+    assert pf.worth_prefetching("auto", pf.MIN_FRAMES) and pf.worth_prefetching("auto", None)
+    assert not pf.worth_prefetching("auto", pf.MIN_FRAMES - 1)  # the child's start would cost more than it saves
+    assert pf.worth_prefetching("on", 1) and not pf.worth_prefetching("off", 10**6)
+    monkeypatch.setattr(th, "_LIMIT", 1)  # vtrack --threads 1: a single-core figure, no second process
+    assert not pf.worth_prefetching("auto", 10**6)
+    monkeypatch.setattr(th, "_LIMIT", None)
+    monkeypatch.setattr(pf, "available_cpus", lambda: 1)
+    assert not pf.worth_prefetching("auto", 10**6)
+    with pytest.raises(InputError, match="prefetch"):
+        pf.worth_prefetching("sometimes", 100)
