@@ -181,10 +181,15 @@ def test_colour_grow_flag_reaches_tracking_and_is_checked(tmp_path, monkeypatch)
     base = ["reconstruct", str(tmp_path), "--out", str(tmp_path / "o")]
     r = CliRunner().invoke(app, [*base, "--colour-grow", "1", "--second-pass", "2"])
     assert isinstance(r.exception, Stop)
-    assert seen["track_opts"] == {"second_pass_s": 2.0, "segmentation_opts": {"colour_grow_px": 1}}
+    # the CLI's frame prefetch (default auto; the library's default is off) goes along with the tracking options
+    assert seen["track_opts"] == {
+        "second_pass_s": 2.0,
+        "segmentation_opts": {"colour_grow_px": 1},
+        "prefetch": "auto",
+    }
     seen.clear()
     r = CliRunner().invoke(app, base)
-    assert isinstance(r.exception, Stop) and seen["track_opts"] is None
+    assert isinstance(r.exception, Stop) and seen["track_opts"] == {"prefetch": "auto"}
     from vtrack.errors import InputError
 
     for extra in (["--colour-grow", "-1"], ["--colour-grow", "1", "--poses", "gt"]):

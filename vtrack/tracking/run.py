@@ -24,6 +24,7 @@ Initialisation, without ground truth:
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -312,7 +313,9 @@ def track_session(
     # frames, the wall time per frame about max(build, track) instead of their sum. Started first, so that its
     # start (imports, opening the session: 2-3 s in a new process) overlaps this process's own set-up below; with
     # ``auto`` it is ended again if the session turns out short.
-    ahead = PrefetchedFrames(session_dir, frames_kwargs) if worth_prefetching(prefetch, None) else None
+    # (a directory only: an open reader given instead cannot be reopened in the child)
+    on_disk = isinstance(session_dir, (str, os.PathLike))
+    ahead = PrefetchedFrames(session_dir, frames_kwargs) if on_disk and worth_prefetching(prefetch, None) else None
     frames = SessionFrames(session_dir, **frames_kwargs)
     if ahead is not None and not worth_prefetching(prefetch, len(frames)):
         ahead.close()
