@@ -74,3 +74,21 @@ def test_auto_rule(monkeypatch):
     assert not pf.worth_prefetching("auto", 10**6)
     with pytest.raises(InputError, match="prefetch"):
         pf.worth_prefetching("sometimes", 100)
+
+
+def test_corrupt_chunk_in_the_child_is_the_same_one_line_error(tiny_session, tmp_path):
+    import shutil
+
+    from vtrack.io.session import CorruptDataError
+
+    s = tmp_path / "s"
+    shutil.copytree(tiny_session, s)
+    chunk = s / "data.zarr" / "camera" / "cam0" / "depth" / "c" / "3" / "0" / "0"
+    chunk.write_bytes(b"\x28\xb5\x2f\xfd garbage" * 4)
+    from vtrack.frames.prefetch import PrefetchedFrames
+
+    got = []
+    with pytest.raises(CorruptDataError, match=r"camera/cam0/depth.*frame") as e:
+        for i, *_ in PrefetchedFrames(s, {"max_frames": 8}).frames(expected=8):
+            got.append(i)
+    assert "\n" not in str(e.value) and got == [0, 1, 2]  # the frames before the damaged one arrive
