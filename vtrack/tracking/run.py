@@ -24,6 +24,7 @@ Initialisation, without ground truth:
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Sequence
@@ -219,6 +220,21 @@ def colour_term_on(shape: str, opts: dict) -> bool:
     return float(opts.get("sigma_colour", default) or 0.0) > 0
 
 
+def _one_blas_thread(fn: Any) -> Any:
+    """Run ``fn`` with one BLAS thread unless the process's thread cap was set (:func:`vtrack.threads.
+    single_thread_blas`: the trackers' small solves only spin a second one)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from vtrack.threads import single_thread_blas
+
+        with single_thread_blas():
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+@_one_blas_thread
 def track_session(
     session_dir: str | Path,
     out_dir: str | Path,
