@@ -17,10 +17,10 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   measured in wall time is inflated).
 
 Variants: ``default`` (what ``vtrack live`` does: the tactile pipeline on every tactile image as it arrives in a
-child process, segmentation + tracking in the tracker's step with the colour term's feature tracks on the camera's
-RGB image, the replay decoding the session in a third process into a shared-memory ring that the tracker's process
-and the touch child read in place), ``frames in their own
-process`` / ``frames in the touch process`` (segmentation a stage ahead of the tracker in a child),
+child process, segmentation with the colour term's feature tracks on the camera's RGB image a stage ahead of the
+tracker in a second child, the replay decoding the session in a third process into a shared-memory ring that the
+other processes read in place), ``inline frames`` (segmentation in the tracker's step: the default until
+2026-11-28), ``frames in the touch process`` (segmentation a stage ahead of the tracker in the touch child),
 ``frames inline, reader thread``, ``touch thread`` (the tactile pipeline in a worker thread sharing the GIL with
 the tracker), ``touch in camera step`` (the newest image of each sensor is processed inside the camera step, as
 offline tracking does; tactile images in between are never read), ``pickled transport`` (the default without
@@ -43,8 +43,9 @@ import numpy as np
 from vtrack.bench.harness import BenchTable
 
 VARIANTS = {
-    "default (touch process, frames inline, reader process)": {},
-    "frames in their own process": {"frames_worker": "process", "reader": "process"},
+    "default (touch process, frames process, reader process)": {},
+    # segmentation in the tracker's step: the default until 2026-11-28 (docs/benchmarks/live_frames_process.md)
+    "inline frames": {"frames_worker": "inline", "reader": "process"},
     "frames in the touch process": {"frames_worker": "shared", "reader": "process"},
     "frames inline, reader thread": {"frames_worker": "inline", "reader": "thread"},
     "touch thread": {"touch_worker": "thread", "frames_worker": "inline", "reader": "thread"},
@@ -58,7 +59,7 @@ VARIANTS = {
     # evening)
     "no colour (depth only)": {"colour": False},
 }
-DEFAULT_VARIANT = "default (touch process, frames inline, reader process)"
+DEFAULT_VARIANT = "default (touch process, frames process, reader process)"
 CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))
 
 

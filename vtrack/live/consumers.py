@@ -34,8 +34,8 @@ class LiveTrackConfig:
     shares the GIL with the tracker) or ``off`` (on the newest image of each sensor inside the camera
     frame's step, as offline tracking does; the step is then longer and the images in between are never
     read); frames_worker = where a camera frame is segmented and turned into the tracker's input, a stage of its
-    own (frame k+1 is segmented while the tracker steps on frame k) in a child process: ``process`` (its own;
-    the newest contacts go with each frame), ``shared`` (the touch process's, which keeps its contacts), or
+    own (frame k+1 is segmented while the tracker steps on frame k) in a child process: ``process`` (its own, the
+    default; the newest contacts go with each frame), ``shared`` (the touch process's, which keeps its contacts), or
     ``inline`` (in the tracker's step); touch_downsample /
     touch_stride = the tactile pipeline's working-resolution factor and point stride (tracking's defaults,
     :data:`vtrack.tracking.run.TRACK_TOUCH_DOWNSAMPLE`); camera_stride = track every k-th camera frame (by
@@ -49,9 +49,12 @@ class LiveTrackConfig:
 
     depth_stride: int = 4
     touch_worker: str = "process"
-    # inline by default: segmentation in its own process measured worse on the quiet 2-core machine (the four
-    # processes contend for the two cores: tactile drops 22-38 % vs 4-13 %, `bench live` 2026-11-26 morning)
-    frames_worker: str = "inline"
+    # its own process by default since 2026-11-28: over 9 paired runs (3 sessions x 3 rounds, `bench live`) it kept
+    # up better than inline, real-time factor 1.06 vs 0.81 mean (>= 1 in 6 of 9 vs 1 of 9), camera frames dropped
+    # 13.7 vs 22.6 %, tactile 0-2 % vs 0 %, at +14 ms latency (docs/benchmarks/live_frames_process.md). It was inline
+    # before: on 2026-11-26 the four processes contended for the two cores (tactile drops 22-38 % vs 4-13 %), before
+    # the tactile pipeline and the tracker step got cheaper
+    frames_worker: str = "process"
     touch_downsample: int = TRACK_TOUCH_DOWNSAMPLE
     touch_stride: int = TRACK_TOUCH_STRIDE
     camera_stride: int = 1

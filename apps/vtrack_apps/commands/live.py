@@ -38,8 +38,8 @@ def register(app: typer.Typer) -> None:
         frames_worker: str = typer.Option(
             None,
             "--frames-worker",
-            help="track: segmentation 'inline' in the tracker (default), in its own child 'process' (a stage ahead of "
-            "the tracker) or 'shared' with the touch process",
+            help="track: segmentation in its own child 'process' (default: a stage ahead of the tracker), 'inline' in "
+            "the tracker's step or 'shared' with the touch process",
         ),
         transport: str = typer.Option(
             "shm",
