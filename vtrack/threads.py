@@ -27,6 +27,14 @@ THREAD_ENV = (
 _LIMIT: int | None = None
 
 
+def available_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one, else ``os.cpu_count()``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def thread_limit() -> int | None:
     """The thread cap :func:`limit_threads` set in this process (e.g. ``vtrack --threads 1``), or None."""
     return _LIMIT

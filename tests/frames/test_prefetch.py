@@ -62,7 +62,7 @@ def test_auto_rule(monkeypatch):
     import vtrack.frames.prefetch as pf
     import vtrack.threads as th
 
-    monkeypatch.setattr(pf, "available_cpus", lambda: 2)
+    monkeypatch.setattr(th, "available_cpus", lambda: 2)
     monkeypatch.setattr(th, "_LIMIT", None)
     assert pf.worth_prefetching("auto", pf.MIN_FRAMES) and pf.worth_prefetching("auto", None)
     assert not pf.worth_prefetching("auto", pf.MIN_FRAMES - 1)  # the child's start would cost more than it saves
@@ -70,7 +70,7 @@ def test_auto_rule(monkeypatch):
     monkeypatch.setattr(th, "_LIMIT", 1)  # vtrack --threads 1: a single-core figure, no second process
     assert not pf.worth_prefetching("auto", 10**6)
     monkeypatch.setattr(th, "_LIMIT", None)
-    monkeypatch.setattr(pf, "available_cpus", lambda: 1)
+    monkeypatch.setattr(th, "available_cpus", lambda: 1)
     assert not pf.worth_prefetching("auto", 10**6)
     with pytest.raises(InputError, match="prefetch"):
         pf.worth_prefetching("sometimes", 100)

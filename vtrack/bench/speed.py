@@ -32,8 +32,8 @@ def run(quick: bool = False) -> BenchTable:
     limit_threads(1)
     import numpy as np
 
-    from vtrack.frames.prefetch import available_cpus
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
+    from vtrack.threads import available_cpus
     from vtrack.tracking.run import track_session, warm_up
 
     warm_up("slam", write=False)  # imports before the first timed run (it would pay them alone)

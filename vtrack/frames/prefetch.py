@@ -36,16 +36,6 @@ MIN_FRAMES = 120
 START_TIMEOUT_S = 180.0
 
 
-def available_cpus() -> int:
-    """CPUs this process may run on (its affinity mask where the OS has one, else ``os.cpu_count()``)."""
-    import os
-
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def worth_prefetching(mode: str | bool, n_frames: int | None) -> bool:
     """Whether to build frames in a child process: ``mode`` ``on`` / ``off`` / ``auto`` (or a bool); ``auto`` = at
     least :data:`MIN_FRAMES` frames (``n_frames``; None: not known yet), at least 2 CPUs available, and this process
@@ -56,7 +46,7 @@ def worth_prefetching(mode: str | bool, n_frames: int | None) -> bool:
         raise InputError("unknown frame prefetch mode", field="prefetch", expected="on | off | auto", got=mode)
     if mode != "auto":
         return mode == "on"
-    from vtrack.threads import thread_limit
+    from vtrack.threads import available_cpus, thread_limit
 
     single = thread_limit() == 1
     return (n_frames is None or n_frames >= MIN_FRAMES) and available_cpus() >= 2 and not single
