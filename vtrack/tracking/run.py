@@ -24,7 +24,6 @@ Initialisation, without ground truth:
 
 from __future__ import annotations
 
-import functools
 import os
 import time
 from collections.abc import Sequence
@@ -36,6 +35,7 @@ import numpy as np
 from vtrack.errors import InputError
 from vtrack.geometry import se3
 from vtrack.io.jsonio import write_json
+from vtrack.threads import single_thread_blas
 
 SHAPES = ("known_shape", "slam")
 METHODS = ("ours", "icp")
@@ -220,21 +220,8 @@ def colour_term_on(shape: str, opts: dict) -> bool:
     return float(opts.get("sigma_colour", default) or 0.0) > 0
 
 
-def _one_blas_thread(fn: Any) -> Any:
-    """Run ``fn`` with one BLAS thread unless the process's thread cap was set (:func:`vtrack.threads.
-    single_thread_blas`: the trackers' small solves only spin a second one)."""
-
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from vtrack.threads import single_thread_blas
-
-        with single_thread_blas():
-            return fn(*args, **kwargs)
-
-    return wrapper
-
-
-@_one_blas_thread
+# one BLAS thread unless the process's thread cap was set: the trackers' small solves only spin a second one
+@single_thread_blas()
 def track_session(
     session_dir: str | Path,
     out_dir: str | Path,
