@@ -36,15 +36,25 @@ MIN_FRAMES = 120
 START_TIMEOUT_S = 180.0
 
 
+#: the frame prefetch modes (``track_session(prefetch=...)``, ``--prefetch``)
+PREFETCH_MODES = ("auto", "on", "off")
+
+
+def check_prefetch_mode(mode: str, field: str = "prefetch") -> str:
+    """``mode`` if it is one of :data:`PREFETCH_MODES`, else an InputError naming ``field`` (``--prefetch`` on the
+    command line)."""
+    if mode not in PREFETCH_MODES:
+        raise InputError("unknown frame prefetch mode", field=field, expected=" | ".join(PREFETCH_MODES), got=mode)
+    return mode
+
+
 def worth_prefetching(mode: str | bool, n_frames: int | None) -> bool:
     """Whether to build frames in a child process: ``mode`` ``on`` / ``off`` / ``auto`` (or a bool); ``auto`` = at
     least :data:`MIN_FRAMES` frames (``n_frames``; None: not known yet), at least 2 CPUs available, and this process
     not capped at one thread (``vtrack --threads 1``, :func:`vtrack.threads.limit_threads`: a single-core figure)."""
     if isinstance(mode, bool):
         return mode
-    if mode not in ("on", "off", "auto"):
-        raise InputError("unknown frame prefetch mode", field="prefetch", expected="on | off | auto", got=mode)
-    if mode != "auto":
+    if check_prefetch_mode(mode) != "auto":
         return mode == "on"
     from vtrack.threads import available_cpus, thread_limit
 
@@ -89,9 +99,9 @@ def _build_frames(session: str, kwargs: dict, n: int, queue: Any) -> None:
         from vtrack.frames.session import SessionFrames
 
         sf = SessionFrames(session, **kwargs)
-        queue.put(("ready", len(sf)))
-        c_start = time.process_time()
         n = min(n, len(sf)) if n > 0 else len(sf)
+        queue.put(("ready", n))  # the number of frames it will build
+        c_start = time.process_time()
         with ThreadPoolExecutor(1) as reader:
             # frame i + 1 is read (disk, decompression: mostly outside the GIL) while frame i is built
             nxt = reader.submit(_timed_read, sf, 0) if n else None
@@ -132,13 +142,12 @@ class PrefetchedFrames:
         import multiprocessing as mp
 
         ctx = mp.get_context("spawn")
-        self.n = int(n)
         self.session = str(session)
         self.cpu_s = 0.0
         self._q = ctx.Queue(maxsize=max(1, int(queue_frames)))
         self._proc = ctx.Process(
             target=_build_frames,
-            args=(self.session, dict(frames_kwargs), self.n, self._q),
+            args=(self.session, dict(frames_kwargs), int(n), self._q),
             daemon=True,
             name="vtrack-frames",
         )
@@ -181,7 +190,6 @@ class PrefetchedFrames:
         :class:`~vtrack.frames.session.SessionFrames` has (the child's must agree: a RuntimeError otherwise)."""
         try:
             _, n_child = self._get()
-            n_child = min(self.n, n_child) if self.n > 0 else n_child
             if expected is not None and n_child != expected:
                 raise RuntimeError(f"frame builder process for {self.session}: {n_child} frames, expected {expected}")
             while True:

@@ -25,12 +25,10 @@ PREFETCH_HELP = (
 
 
 def prefetch_mode(value: str) -> str:
-    """``--prefetch`` checked (``auto`` | ``on`` | ``off``; shared with ``vtrack reconstruct``)."""
-    if value not in ("auto", "on", "off"):
-        from vtrack.errors import InputError
+    """``--prefetch`` checked (shared with ``vtrack reconstruct``): an InputError naming the flag."""
+    from vtrack.frames.prefetch import check_prefetch_mode
 
-        raise InputError("unknown frame prefetch mode", field="--prefetch", expected="auto | on | off", got=value)
-    return value
+    return check_prefetch_mode(value, "--prefetch")
 
 
 def register(app: typer.Typer) -> None:
