@@ -1,5 +1,6 @@
 """Shared command line of the per-session A/B tools over the YCB sessions (anchor_refresh_eval.py,
-observed_gate_eval.py, slam_option_eval.py): ``SECONDS OCCLUSION SEEDS [OBJECTS] [--vision] [--out PREFIX]``."""
+observed_gate_eval.py, slam_option_eval.py, slam_configs_eval.py): ``SECONDS OCCLUSION SEEDS [OBJECTS] [--vision]
+[--out PREFIX]``."""
 
 import argparse
 from dataclasses import dataclass

@@ -67,6 +67,9 @@ def test_default_mode_keeps_session_cache_keys(monkeypatch):
     assert tsim.tiny_session_path("heavy", 2.0, contact_mode="slide") == seen[0]
     stick = tsim.tiny_session_path("heavy", 2.0, contact_mode="stick")
     assert stick != seen[0] and stick.name.startswith("tiny-stick-heavy-2s-")
+    # a duration given as an int names the same session as the float
+    assert tsim.tiny_session_path("heavy", 2) == seen[0]
+    assert tsim.tiny_session_path("heavy", 2, contact_mode="stick") == stick
 
 
 @pytest.mark.slow

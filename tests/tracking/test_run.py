@@ -244,3 +244,41 @@ def test_bad_session(tmp_path):
         track_session(tmp_path / "missing", tmp_path / "out")
     with pytest.raises(InputError):
         track_session(tmp_path, tmp_path / "out", shape="banana")
+
+
+def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, monkeypatch):
+    """``--contacts stick`` gives SLAM the sticking-contact preset, from ``vtrack track`` and ``vtrack reconstruct``;
+    the default (slide) adds nothing; a known shape or an unknown mode is an InputError naming the flag."""
+    from typer.testing import CliRunner
+    from vtrack_apps.cli import app
+
+    import vtrack.fusion.reconstruct as rec_mod
+    import vtrack.tracking.run as run_mod
+    from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
+
+    seen = []
+
+    def fake(path, out, **kw):
+        seen.append(kw)
+        raise SystemExit(0)  # stop before any tracking: only the options matter here
+
+    monkeypatch.setattr(run_mod, "track_session", fake)
+    monkeypatch.setattr(rec_mod, "reconstruct_session", fake)
+    for args in (
+        ["track", str(blind_session), "--shape", "slam"],
+        ["track", str(blind_session), "--shape", "slam", "--contacts", "stick"],
+        ["reconstruct", str(blind_session), "--contacts", "stick"],
+    ):
+        CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+    assert "sigma_stick" not in seen[0]
+    assert {k: seen[1][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
+    assert seen[1]["sigma_stick"] > 0 and seen[1]["sigma_vision_few"] > 0
+    assert {k: seen[2]["track_opts"][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
+    for args in (
+        ["track", str(blind_session), "--shape", "slam", "--contacts", "glue"],
+        ["track", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
+        ["reconstruct", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
+    ):
+        bad = CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+        assert isinstance(bad.exception, InputError) and "--contacts" in str(bad.exception), args
+    assert len(seen) == 3

@@ -8,6 +8,10 @@ and both: SLAM (object-motion error: ADD, ADD-S for symmetric objects, first-fra
 of visuo-tactile against vision-only (#20's target under heavy occlusion: >= 50 %). Seeds: ``vtrack bench heavy
 --seeds 0,1,2`` (``VTRACK_BENCH_SEEDS``) runs every session of each seed, then reports the mean over objects per seed
 and the mean and standard deviation of those over seeds (the comparison note reads the latter).
+Sessions: the simulator's default sliding fingers, or ``VTRACK_BENCH_HEAVY_CONTACTS=stick`` for fingers that drive the
+object (``sim.contact_mode: stick``; generated once and cached). The SLAM row "sticking-contacts preset"
+(:data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS`, ``vtrack track --contacts stick``) is the setting for the latter;
+on sliding sessions it shows what the preset costs when its assumption is wrong.
 Quick mode: the soup can under heavy occlusion, SLAM vision / both.
 """
 
@@ -19,6 +23,7 @@ import time
 from vtrack.bench.harness import BenchTable, add_seed_means, bench_seeds
 
 MODES = {"vision": ("vision",), "touch": ("touch",), "vision+touch": ("vision", "touch")}
+STICK_ROW = "slam/vision+touch sticking-contacts preset"
 
 
 def run(quick: bool = False) -> BenchTable:
@@ -30,11 +35,16 @@ def run(quick: bool = False) -> BenchTable:
     from vtrack.paths import shared_data_dir
     from vtrack.testing.sim import DEFAULT_OBJECT, ycb_objects, ycb_session
     from vtrack.tracking.run import track_session
-    from vtrack.tracking.slam import SLAM_TOUCH_WEAK_VISION
+    from vtrack.tracking.slam import SLAM_STICKING_CONTACTS, SLAM_TOUCH_WEAK_VISION
 
     table = BenchTable(stage="heavy_occlusion", error_key="motion_err_mm", time_key="ms", threads=1)
     seconds = float(os.environ.get("VTRACK_BENCH_HEAVY_SECONDS", "2"))
     occs = os.environ.get("VTRACK_BENCH_HEAVY_OCC", "heavy" if quick else "none,medium,heavy").split(",")
+    contacts = os.environ.get("VTRACK_BENCH_HEAVY_CONTACTS", "slide")
+    if contacts not in ("slide", "stick"):
+        raise InputError(
+            "unknown contact mode", field="VTRACK_BENCH_HEAVY_CONTACTS", expected="slide|stick", got=contacts
+        )
     objects = [DEFAULT_OBJECT] if quick else ycb_objects()
     runs = [(f"slam/{m}", dict(shape="slam", modalities=mods)) for m, mods in MODES.items()]
     # the SLAM heavy-occlusion preset (opt-in) beside the default, and the default without its contact budget (every
@@ -48,6 +58,7 @@ def run(quick: bool = False) -> BenchTable:
             "slam/vision+touch all contacts (few_touch_points=0)",
             dict(shape="slam", modalities=MODES["vision+touch"], few_touch_points=0),
         ),
+        (STICK_ROW, dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_STICKING_CONTACTS)),
     ]
     runs += [(f"known/{m}", dict(shape="known_shape", modalities=MODES[m])) for m in ("vision", "vision+touch")]
     if quick:
@@ -55,7 +66,7 @@ def run(quick: bool = False) -> BenchTable:
     seeds = bench_seeds()
     t0 = time.perf_counter()
     for occ, seed, obj in ((o, k, b) for o in occs for k in seeds for b in objects):
-        sess = ycb_session(obj, occ, seconds, seed=seed)
+        sess = ycb_session(obj, occ, seconds, contact_mode=contacts, seed=seed)
         mesh = shared_data_dir() / "objects" / "ycb" / f"{obj}.ply"
         for name, kw in runs:
             if kw["shape"] == "known_shape":
@@ -81,18 +92,20 @@ def run(quick: bool = False) -> BenchTable:
     means = {
         (r["method"], r["occlusion"]): r for r in table.rows if r.get("object") == "all" and r.get("seed") == final
     }
-    for shape, key in (("slam", "motion_err_mm"), ("known", "add_s_mm")):
+    pairs = [("slam", "slam/vision+touch", "motion_err_mm"), ("slam", STICK_ROW, "motion_err_mm")]
+    for shape, row, key in [*pairs, ("known", "known/vision+touch", "add_s_mm")]:
         for occ in occs:
-            v, vt = means.get((f"{shape}/vision", occ)), means.get((f"{shape}/vision+touch", occ))
+            v, vt = means.get((f"{shape}/vision", occ)), means.get((row, occ))
             if v and vt and v["n_objects"] == vt["n_objects"] and v[key] > 0:
                 table.notes.append(
-                    f"{shape} {occ}: vision+touch {vt[key]:.2f} mm vs vision {v[key]:.2f} mm ({key}, mean of "
-                    f"{v['n_objects']} objects, seeds {','.join(map(str, seeds))}): "
-                    f"{100.0 * (1.0 - vt[key] / v[key]):+.0f} % lower"
+                    f"{contacts} sessions, {occ}: {row} {vt[key]:.2f} mm vs {shape}/vision {v[key]:.2f} mm "
+                    f"({key}, mean of {v['n_objects']} objects, seeds {','.join(map(str, seeds))}): "
+                    f"{abs(pct := 100.0 * (1.0 - vt[key] / v[key])):.0f} % {'lower' if pct >= 0 else 'higher'}"
                 )
     table.notes.append(
-        f"blind; {seconds:g} s sessions; motion_err_mm: ADD of the object's motion since the first frame (ADD-S for "
-        "symmetric objects), add_s_mm: absolute ADD-S in the mesh frame (known shape); ms: CPU per frame on 1 thread "
+        f"blind; {seconds:g} s sessions, {contacts} fingers (sim.contact_mode); motion_err_mm: ADD of the object's "
+        "motion since the first frame (ADD-S for symmetric objects), add_s_mm: absolute ADD-S in the mesh frame "
+        "(known shape); ms: CPU per frame on 1 thread "
         f"incl. segmentation and the tactile pipeline; {time.perf_counter() - t0:.0f} s wall."
     )
     return table

@@ -35,7 +35,7 @@ def tiny_session_path(
     scene_file = default_scene_path()
     spec = {
         "occ": occlusion,
-        "s": seconds,
+        "s": float(seconds),  # 2 and 2.0 are one session (json writes them apart)
         "obj": str(object) if object else None,
         "seed": seed,
         "scene": hashlib.sha1(scene_file.read_bytes()).hexdigest(),

@@ -178,6 +178,27 @@ SLAM_TOUCH_WEAK_VISION: dict[str, float] = {
 }
 
 
+#: Preset for hands whose fingers drive the object (opt-in: ``track_session(..., **SLAM_STICKING_CONTACTS)``, ``vtrack
+#: track --contacts stick``). In a real in-hand rotation the fingers in contact stick to the object (or roll on it), so
+#: each contact's object-frame point stays put while the contact lasts. The sticking-contact term
+#: (``TrackerOptions.sigma_stick``, 0.25 mm) then carries the pose:
+#: - the contacts' point-to-map residuals are dropped in frames with vision (``stick_drop_touch``): a patch read
+#:   against the map it laid down itself only adds noise;
+#: - in frames that see fewer than 150 depth points, those are weighted at 4 mm instead of 2 (``sigma_vision_few``):
+#:   under heavy occlusion the strips seen between the fingers tilt the pose, the contacts hold it better;
+#: - the slip test no longer asks a contact to move along the surface (``stick_min_step`` 0: a contact near the
+#:   turn's axis barely moves); its patch, step and anchor tests still catch slips.
+#: Measured on the simulator's sticking-finger sessions (``sim.contact_mode: stick``), blind, 6 YCB objects
+#: (docs/benchmarks/sticking_contacts.md). Not for sliding fingers: on the default (sliding) sessions the term drags
+#: the pose along with fingers that slide over the object.
+SLAM_STICKING_CONTACTS: dict[str, float | bool] = {
+    "sigma_stick": 0.00025,
+    "stick_drop_touch": True,
+    "sigma_vision_few": 0.004,
+    "stick_min_step": 0.0,
+}
+
+
 #: SLAM's contact budget in frames that see little (default since 2026-11-28; ``few_touch_points=0`` turns it off,
 #: ``vtrack track --few-touch 0``): a frame that sees fewer than 300 segmented depth points keeps at most 12 contact
 #: points instead of 120 (``TrackerOptions.few_touch_points``), so that touch steers the pose no further from the

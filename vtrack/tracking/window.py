@@ -58,6 +58,11 @@ class TrackerOptions:
     converge_rot: float = 2e-4  #: ... and this (rad)
     robust: str = "huber"  #: huber | cauchy
     sigma_vision: float = 0.002  #: depth point-to-surface noise, m
+    #: m, > 0: the depth points' sigma in a frame that sees fewer than ``few_vision_points`` segmented depth points
+    #: (0: ``sigma_vision`` everywhere). Under heavy occlusion the few points seen between the fingers tilt the pose
+    #: against a map they half built; with sticking contacts (``sigma_stick``) the contacts hold it better
+    sigma_vision_few: float = 0.0
+    few_vision_points: int = 150  #: see ``sigma_vision_few``
     sigma_touch: float = 0.001  #: contact point-to-surface noise, m (patch edges are ~0.3 mm off)
     sigma_normal: float = 1.0  #: contact normal disagreement (unit vectors); weak on purpose
     sigma_free: float = 0.001  #: non-penetration, m
@@ -263,6 +268,8 @@ class TrackerOptions:
         )
         R("colour_max_age", o.colour_max_age, "colour track age must be >= 0", ">= 0 frames (0: no limit)")
         R("sigma_stick", o.sigma_stick, "sigma_stick must be >= 0", ">= 0 m (0: off)", hi_inclusive=False)
+        R("sigma_vision_few", o.sigma_vision_few, "sigma_vision_few must be >= 0", ">= 0 m", hi_inclusive=False)
+        R("few_vision_points", o.few_vision_points, "few_vision_points must be >= 0", ">= 0 points")
         for name in ("stick_step_gate", "stick_gate", "kernel_stick", "stick_patch_move"):
             R(name, getattr(o, name), f"{name} must be > 0", "> 0 m", lo_inclusive=False, hi_inclusive=False)
         R("stick_min_step", o.stick_min_step, "stick_min_step must be >= 0", ">= 0 m", hi_inclusive=False)
@@ -1025,12 +1032,16 @@ class WindowTracker:
         o = self.opts
         return o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
 
-    def _group_weighting(self, kind: str, weak: bool, r: np.ndarray) -> tuple[float | np.ndarray, float]:
+    def _group_weighting(
+        self, kind: str, weak: bool, r: np.ndarray, n_vision: int = 1 << 30
+    ) -> tuple[float | np.ndarray, float]:
         """Sigma (m; a scalar or one per row) and robust kernel width (sigmas) of a point group's SDF residuals ``r``
-        (m): ``kind`` v(ision) / t(ouch) / f(ree gel), ``weak``: the frame is in the weak-vision regime."""
+        (m): ``kind`` v(ision) / t(ouch) / f(ree gel), ``weak``: the frame is in the weak-vision regime, ``n_vision``:
+        its segmented depth points (``sigma_vision_few``)."""
         o = self.opts
         if kind == "v":
-            return o.sigma_vision, o.kernel_vision
+            few = o.sigma_vision_few > 0 and n_vision < o.few_vision_points
+            return (o.sigma_vision_few if few else o.sigma_vision), o.kernel_vision
         if kind == "t" and weak:
             # vision sees too little to hold the pose: the contacts carry it, pulled onto the surface from both
             # sides (their shallow bias, ~0.3 mm median on the YCB sessions, is below this sigma)
@@ -1078,7 +1089,7 @@ class WindowTracker:
             if rw is not None and kind != "f":
                 w, rho, Jw, wr = (x[sl] for x in rw[:4])
             else:
-                sig, kern = self._group_weighting(kind, weak, r)
+                sig, kern = self._group_weighting(kind, weak, r, fr.n_vision if n_vision < 0 else n_vision)
                 if kind == "f":
                     r = np.minimum(r - o.free_margin, 0.0)
                     Jk = Jk * (r < 0)[:, None]
@@ -1293,7 +1304,9 @@ class WindowTracker:
                 sl = slice(a, a + len(P))
                 a += len(P)
                 if kind != "f":
-                    sig_rows[sl], kern_rows[sl] = self._group_weighting(kind, weak, d_all[sl])
+                    sig_rows[sl], kern_rows[sl] = self._group_weighting(
+                        kind, weak, d_all[sl], fr.n_vision if nv < 0 else nv
+                    )
                 if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
                     ok, _ = self._normal_ok(fr, g_all[sl])
                     if ok.any():

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from vtrack_apps.commands.track import PREFETCH_HELP
+from vtrack_apps.commands.track import CONTACTS_HELP, PREFETCH_HELP
 
 
 def register(app: typer.Typer) -> None:
@@ -44,6 +44,7 @@ def register(app: typer.Typer) -> None:
             help="--poses track, heavy occlusion (opt-in): grow the colour tracks' mask by this many depth pixels "
             "(as `vtrack track --colour-grow`; docs/benchmarks/heavy_mask_ablation.md)",
         ),
+        contacts: str = typer.Option("slide", "--contacts", help="--poses track without --mesh: " + CONTACTS_HELP),
         prefetch: str = typer.Option("auto", "--prefetch", help="--poses track: " + PREFETCH_HELP),
         no_screenshot: bool = typer.Option(False, "--no-screenshot", help="skip screenshot.png"),
         json_out: Path = typer.Option(None, "--json", help="also write the metrics to this JSON file"),
@@ -60,7 +61,7 @@ def register(app: typer.Typer) -> None:
                 field="--second-pass",
                 expected="--poses track without --mesh",
             )
-        from vtrack_apps.commands.track import colour_grow_opts, prefetch_mode
+        from vtrack_apps.commands.track import colour_grow_opts, contacts_opts, prefetch_mode
 
         if colour_grow > 0 and poses != "track":
             from vtrack.errors import InputError
@@ -71,7 +72,14 @@ def register(app: typer.Typer) -> None:
                 expected="--poses track",
                 got=poses,
             )
-        track_opts = colour_grow_opts(colour_grow)
+        stick_opts = contacts_opts(contacts)
+        if stick_opts and (mesh is not None or poses != "track"):
+            from vtrack.errors import InputError
+
+            raise InputError(
+                "the sticking-contact preset is for SLAM", field="--contacts", expected="--poses track without --mesh"
+            )
+        track_opts = {**colour_grow_opts(colour_grow), **stick_opts}
         if poses == "track":
             track_opts["prefetch"] = prefetch_mode(prefetch)
         if second_pass is not None and mesh is None and poses == "track":

@@ -17,6 +17,29 @@ def colour_grow_opts(colour_grow: int) -> dict:
     return {"segmentation_opts": {"colour_grow_px": colour_grow}} if colour_grow > 0 else {}
 
 
+#: ``--contacts`` of ``vtrack track`` and ``vtrack reconstruct``
+CONTACTS_HELP = (
+    "SLAM: how the fingers hold the object: slide (they may slide over it; the default) | stick (they drive it, "
+    "sticking or rolling, as in an in-hand rotation: the sticking-contact preset; hurts when they slide; "
+    "docs/benchmarks/sticking_contacts.md)"
+)
+
+
+def contacts_opts(contacts: str) -> dict:
+    """SLAM's ``track_session`` options of ``--contacts slide|stick`` (shared with ``vtrack reconstruct``): ``{}`` for
+    slide, :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick; anything else is an InputError naming the
+    flag."""
+    if contacts == "slide":
+        return {}
+    if contacts == "stick":
+        from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
+
+        return dict(SLAM_STICKING_CONTACTS)
+    from vtrack.errors import InputError
+
+    raise InputError("unknown contact mode", field="--contacts", expected="slide|stick", got=contacts)
+
+
 #: ``--prefetch`` of ``vtrack track`` and ``vtrack reconstruct`` (:mod:`vtrack.frames.prefetch`)
 PREFETCH_HELP = (
     "build the frames (segmentation, tactile pipelines) in a second process ahead of the tracker: auto (sessions "
@@ -94,6 +117,7 @@ def register(app: typer.Typer) -> None:
             "along the fingers (1 is the measured setting; hurts a well-seen object; "
             "docs/benchmarks/heavy_mask_ablation.md)",
         ),
+        contacts: str = typer.Option("slide", "--contacts", help=CONTACTS_HELP),
         select_run: bool = typer.Option(
             False,
             "--select-run",
@@ -139,6 +163,9 @@ def register(app: typer.Typer) -> None:
             perturb = (init_perturb_mm / 1000.0, math.radians(init_perturb_deg))
         if select_run and (shape != "slam" or method != "ours"):
             raise InputError("run selection is for SLAM", field="--select-run", expected="--shape slam", got=shape)
+        stick_opts = contacts_opts(contacts)
+        if stick_opts and (shape != "slam" or method != "ours"):
+            raise InputError("the sticking-contact preset is for SLAM", field="--contacts", expected="--shape slam")
         opts = {}
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
@@ -158,6 +185,7 @@ def register(app: typer.Typer) -> None:
                 if select_run:
                     opts["select_runs"] = True
                 opts.update(colour_grow_opts(colour_grow))
+                opts.update(stick_opts)
                 if not colour:
                     from vtrack.tracking.slam import SLAM_NO_COLOUR
 
