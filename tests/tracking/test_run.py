@@ -153,22 +153,32 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
     assert m["frames"] == 10 and 0 <= m["selected_run"] < len(m["select_scores_mm"]) == 3
 
 
+def _record_cli_options(monkeypatch) -> list[dict]:
+    """Replace ``track_session`` and ``reconstruct_session`` by a recorder: each CLI call appends the keyword
+    arguments it would have passed and stops before any work (only the options matter to the caller)."""
+    import vtrack.fusion.reconstruct as rec_mod
+    import vtrack.tracking.run as run_mod
+
+    seen: list[dict] = []
+
+    def fake(path, out, **kw):
+        seen.append(kw)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(run_mod, "track_session", fake)
+    monkeypatch.setattr(rec_mod, "reconstruct_session", fake)
+    return seen
+
+
 def test_cli_few_touch_reaches_the_tracker(blind_session, user_mesh, tmp_path, monkeypatch):
     """``--few-touch N`` sets the tracker's contact budget (0 = every contact), SLAM's or the known-shape tracker's;
     without it SLAM's default (12) holds."""
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
-    import vtrack.tracking.run as run_mod
     from vtrack.tracking.slam import SLAMOptions
 
-    seen = []
-
-    def fake(path, out, **kw):
-        seen.append(kw)
-        raise SystemExit(0)  # stop before any tracking: only the options matter here
-
-    monkeypatch.setattr(run_mod, "track_session", fake)
+    seen = _record_cli_options(monkeypatch)
     for extra in (
         [],
         ["--few-touch", "0"],
@@ -188,17 +198,7 @@ def test_cli_prefetch_reaches_track_and_reconstruct(blind_session, tmp_path, mon
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
-    import vtrack.fusion.reconstruct as rec_mod
-    import vtrack.tracking.run as run_mod
-
-    seen = []
-
-    def fake(path, out, **kw):
-        seen.append(kw)
-        raise SystemExit(0)  # stop before any tracking: only the options matter here
-
-    monkeypatch.setattr(run_mod, "track_session", fake)
-    monkeypatch.setattr(rec_mod, "reconstruct_session", fake)
+    seen = _record_cli_options(monkeypatch)
     for args in (
         ["track", str(blind_session)],
         ["track", str(blind_session), "--prefetch", "off"],
@@ -252,18 +252,9 @@ def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, mon
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
-    import vtrack.fusion.reconstruct as rec_mod
-    import vtrack.tracking.run as run_mod
     from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
 
-    seen = []
-
-    def fake(path, out, **kw):
-        seen.append(kw)
-        raise SystemExit(0)  # stop before any tracking: only the options matter here
-
-    monkeypatch.setattr(run_mod, "track_session", fake)
-    monkeypatch.setattr(rec_mod, "reconstruct_session", fake)
+    seen = _record_cli_options(monkeypatch)
     for args in (
         ["track", str(blind_session), "--shape", "slam"],
         ["track", str(blind_session), "--shape", "slam", "--contacts", "stick"],
@@ -276,6 +267,8 @@ def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, mon
     assert {k: seen[2]["track_opts"][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
     for args in (
         ["track", str(blind_session), "--shape", "slam", "--contacts", "glue"],
+        ["track", str(blind_session), "--shape", "slam", "--contacts", "stick", "--modalities", "vision"],
+        ["reconstruct", str(blind_session), "--contacts", "stick", "--modalities", "vision"],
         ["track", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
         ["reconstruct", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
     ):

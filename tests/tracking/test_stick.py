@@ -195,8 +195,10 @@ def test_sticking_preset_on_a_sticking_finger_session(shared_data):
 
     session = ycb_session("010_potted_meat_can", "heavy", 1.0, contact_mode="stick")
 
-    def err(**kw) -> float:
-        return float(track_session(session, "", shape="slam", write=False, **kw)["motion_err_mm"])
+    def err(**kw) -> tuple[float, bool]:
+        m = track_session(session, "", shape="slam", write=False, **kw)
+        return float(m["motion_err_mm"]), m["sticking_contacts"]
 
-    vision, both, preset = err(modalities=("vision",)), err(), err(**SLAM_STICKING_CONTACTS)
+    (vision, _), (both, off), (preset, on) = err(modalities=("vision",)), err(), err(**SLAM_STICKING_CONTACTS)
+    assert on and not off  # the metrics say whether the term ran
     assert np.isfinite(preset) and preset < 0.5 * vision and preset < 0.7 * both, (preset, vision, both)

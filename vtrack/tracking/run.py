@@ -469,6 +469,8 @@ def track_session(
         "modalities": list(modalities),
         "tactile_source": tactile_source if "touch" in modalities else "none",
         "segmentation": segmentation if "vision" in modalities else "none",
+        # the sticking-contact term was on (``sigma_stick`` > 0 with touch: ``--contacts stick``)
+        "sticking_contacts": sticker is not None,
         "oracle": oracle,
         "blind": not oracle,
         "frames": n,

@@ -72,7 +72,7 @@ def register(app: typer.Typer) -> None:
                 expected="--poses track",
                 got=poses,
             )
-        stick_opts = contacts_opts(contacts)
+        stick_opts = contacts_opts(contacts, modalities)
         if stick_opts and (mesh is not None or poses != "track"):
             from vtrack.errors import InputError
 

@@ -25,19 +25,25 @@ CONTACTS_HELP = (
 )
 
 
-def contacts_opts(contacts: str) -> dict:
+def contacts_opts(contacts: str, modalities: str | tuple[str, ...]) -> dict:
     """SLAM's ``track_session`` options of ``--contacts slide|stick`` (shared with ``vtrack reconstruct``): ``{}`` for
-    slide, :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick; anything else is an InputError naming the
-    flag."""
-    if contacts == "slide":
-        return {}
-    if contacts == "stick":
-        from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
-
-        return dict(SLAM_STICKING_CONTACTS)
+    slide, :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick, which needs touch among ``modalities``
+    (a comma list or a tuple); anything else is an InputError naming the flag."""
     from vtrack.errors import InputError
 
-    raise InputError("unknown contact mode", field="--contacts", expected="slide|stick", got=contacts)
+    if contacts == "slide":
+        return {}
+    if contacts != "stick":
+        raise InputError("unknown contact mode", field="--contacts", expected="slide|stick", got=contacts)
+    mods = modalities.split(",") if isinstance(modalities, str) else modalities
+    if "touch" not in [m.strip() for m in mods]:
+        # without touch the preset would only re-weight the depth points of frames that see little
+        raise InputError(
+            "the sticking-contact preset needs touch", field="--contacts", expected="--modalities with touch"
+        )
+    from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
+
+    return dict(SLAM_STICKING_CONTACTS)
 
 
 #: ``--prefetch`` of ``vtrack track`` and ``vtrack reconstruct`` (:mod:`vtrack.frames.prefetch`)
@@ -163,7 +169,7 @@ def register(app: typer.Typer) -> None:
             perturb = (init_perturb_mm / 1000.0, math.radians(init_perturb_deg))
         if select_run and (shape != "slam" or method != "ours"):
             raise InputError("run selection is for SLAM", field="--select-run", expected="--shape slam", got=shape)
-        stick_opts = contacts_opts(contacts)
+        stick_opts = contacts_opts(contacts, mods)
         if stick_opts and (shape != "slam" or method != "ours"):
             raise InputError("the sticking-contact preset is for SLAM", field="--contacts", expected="--shape slam")
         opts = {}
@@ -221,6 +227,7 @@ def register(app: typer.Typer) -> None:
             "ms_per_frame_mean",
             "poses_per_s",
             "prefetch",
+            "sticking_contacts",
             "status_counts",
             "backend_s",
             "keyframes",
