@@ -1032,9 +1032,7 @@ class WindowTracker:
         o = self.opts
         return o.sigma_normal_weak if (weak and o.sigma_normal_weak > 0) else o.sigma_normal
 
-    def _group_weighting(
-        self, kind: str, weak: bool, r: np.ndarray, n_vision: int = 1 << 30
-    ) -> tuple[float | np.ndarray, float]:
+    def _group_weighting(self, kind: str, weak: bool, r: np.ndarray, n_vision: int) -> tuple[float | np.ndarray, float]:
         """Sigma (m; a scalar or one per row) and robust kernel width (sigmas) of a point group's SDF residuals ``r``
         (m): ``kind`` v(ision) / t(ouch) / f(ree gel), ``weak``: the frame is in the weak-vision regime, ``n_vision``:
         its segmented depth points (``sigma_vision_few``)."""
@@ -1063,7 +1061,8 @@ class WindowTracker:
         Jacobians (:func:`_sdf_jacobian`), and the depth / contact rows' robust weights, costs, weighted Jacobians and
         weighted residuals, when the caller computed them already (once for the whole window)."""
         o = self.opts
-        weak = self._weak_vision(fr, n_vision)
+        nv = fr.n_vision if n_vision < 0 else n_vision
+        weak = self._weak_vision(fr, nv)
         sig_normal = self._normal_sigma(weak)
         R = T[:3, :3]
         H = np.zeros((6, 6))
@@ -1089,7 +1088,7 @@ class WindowTracker:
             if rw is not None and kind != "f":
                 w, rho, Jw, wr = (x[sl] for x in rw[:4])
             else:
-                sig, kern = self._group_weighting(kind, weak, r, fr.n_vision if n_vision < 0 else n_vision)
+                sig, kern = self._group_weighting(kind, weak, r, nv)
                 if kind == "f":
                     r = np.minimum(r - o.free_margin, 0.0)
                     Jk = Jk * (r < 0)[:, None]
@@ -1298,15 +1297,14 @@ class WindowTracker:
         nrm: list[tuple[np.ndarray, np.ndarray, float] | None] = []
         a = 0
         for T, fr, nv in (p for parts in evals for p in parts):
+            nv = fr.n_vision if nv < 0 else nv
             weak = self._weak_vision(fr, nv)
             nrm.append(None)
             for kind, P in self._groups(fr):
                 sl = slice(a, a + len(P))
                 a += len(P)
                 if kind != "f":
-                    sig_rows[sl], kern_rows[sl] = self._group_weighting(
-                        kind, weak, d_all[sl], fr.n_vision if nv < 0 else nv
-                    )
+                    sig_rows[sl], kern_rows[sl] = self._group_weighting(kind, weak, d_all[sl], nv)
                 if kind == "t" and fr.touch_normals is not None and len(fr.touch_normals):
                     ok, _ = self._normal_ok(fr, g_all[sl])
                     if ok.any():

@@ -72,13 +72,9 @@ def register(app: typer.Typer) -> None:
                 expected="--poses track",
                 got=poses,
             )
-        stick_opts = contacts_opts(contacts, modalities)
-        if stick_opts and (mesh is not None or poses != "track"):
-            from vtrack.errors import InputError
-
-            raise InputError(
-                "the sticking-contact preset is for SLAM", field="--contacts", expected="--poses track without --mesh"
-            )
+        stick_opts = contacts_opts(
+            contacts, modalities, mesh is None and poses == "track", "--poses track without --mesh"
+        )
         track_opts = {**colour_grow_opts(colour_grow), **stick_opts}
         if poses == "track":
             track_opts["prefetch"] = prefetch_mode(prefetch)

@@ -25,16 +25,19 @@ CONTACTS_HELP = (
 )
 
 
-def contacts_opts(contacts: str, modalities: str | tuple[str, ...]) -> dict:
+def contacts_opts(contacts: str, modalities: str | tuple[str, ...], slam: bool, slam_flags: str) -> dict:
     """SLAM's ``track_session`` options of ``--contacts slide|stick`` (shared with ``vtrack reconstruct``): ``{}`` for
-    slide, :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick, which needs touch among ``modalities``
-    (a comma list or a tuple); anything else is an InputError naming the flag."""
+    slide, :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick, which needs SLAM (``slam``; ``slam_flags``:
+    the flags that select it, for the message) and touch among ``modalities`` (a comma list or a tuple); anything
+    else is an InputError naming the flag."""
     from vtrack.errors import InputError
 
     if contacts == "slide":
         return {}
     if contacts != "stick":
         raise InputError("unknown contact mode", field="--contacts", expected="slide|stick", got=contacts)
+    if not slam:
+        raise InputError("the sticking-contact preset is for SLAM", field="--contacts", expected=slam_flags)
     mods = modalities.split(",") if isinstance(modalities, str) else modalities
     if "touch" not in [m.strip() for m in mods]:
         # without touch the preset would only re-weight the depth points of frames that see little
@@ -169,9 +172,7 @@ def register(app: typer.Typer) -> None:
             perturb = (init_perturb_mm / 1000.0, math.radians(init_perturb_deg))
         if select_run and (shape != "slam" or method != "ours"):
             raise InputError("run selection is for SLAM", field="--select-run", expected="--shape slam", got=shape)
-        stick_opts = contacts_opts(contacts, mods)
-        if stick_opts and (shape != "slam" or method != "ours"):
-            raise InputError("the sticking-contact preset is for SLAM", field="--contacts", expected="--shape slam")
+        stick_opts = contacts_opts(contacts, mods, shape == "slam" and method == "ours", "--shape slam")
         opts = {}
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
