@@ -154,9 +154,12 @@ def test_cli(tiny_session, blind_session, user_mesh, tmp_path):
 
 
 def _record_cli_options(monkeypatch) -> list[dict]:
-    """Replace ``track_session`` and ``reconstruct_session`` by a recorder: each CLI call appends the keyword
-    arguments it would have passed and stops before any work (only the options matter to the caller)."""
+    """Replace ``track_session``, ``reconstruct_session`` and the live consumers' factory by a recorder: each CLI
+    call appends the keyword arguments it would have passed and stops before any work (only the options matter to
+    the caller)."""
     import vtrack.fusion.reconstruct as rec_mod
+    import vtrack.live.consumers as live_mod
+    import vtrack.threads as threads_mod
     import vtrack.tracking.run as run_mod
 
     seen: list[dict] = []
@@ -167,6 +170,9 @@ def _record_cli_options(monkeypatch) -> list[dict]:
 
     monkeypatch.setattr(run_mod, "track_session", fake)
     monkeypatch.setattr(rec_mod, "reconstruct_session", fake)
+    monkeypatch.setattr(live_mod, "make_consumer", fake)  # (kind, session, **opts)
+    # `vtrack live` caps this process's thread pools; a recorded call must not change them for the tests after it
+    monkeypatch.setattr(threads_mod, "limit_threads", lambda n: None)
     return seen
 
 
@@ -247,8 +253,9 @@ def test_bad_session(tmp_path):
 
 
 def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, monkeypatch):
-    """``--contacts stick`` gives SLAM the sticking-contact preset, from ``vtrack track`` and ``vtrack reconstruct``;
-    the default (slide) adds nothing; a known shape or an unknown mode is an InputError naming the flag."""
+    """``--contacts stick`` gives SLAM the sticking-contact preset, from ``vtrack track``, ``vtrack reconstruct`` and
+    ``vtrack live``; the default (slide) adds nothing; a known shape or an unknown mode is an InputError naming the
+    flag."""
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
@@ -259,19 +266,24 @@ def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, mon
         ["track", str(blind_session), "--shape", "slam"],
         ["track", str(blind_session), "--shape", "slam", "--contacts", "stick"],
         ["reconstruct", str(blind_session), "--contacts", "stick"],
+        ["live", str(blind_session), "--consumer", "track"],
+        ["live", str(blind_session), "--consumer", "track", "--contacts", "stick"],
     ):
-        CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+        CliRunner().invoke(app, [*args, *(["--out", str(tmp_path)] if args[0] != "live" else [])])
     assert "sigma_stick" not in seen[0]
     assert {k: seen[1][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
     assert seen[1]["sigma_stick"] > 0 and seen[1]["sigma_vision_few"] > 0
     assert {k: seen[2]["track_opts"][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
+    assert "sigma_stick" not in seen[3] and {k: seen[4][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
     for args in (
         ["track", str(blind_session), "--shape", "slam", "--contacts", "glue"],
         ["track", str(blind_session), "--shape", "slam", "--contacts", "stick", "--modalities", "vision"],
         ["reconstruct", str(blind_session), "--contacts", "stick", "--modalities", "vision"],
         ["track", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
         ["reconstruct", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
+        ["live", str(blind_session), "--consumer", "track", "--mesh", str(user_mesh), "--contacts", "stick"],
+        ["live", str(blind_session), "--consumer", "track", "--contacts", "glue"],
     ):
-        bad = CliRunner().invoke(app, [*args, "--out", str(tmp_path)])
+        bad = CliRunner().invoke(app, [*args, *(["--out", str(tmp_path)] if args[0] != "live" else [])])
         assert isinstance(bad.exception, InputError) and "--contacts" in str(bad.exception), args
-    assert len(seen) == 3
+    assert len(seen) == 5

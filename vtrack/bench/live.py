@@ -27,10 +27,14 @@ offline tracking does; tactile images in between are never read), ``pickled tran
 the shared-memory ring: every frame pickled through the reader's queue, every tactile image again to the touch
 child) and ``adaptive camera stride`` (the tracker skips camera frames, stride <= 2, while its steps take longer
 than 0.9 camera periods; ``camera_strided_pct`` = camera frames it did not track) and ``no colour (depth only)``
-(the tracker's frames without the colour term's feature tracks; the replay does not decode the camera's RGB).
+(the tracker's frames without the colour term's feature tracks; the replay does not decode the camera's RGB)
+
+and ``sticking contacts`` (SLAM's preset for fingers that drive the object, ``vtrack live --contacts stick``).
 
 Cases: 3 shared YCB objects, 5 s sessions, occlusion none, or ``VTRACK_BENCH_LIVE_CASES`` =
-``"object|occlusion|seconds;..."``. Quick mode: one 2 s session, the default variant.
+``"object|occlusion|seconds[|contact mode[|seed]];..."`` (the simulator's ``sim.contact_mode``: ``slide``, the
+default, or ``stick``: fingers that drive the object; its seed, default 0). Quick mode: one 2 s session, the default
+variant.
 """
 
 from __future__ import annotations
@@ -58,20 +62,23 @@ VARIANTS = {
     # depth only: frames without the colour term's feature tracks, the camera's RGB not decoded (before 2026-11-26
     # evening)
     "no colour (depth only)": {"colour": False},
+    # SLAM's preset for fingers that drive the object (`vtrack live --contacts stick`; ids built where the frames are)
+    "sticking contacts": {"preset": "SLAM_STICKING_CONTACTS"},
 }
 DEFAULT_VARIANT = "default (touch process, frames process, reader process)"
 CASES = (("006_mustard_bottle", "none", 5.0), ("005_tomato_soup_can", "none", 5.0), ("025_mug", "none", 5.0))
 
 
-def _cases(quick: bool) -> list[tuple[str, str, float]]:
+def _cases(quick: bool) -> list[tuple[str, str, float, str, int]]:
+    """(object, occlusion, seconds, the simulator's contact mode, its seed) per case."""
     env = os.environ.get("VTRACK_BENCH_LIVE_CASES")
     if env:
         out = []
         for item in env.split(";"):
-            name, occ, sec = (item.split("|") + ["none", "5"])[:3]
-            out.append((name, occ or "none", float(sec or 5)))
+            name, occ, sec, mode, seed = (item.split("|") + ["none", "5", "slide", "0"])[:5]
+            out.append((name, occ or "none", float(sec or 5), mode or "slide", int(seed or 0)))
         return out
-    return [("006_mustard_bottle", "none", 2.0)] if quick else list(CASES)
+    return [("006_mustard_bottle", "none", 2.0, "slide", 0)] if quick else [(*c, "slide", 0) for c in CASES]
 
 
 def _speed() -> float:
@@ -89,6 +96,10 @@ def run_live(session, variant: dict, speed: float = 1.0) -> dict:
     from vtrack.live.sources import SessionReplaySource
 
     variant = dict(variant)
+    if "preset" in variant:  # a named dict of tracker options in vtrack.tracking.slam
+        import vtrack.tracking.slam as slam
+
+        variant = {**getattr(slam, variant.pop("preset")), **variant}
     reader = variant.pop("reader", "process")
     transport = variant.pop("transport", "shm")
     cons = [make_consumer("track", session, **variant)]
@@ -113,8 +124,8 @@ def run(quick: bool = False) -> BenchTable:
     if only:
         variants = {k: v for k, v in variants.items() if any(o.strip() and o.strip() in k for o in only.split(";"))}
     speed = _speed()
-    for name, occ, seconds in _cases(quick):
-        sess = ycb_session(name, occ, seconds)
+    for name, occ, seconds, contacts, seed in _cases(quick):
+        sess = ycb_session(name, occ, seconds, contact_mode=contacts, seed=seed)
         for vname, v in variants.items():
             load1 = os.getloadavg()[0]
             t0 = time.perf_counter()
@@ -128,9 +139,13 @@ def run(quick: bool = False) -> BenchTable:
             touch_cpu = [s["cpu_ms_mean"] for s in touch.values() if s["processed"]]
             table.add(
                 method=vname,
-                setting=f"{name} / {occ} / {seconds:g} s",
+                setting=f"{name} / {occ} / {seconds:g} s"
+                + (f" / {contacts} fingers" if contacts != "slide" else "")
+                + (f" / seed {seed}" if seed else ""),
                 object=name,
                 occlusion=occ,
+                contacts=contacts,
+                seed=seed,
                 real_time_factor=sm.get("real_time_factor"),
                 real_time_factor_cpu=sm.get("real_time_factor_cpu"),
                 # what the CPU figure predicts at real time when the replay ran at `speed` (capacity scales)

@@ -158,13 +158,16 @@ def _helper_process(
     frames_conn: Any,
     colour: bool = False,
     colour_opts: dict | None = None,
+    stick_opts: dict | None = None,
 ) -> None:
     """Child process of the ``track`` consumer (:class:`_Helper`). ``touch_conn``: tactile images in, contacts
     (sensor frame) out; the newest contact per sensor is kept here. ``frames_conn``: a camera frame's depth (strided,
     or at full resolution / a slot of the replay's shared ring), its RGB image with ``colour`` (the feature tracks'
     state lives here, in the process that builds the frames), joints and time in, its
     :class:`~vtrack.tracking.frame.TrackingFrame` out (segmentation by the FK-posed hand with the newest contacts;
-    with touch in another worker the request carries them). When both wait they are served in turn. ``None`` on
+    with touch in another worker the request carries them; with the sticking-contact term on, ``stick_opts``: the
+    tracker options that make :func:`~vtrack.tracking.stick.sticking_contacts_for` build the contact ids here, in
+    frame order). When both wait they are served in turn. ``None`` on
     either connection ends the process; it answers with its CPU seconds since it was ready."""
     import time
 
@@ -195,6 +198,9 @@ def _helper_process(
             rgb = np.asarray(c.stream["rgb"][0]) if c.tracks is not None else None
             sf.build({"i": 0, "touch": [], **_camera_raw(sf, c, np.asarray(c.stream["depth"][0]), rgb, False)})
             sf.reset()
+        from vtrack.tracking.stick import sticking_contacts_for
+
+        sticker = sticking_contacts_for(stick_opts or {}, sf.modalities)  # after the warm-up: no state from it
     except Exception as e:  # reported by the parent as one line
         touch_conn.send(f"{type(e).__name__}: {e}")
         return
@@ -247,7 +253,11 @@ def _helper_process(
                     "touch": [] if q is None else (list(contacts.items()) if touch is None else touch),
                     **_camera_raw(sf, cams[stream], depth, rgb, strided),
                 }
-                conn.send((sf.build(raw).tracking_frame(), time.thread_time() - c0))
+                fr = sf.build(raw)
+                tf = fr.tracking_frame()
+                if sticker is not None:
+                    sticker.annotate(fr, tf)
+                conn.send((tf, time.thread_time() - c0))
         except Exception as e:
             conn.send(f"{type(e).__name__}: {e}")
 
@@ -276,6 +286,7 @@ class _Helper:
                 c_frames,
                 owner.colour,
                 owner.colour_opts,
+                owner.tracker_opts if owner.sticker is not None else None,
             ),
             daemon=True,
             name="live-track-helper",
@@ -494,6 +505,19 @@ class TrackConsumer(Consumer):
             self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride, **col)
         self.init_pose = init_pose
         self.tracker_opts = tracker_opts
+        from vtrack.tracking.stick import sticking_contacts_for
+
+        # the sticking-contact term's ids (``--contacts stick``), as offline; with a frames worker its twin in the
+        # child builds them (this one stays unused)
+        self.sticker = sticking_contacts_for(tracker_opts, self.sf.modalities) if self.mesh is None else None
+        if float(tracker_opts.get("sigma_stick", 0.0) or 0.0) > 0 and self.sticker is None:
+            raise InputError(
+                "the sticking-contact term needs touch and SLAM",
+                path=self.session,
+                field="contacts",
+                expected="calibrated tactile sensors and no mesh",
+                got=f"modalities {','.join(self.sf.modalities)}" + (", a mesh" if self.mesh is not None else ""),
+            )
         self.tracker: Any = None
         self.reloc: Any = None  # known shape: run.Relocalisation once the tracker starts
         self.cams = {f"camera/{c.name}": c for c in self.sf.cams}
@@ -612,7 +636,11 @@ class TrackConsumer(Consumer):
             k = self.sf.depth_stride
             cam = _camera_raw(self.sf, c, ev.read("depth", lambda d: np.ascontiguousarray(d[::k, ::k])), None, True)
         raw = {"t": ev.t, "q": self.q, "touch": list(self.images.items()) if self.q is not None else [], **cam}
-        self._step(ev, self.sf.build(raw).tracking_frame())
+        fr = self.sf.build(raw)
+        tf = fr.tracking_frame()
+        if self.sticker is not None:  # inline frames: the contact ids are built here, in frame order
+            self.sticker.annotate(fr, tf)
+        self._step(ev, tf)
         self.stride.done(time.perf_counter() - t0)
 
     def _step(self, ev: FrameEvent, frame: Any) -> None:
@@ -642,6 +670,7 @@ class TrackConsumer(Consumer):
             "modalities": list(self.sf.modalities),
             "mode": "known_shape" if self.mesh is not None else "slam",
             "colour": sorted(self.colour_cams),  # cameras whose feature tracks fed the colour term
+            "sticking_contacts": self.sticker is not None,  # the sticking-contact term had contact ids
         }
         if self.reloc is not None:
             out["reloc_attempts"], out["reloc_successes"] = self.reloc.attempts, self.reloc.successes

@@ -381,11 +381,9 @@ def track_session(
     second_s = float(getattr(tracker, "second_pass_s", 0.0) or 0.0)
     early: list = []
     tfs: list = []  # every tracking frame, replayed by the alternative runs (select_runs)
-    sticker = None
-    if "touch" in modalities and float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
-        from vtrack.tracking.stick import StickingContacts
+    from vtrack.tracking.stick import sticking_contacts_for
 
-        sticker = StickingContacts(float(tracker.opts.stick_patch_move))
+    sticker = sticking_contacts_for(opts, modalities)
     built = ahead.frames(expected=n) if ahead is not None else None
     build_cpu = 0.0
     t_loop = t_done = time.perf_counter()

@@ -14,6 +14,7 @@ The tracker anchors each id in the object frame and applies the second slip test
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -77,3 +78,15 @@ class StickingContacts:
         tf.info["stick_points"] = np.array(pts, np.float64).reshape(-1, 3)
         tf.info["stick_normals"] = np.array(nrm, np.float64).reshape(-1, 3)
         return tf
+
+
+def sticking_contacts_for(opts: Mapping[str, Any], modalities: Iterable[str]) -> StickingContacts | None:
+    """The :class:`StickingContacts` a run with tracker options ``opts`` (:class:`~vtrack.tracking.window.
+    TrackerOptions` fields) and ``modalities`` needs: one when the sticking-contact term is on (``sigma_stick`` > 0)
+    with touch, else None. One rule for the offline run (:func:`vtrack.tracking.run.track_session`) and the live
+    track consumer (:class:`vtrack.live.consumers.TrackConsumer`), so both give the tracker the same ids."""
+    if "touch" not in tuple(modalities) or float(opts.get("sigma_stick", 0.0) or 0.0) <= 0:
+        return None
+    from vtrack.tracking.window import TrackerOptions
+
+    return StickingContacts(float(opts.get("stick_patch_move", TrackerOptions.stick_patch_move)))

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from vtrack_apps.commands.track import CONTACTS_HELP
+
 
 def register(app: typer.Typer) -> None:
     @app.command("live")
@@ -58,6 +60,7 @@ def register(app: typer.Typer) -> None:
             "--colour/--no-colour",
             help="track: the colour term (feature tracks on the camera's RGB image; SLAM's default) or depth only",
         ),
+        contacts: str = typer.Option("slide", "--contacts", help="track, SLAM: " + CONTACTS_HELP),
     ) -> None:
         """Replay SESSION in real time into live consumers; report achieved rates and dropped frames."""
         import os
@@ -72,7 +75,11 @@ def register(app: typer.Typer) -> None:
         from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
         from vtrack.live.pipeline import LivePipeline
         from vtrack.live.sources import SessionReplaySource
+        from vtrack_apps.commands.track import contacts_opts
         from vtrack_apps.output import print_table, write_json
+
+        # the live tracker reads vision and touch (touch is left out only where a sensor has no calibration)
+        stick_opts = contacts_opts(contacts, ("vision", "touch"), mesh is None, "no --mesh (SLAM)")
 
         per_kind = {
             "track": {
@@ -83,6 +90,7 @@ def register(app: typer.Typer) -> None:
                 "camera_stride": camera_stride,
                 "max_camera_stride": max_camera_stride,
                 "colour": colour,
+                **stick_opts,
             },
             "reconstruct": {"poses": poses},
         }
