@@ -66,9 +66,7 @@ def _run(args: tuple) -> dict:
     row: dict = dict(obj=obj, occlusion=occ, seconds=secs, seed=seed, contacts=contacts)
     for name, opts in (("default", {}), ("preset", dict(SLAM_STICKING_CONTACTS))):
         kf: dict = {}
-        m, (times, est) = track_session(
-            path, "", shape="slam", write=False, return_poses=True, keep_frames=kf, **opts
-        )
+        m, (times, est) = track_session(path, "", shape="slam", write=False, return_poses=True, keep_frames=kf, **opts)
         tfs = [fr.tracking_frame() for _, fr in kf["built"]]
         row[f"{name}_err_mm"] = float(m["motion_err_mm"])
         row[f"{name}_consistency_mm"] = map_consistency_mm(kf["tracker"], tfs, est)
