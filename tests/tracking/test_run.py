@@ -254,8 +254,8 @@ def test_bad_session(tmp_path):
 
 def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, monkeypatch):
     """``--contacts stick`` gives SLAM the sticking-contact preset, from ``vtrack track``, ``vtrack reconstruct`` and
-    ``vtrack live``; the default (slide) adds nothing; a known shape or an unknown mode is an InputError naming the
-    flag."""
+    ``vtrack live``; ``auto`` asks the offline run to choose (not live); the default (slide) adds nothing; a known
+    shape, no touch, auto with ``--select-run`` or an unknown mode is an InputError naming the flag."""
     from typer.testing import CliRunner
     from vtrack_apps.cli import app
 
@@ -268,6 +268,8 @@ def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, mon
         ["reconstruct", str(blind_session), "--contacts", "stick"],
         ["live", str(blind_session), "--consumer", "track"],
         ["live", str(blind_session), "--consumer", "track", "--contacts", "stick"],
+        ["track", str(blind_session), "--shape", "slam", "--contacts", "auto"],
+        ["reconstruct", str(blind_session), "--contacts", "auto"],
     ):
         CliRunner().invoke(app, [*args, *(["--out", str(tmp_path)] if args[0] != "live" else [])])
     assert "sigma_stick" not in seen[0]
@@ -275,6 +277,9 @@ def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, mon
     assert seen[1]["sigma_stick"] > 0 and seen[1]["sigma_vision_few"] > 0
     assert {k: seen[2]["track_opts"][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
     assert "sigma_stick" not in seen[3] and {k: seen[4][k] for k in SLAM_STICKING_CONTACTS} == SLAM_STICKING_CONTACTS
+    # auto: both runs offline, the choice in track_session (not the preset's options up front)
+    assert seen[5]["select_contacts"] is True and "sigma_stick" not in seen[5]
+    assert seen[6]["track_opts"]["select_contacts"] is True
     for args in (
         ["track", str(blind_session), "--shape", "slam", "--contacts", "glue"],
         ["track", str(blind_session), "--shape", "slam", "--contacts", "stick", "--modalities", "vision"],
@@ -283,7 +288,10 @@ def test_cli_contacts_stick_reaches_slam(blind_session, user_mesh, tmp_path, mon
         ["reconstruct", str(blind_session), "--mesh", str(user_mesh), "--contacts", "stick"],
         ["live", str(blind_session), "--consumer", "track", "--mesh", str(user_mesh), "--contacts", "stick"],
         ["live", str(blind_session), "--consumer", "track", "--contacts", "glue"],
+        ["live", str(blind_session), "--consumer", "track", "--contacts", "auto"],  # offline only
+        ["track", str(blind_session), "--shape", "slam", "--contacts", "auto", "--select-run"],
+        ["track", str(blind_session), "--shape", "slam", "--contacts", "auto", "--modalities", "vision"],
     ):
         bad = CliRunner().invoke(app, [*args, *(["--out", str(tmp_path)] if args[0] != "live" else [])])
         assert isinstance(bad.exception, InputError) and "--contacts" in str(bad.exception), args
-    assert len(seen) == 5
+    assert len(seen) == 7

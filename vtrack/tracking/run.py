@@ -246,6 +246,7 @@ def track_session(
     keep_frames: dict | None = None,
     keep_step: int = 1,
     select_runs: bool = False,
+    select_contacts: bool = False,
     prefetch: str | bool = "off",
     **opts: Any,
 ) -> Any:
@@ -279,6 +280,10 @@ def track_session(
             :data:`~vtrack.tracking.slam.SLAM_SELECT_ALTERNATIVES` (same frames, built once) and keep the run whose
             final map agrees best with its own depth points (:func:`~vtrack.tracking.slam.map_consistency_mm`; blind);
             the metrics say ``select_scores_mm`` and ``selected_run`` (0 = the default setting).
+        select_contacts: SLAM with touch, offline (opt-in, ``vtrack track --contacts auto``): track the session again
+            with :data:`~vtrack.tracking.slam.SLAM_STICKING_CONTACTS` (same frames) and keep that run when the
+            contacts move as one rigid body and it explains its depth points about as well
+            (:func:`~vtrack.tracking.stick.fingers_stick`; blind); the metrics say ``contacts_choice``.
         prefetch: build the frames in a child process ahead of the tracker (:mod:`vtrack.frames.prefetch`):
             ``on`` / ``off`` / ``auto`` (long sessions on >= 2 CPUs; the CLI's default). The same poses; the
             metrics' ``frames_wall_s`` and ``poses_per_s`` show the wall time.
@@ -295,6 +300,20 @@ def track_session(
             "run selection is for SLAM", field="select_runs", expected="shape slam, method ours", got=shape
         )
     modalities = tuple(modalities)
+    if select_contacts:
+        if shape != "slam" or method != "ours" or "touch" not in modalities:
+            raise InputError(
+                "the contact-mode choice is for SLAM with touch",
+                field="select_contacts",
+                expected="shape slam, method ours, touch among the modalities",
+                got=f"{shape}, {method}, {','.join(modalities)}",
+            )
+        if select_runs or float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
+            raise InputError(
+                "the contact-mode choice runs the sticking-contact preset itself",
+                field="select_contacts",
+                expected="without select_runs or sigma_stick",
+            )
     if method == "icp":
         modalities = ("vision",)
     frames_kwargs = dict(
@@ -381,9 +400,11 @@ def track_session(
     second_s = float(getattr(tracker, "second_pass_s", 0.0) or 0.0)
     early: list = []
     tfs: list = []  # every tracking frame, replayed by the alternative runs (select_runs)
+    from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
     from vtrack.tracking.stick import sticking_contacts_for
 
-    sticker = sticking_contacts_for(opts, modalities)
+    # the contact ids go with every frame when the sticking run may be chosen after (the default run ignores them)
+    sticker = sticking_contacts_for({**opts, **(SLAM_STICKING_CONTACTS if select_contacts else {})}, modalities)
     built = ahead.frames(expected=n) if ahead is not None else None
     build_cpu = 0.0
     t_loop = t_done = time.perf_counter()
@@ -416,7 +437,7 @@ def track_session(
         status.append(st)
         if second_s > 0 and frames.times[i] - frames.times[0] <= second_s:
             early.append(tf)
-        if select_runs:
+        if select_runs or select_contacts:
             tfs.append(tf)
         if keep_frames is not None and i % max(1, int(keep_step)) == 0:
             keep_frames["built"].append((i, fr))
@@ -429,14 +450,16 @@ def track_session(
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
     est, second, est_front, backend = _offline_passes(tracker, early, est, frames.times, keep_frames)
     selection: dict[str, Any] = {}
-    if select_runs:
-        # offline: the same tracking frames through SLAM again with each alternative setting; the run whose final
-        # map agrees best with its own depth points is kept (blind: no ground truth in the choice)
+    sticking = sticker is not None and float(opts.get("sigma_stick", 0.0) or 0.0) > 0  # the kept run's term
+    if select_runs or select_contacts:
+        # offline: the same tracking frames through SLAM again with each alternative setting; the run kept is chosen
+        # from the data alone (no ground truth in the choice)
         from vtrack.tracking.slam import SLAM_SELECT_ALTERNATIVES, map_consistency_mm, select_run, sphere_in_force
 
         c0 = time.process_time()
+        alts = SLAM_SELECT_ALTERNATIVES if select_runs else (SLAM_STICKING_CONTACTS,)
         runs = [(tracker, est, status, second, est_front, backend, keep_frames)]
-        for alt in SLAM_SELECT_ALTERNATIVES:
+        for alt in alts:
             tr = build_tracker(shape, mesh_path, T_init, method=method, **{**opts, **alt})
             e = np.zeros_like(est)
             st_alt: list[str] = []
@@ -448,27 +471,44 @@ def track_session(
             kf_alt: dict | None = None if keep_frames is None else {}
             est_a, second_a, front_a, backend_a = _offline_passes(tr, early, e, frames.times, kf_alt)
             runs.append((tr, est_a, st_alt, second_a, front_a, backend_a, kf_alt))
+        # how well each run's depth points sit on its own final map
         scores = [map_consistency_mm(r[0], tfs, r[1]) for r in runs]
-        spheres = [sphere_in_force(r[0]) for r in runs]
-        best = select_run(scores, spheres)
+        if select_runs:
+            spheres = [sphere_in_force(r[0]) for r in runs]
+            best = select_run(scores, spheres)
+            selection = {
+                "select_scores_mm": [float(x) for x in scores],
+                "select_sphere_prior": spheres,
+                "selected_run": best,
+                "select_alternatives": [dict(a) for a in SLAM_SELECT_ALTERNATIVES],
+            }
+        else:
+            from vtrack.tracking.stick import contact_rigidity, fingers_stick
+
+            rigidity, pairs = contact_rigidity(tfs)
+            sticking = fingers_stick(rigidity, scores[0], scores[1])
+            best = int(sticking)
+            selection = {
+                "contacts_choice": {
+                    "chosen": "stick" if sticking else "slide",
+                    "rigidity": rigidity,
+                    "rigid_pairs": pairs,
+                    "consistency_mm": {"slide": float(scores[0]), "stick": float(scores[1])},
+                }
+            }
         tracker, est, status, second, est_front, backend, kf_best = runs[best]
         if keep_frames is not None and best > 0:
             keep_frames.update(kf_best or {}, tracker=tracker)  # the kept run's tracker and offline-pass poses
-        selection = {
-            "select_scores_mm": [float(x) for x in scores],
-            "select_sphere_prior": spheres,
-            "selected_run": best,
-            "select_alternatives": [dict(a) for a in SLAM_SELECT_ALTERNATIVES],
-            "select_cpu_s": time.process_time() - c0,
-        }
+        selection["select_cpu_s"] = time.process_time() - c0
     metrics: dict[str, Any] = {
         "mode": "icp" if method == "icp" else shape,
         "method": method,
         "modalities": list(modalities),
         "tactile_source": tactile_source if "touch" in modalities else "none",
         "segmentation": segmentation if "vision" in modalities else "none",
-        # the sticking-contact term was on (``sigma_stick`` > 0 with touch: ``--contacts stick``)
-        "sticking_contacts": sticker is not None,
+        # the kept run had the sticking-contact term (``sigma_stick`` > 0 with touch: ``--contacts stick``, or
+        # ``--contacts auto``'s choice)
+        "sticking_contacts": sticking,
         "oracle": oracle,
         "blind": not oracle,
         "frames": n,

@@ -90,3 +90,54 @@ def sticking_contacts_for(opts: Mapping[str, Any], modalities: Iterable[str]) ->
     from vtrack.tracking.window import TrackerOptions
 
     return StickingContacts(float(opts.get("stick_patch_move", TrackerOptions.stick_patch_move)))
+
+
+#: ``--contacts auto`` (offline SLAM, :func:`vtrack.tracking.run.track_session` ``select_contacts``): the session is
+#: tracked with the default settings and again with :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` on the same
+#: frames, and the sticking run is kept only when both blind tests pass:
+#: - the contacts move as one rigid body (:func:`contact_rigidity` at most ``STICK_RIGIDITY_MAX``): contacts fixed
+#:   to one object keep their distances while they move; fingers sliding over it need not;
+#: - the sticking run explains its depth points about as well as the default run
+#:   (:func:`~vtrack.tracking.slam.map_consistency_mm` at most ``STICK_CONSISTENCY_RATIO_MAX`` times the default's;
+#:   the preset weighs depth less, so even where the fingers stick its score is up to ~1.15x the default's).
+#: Chosen on blind 2 s heavy-occlusion sessions of both simulator contact modes, seeds 0-2, and checked on seeds 3-5
+#: and at medium / no occlusion (docs/benchmarks/sticking_contacts.md).
+STICK_RIGIDITY_MAX = 0.2
+STICK_CONSISTENCY_RATIO_MAX = 1.13
+
+
+def contact_rigidity(frames: Iterable[TrackingFrame], min_life: int = 5, min_move: float = 1e-4) -> tuple[float, int]:
+    """How far the sticking-contact ids of ``frames`` (annotated by :meth:`StickingContacts.annotate`, in time order)
+    are from moving as one rigid body: over the pairs of ids that live together for at least ``min_life`` frames and
+    move (mean displacement of the two patch centres over their common life above ``min_move``, m), the median of
+    |change of their distance| / their mean displacement (dimensionless; 0 for contacts fixed to one rigid body).
+    Returns (index, number of pairs); (NaN, 0) without such pairs."""
+    tracks: dict[int, dict[float, np.ndarray]] = {}
+    for tf in frames:
+        for cid, P in zip(tf.info.get("stick_ids", ()), tf.info.get("stick_points", ()), strict=True):
+            tracks.setdefault(int(cid), {})[float(tf.t)] = np.asarray(P, np.float64)
+    long = [tr for tr in tracks.values() if len(tr) >= min_life]
+    idx: list[float] = []
+    for a in range(len(long)):
+        for b in range(a + 1, len(long)):
+            A, B = long[a], long[b]
+            ts = sorted(set(A) & set(B))
+            if len(ts) < min_life:
+                continue
+            t0, t1 = ts[0], ts[-1]
+            move = 0.5 * (np.linalg.norm(A[t1] - A[t0]) + np.linalg.norm(B[t1] - B[t0]))
+            if move > min_move:  # a pair that does not move says nothing about rigidity
+                idx.append(abs(np.linalg.norm(A[t1] - B[t1]) - np.linalg.norm(A[t0] - B[t0])) / move)
+    return (float(np.median(idx)) if idx else float("nan")), len(idx)
+
+
+def fingers_stick(rigidity: float, consistency_default_mm: float, consistency_stick_mm: float) -> bool:
+    """``--contacts auto``'s choice: True (keep the sticking run) when the contacts move rigidly and the sticking run
+    explains its depth points about as well as the default one (see :data:`STICK_RIGIDITY_MAX`); False when either
+    test fails or cannot be made (NaN: no moving pair of contacts, no frame with enough depth points)."""
+    ok = np.isfinite([rigidity, consistency_default_mm, consistency_stick_mm]).all() and consistency_default_mm > 0
+    return bool(
+        ok
+        and rigidity <= STICK_RIGIDITY_MAX
+        and consistency_stick_mm <= STICK_CONSISTENCY_RATIO_MAX * consistency_default_mm
+    )

@@ -79,7 +79,7 @@ def register(app: typer.Typer) -> None:
         from vtrack_apps.output import print_table, write_json
 
         # the live tracker reads vision and touch (touch is left out only where a sensor has no calibration)
-        stick_opts = contacts_opts(contacts, ("vision", "touch"), mesh is None, "no --mesh (SLAM)")
+        stick_opts = contacts_opts(contacts, ("vision", "touch"), mesh is None, "no --mesh (SLAM)", offline=False)
 
         per_kind = {
             "track": {

@@ -17,25 +17,30 @@ def colour_grow_opts(colour_grow: int) -> dict:
     return {"segmentation_opts": {"colour_grow_px": colour_grow}} if colour_grow > 0 else {}
 
 
-#: ``--contacts`` of ``vtrack track`` and ``vtrack reconstruct``
+#: ``--contacts`` of ``vtrack track``, ``vtrack reconstruct`` and ``vtrack live`` (no ``auto`` there)
 CONTACTS_HELP = (
     "SLAM: how the fingers hold the object: slide (they may slide over it; the default) | stick (they drive it, "
-    "sticking or rolling, as in an in-hand rotation: the sticking-contact preset; hurts when they slide; "
-    "docs/benchmarks/sticking_contacts.md)"
+    "sticking or rolling, as in an in-hand rotation: the sticking-contact preset; hurts when they slide) | auto "
+    "(offline: both, the sticking run kept when the contacts move rigidly and it fits the depth as well; 2x the "
+    "tracking CPU); docs/benchmarks/sticking_contacts.md"
 )
 
 
-def contacts_opts(contacts: str, modalities: str | tuple[str, ...], slam: bool, slam_flags: str) -> dict:
-    """SLAM's ``track_session`` options of ``--contacts slide|stick`` (shared with ``vtrack reconstruct``): ``{}`` for
-    slide, :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick, which needs SLAM (``slam``; ``slam_flags``:
-    the flags that select it, for the message) and touch among ``modalities`` (a comma list or a tuple); anything
-    else is an InputError naming the flag."""
+def contacts_opts(
+    contacts: str, modalities: str | tuple[str, ...], slam: bool, slam_flags: str, offline: bool = True
+) -> dict:
+    """SLAM's ``track_session`` options of ``--contacts slide|stick|auto`` (shared with ``vtrack reconstruct`` and,
+    without ``auto`` (``offline`` False), ``vtrack live``): ``{}`` for slide,
+    :data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS` for stick, ``select_contacts`` for auto; stick and auto need
+    SLAM (``slam``; ``slam_flags``: the flags that select it, for the message) and touch among ``modalities`` (a
+    comma list or a tuple); anything else is an InputError naming the flag."""
     from vtrack.errors import InputError
 
     if contacts == "slide":
         return {}
-    if contacts != "stick":
-        raise InputError("unknown contact mode", field="--contacts", expected="slide|stick", got=contacts)
+    modes = "slide|stick|auto" if offline else "slide|stick"
+    if contacts not in modes.split("|"):
+        raise InputError("unknown contact mode", field="--contacts", expected=modes, got=contacts)
     if not slam:
         raise InputError("the sticking-contact preset is for SLAM", field="--contacts", expected=slam_flags)
     mods = modalities.split(",") if isinstance(modalities, str) else modalities
@@ -44,6 +49,8 @@ def contacts_opts(contacts: str, modalities: str | tuple[str, ...], slam: bool, 
         raise InputError(
             "the sticking-contact preset needs touch", field="--contacts", expected="--modalities with touch"
         )
+    if contacts == "auto":
+        return {"select_contacts": True}
     from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
 
     return dict(SLAM_STICKING_CONTACTS)
@@ -173,6 +180,8 @@ def register(app: typer.Typer) -> None:
         if select_run and (shape != "slam" or method != "ours"):
             raise InputError("run selection is for SLAM", field="--select-run", expected="--shape slam", got=shape)
         stick_opts = contacts_opts(contacts, mods, shape == "slam" and method == "ours", "--shape slam")
+        if select_run and contacts == "auto":
+            raise InputError("auto chooses between two runs itself", field="--contacts", expected="no --select-run")
         opts = {}
         if method == "ours":
             opts = {"window": window, "iterations": iterations}
@@ -229,6 +238,7 @@ def register(app: typer.Typer) -> None:
             "poses_per_s",
             "prefetch",
             "sticking_contacts",
+            "contacts_choice",
             "status_counts",
             "backend_s",
             "keyframes",
