@@ -11,7 +11,8 @@ and the mean and standard deviation of those over seeds (the comparison note rea
 Sessions: the simulator's default sliding fingers, or ``VTRACK_BENCH_HEAVY_CONTACTS=stick`` for fingers that drive the
 object (``sim.contact_mode: stick``; generated once and cached). The SLAM row "sticking-contacts preset"
 (:data:`vtrack.tracking.slam.SLAM_STICKING_CONTACTS`, ``vtrack track --contacts stick``) is the setting for the latter;
-on sliding sessions it shows what the preset costs when its assumption is wrong.
+on sliding sessions it shows what the preset costs when its assumption is wrong. The row "contacts auto"
+(``--contacts auto``) runs both and keeps one blind (its ``ms`` includes the second run; ``contacts_chosen``).
 Quick mode: the soup can under heavy occlusion, SLAM vision / both.
 """
 
@@ -24,6 +25,7 @@ from vtrack.bench.harness import BenchTable, add_seed_means, bench_seeds
 
 MODES = {"vision": ("vision",), "touch": ("touch",), "vision+touch": ("vision", "touch")}
 STICK_ROW = "slam/vision+touch sticking-contacts preset"
+AUTO_ROW = "slam/vision+touch contacts auto"
 
 
 def run(quick: bool = False) -> BenchTable:
@@ -59,6 +61,8 @@ def run(quick: bool = False) -> BenchTable:
             dict(shape="slam", modalities=MODES["vision+touch"], few_touch_points=0),
         ),
         (STICK_ROW, dict(shape="slam", modalities=MODES["vision+touch"], **SLAM_STICKING_CONTACTS)),
+        # the blind choice between the default and the preset (`--contacts auto`): both runs, one kept
+        (AUTO_ROW, dict(shape="slam", modalities=MODES["vision+touch"], select_contacts=True)),
     ]
     runs += [(f"known/{m}", dict(shape="known_shape", modalities=MODES[m])) for m in ("vision", "vision+touch")]
     if quick:
@@ -83,8 +87,10 @@ def run(quick: bool = False) -> BenchTable:
                 seed=seed,
                 motion_err_mm=m["motion_err_mm"],
                 add_s_mm=m["add_s_mm"],
-                ms=m["cpu_ms_per_frame_mean"],
+                # with a second run on the same frames (auto), its CPU too
+                ms=m["cpu_ms_per_frame_mean"] + 1e3 * m.get("select_cpu_s", 0.0) / max(m["frames"], 1),
                 frames=m["frames"],
+                **({"contacts_chosen": m["contacts_choice"]["chosen"]} if "contacts_choice" in m else {}),
             )
     add_seed_means(table, by=("method", "occlusion"), means=("motion_err_mm", "add_s_mm", "ms"), sums=("frames",))
     # the headline comparison: over every seed when there are several, else the one seed's mean over objects
@@ -92,7 +98,7 @@ def run(quick: bool = False) -> BenchTable:
     means = {
         (r["method"], r["occlusion"]): r for r in table.rows if r.get("object") == "all" and r.get("seed") == final
     }
-    pairs = [("slam", "slam/vision+touch", "motion_err_mm"), ("slam", STICK_ROW, "motion_err_mm")]
+    pairs = [("slam", row, "motion_err_mm") for row in ("slam/vision+touch", STICK_ROW, AUTO_ROW)]
     for shape, row, key in [*pairs, ("known", "known/vision+touch", "add_s_mm")]:
         for occ in occs:
             v, vt = means.get((f"{shape}/vision", occ)), means.get((row, occ))
