@@ -399,7 +399,7 @@ def track_session(
     # SLAM's second pass (offline) re-tracks the session start against the final map: keep those tracking frames
     second_s = float(getattr(tracker, "second_pass_s", 0.0) or 0.0)
     early: list = []
-    tfs: list = []  # every tracking frame, replayed by the alternative runs (select_runs)
+    tfs: list = []  # every tracking frame, replayed by the alternative runs (select_runs, select_contacts)
     from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
     from vtrack.tracking.stick import sticking_contacts_for
 
