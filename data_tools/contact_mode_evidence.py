@@ -25,12 +25,9 @@ def contact_id_stats(frames) -> dict:
     """Life (frames) and world speed (mm/s) of the sticking-contact ids of ``frames`` (tracking frames annotated by
     :class:`vtrack.tracking.stick.StickingContacts`; ids alive >= 5 frames) and their rigidity index
     (:func:`vtrack.tracking.stick.contact_rigidity`, what ``--contacts auto`` tests)."""
-    from vtrack.tracking.stick import contact_rigidity
+    from vtrack.tracking.stick import contact_rigidity, contact_tracks
 
-    tracks: dict[int, dict[float, np.ndarray]] = {}
-    for tf in frames:
-        for cid, P in zip(tf.info["stick_ids"], tf.info["stick_points"], strict=True):
-            tracks.setdefault(int(cid), {})[float(tf.t)] = P
+    tracks = contact_tracks(frames)
     long = [tr for tr in tracks.values() if len(tr) >= 5]
     speeds = []
     for tr in long:

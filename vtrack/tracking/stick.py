@@ -106,17 +106,23 @@ STICK_RIGIDITY_MAX = 0.2
 STICK_CONSISTENCY_RATIO_MAX = 1.13
 
 
+def contact_tracks(frames: Iterable[TrackingFrame]) -> dict[int, dict[float, np.ndarray]]:
+    """The sticking-contact ids of ``frames`` (annotated by :meth:`StickingContacts.annotate`) as tracks: id -> {time
+    (s): world patch centre (3,), m}."""
+    tracks: dict[int, dict[float, np.ndarray]] = {}
+    for tf in frames:
+        for cid, P in zip(tf.info.get("stick_ids", ()), tf.info.get("stick_points", ()), strict=True):
+            tracks.setdefault(int(cid), {})[float(tf.t)] = np.asarray(P, np.float64)
+    return tracks
+
+
 def contact_rigidity(frames: Iterable[TrackingFrame], min_life: int = 5, min_move: float = 1e-4) -> tuple[float, int]:
     """How far the sticking-contact ids of ``frames`` (annotated by :meth:`StickingContacts.annotate`, in time order)
     are from moving as one rigid body: over the pairs of ids that live together for at least ``min_life`` frames and
     move (mean displacement of the two patch centres over their common life above ``min_move``, m), the median of
     |change of their distance| / their mean displacement (dimensionless; 0 for contacts fixed to one rigid body).
     Returns (index, number of pairs); (NaN, 0) without such pairs."""
-    tracks: dict[int, dict[float, np.ndarray]] = {}
-    for tf in frames:
-        for cid, P in zip(tf.info.get("stick_ids", ()), tf.info.get("stick_points", ()), strict=True):
-            tracks.setdefault(int(cid), {})[float(tf.t)] = np.asarray(P, np.float64)
-    long = [tr for tr in tracks.values() if len(tr) >= min_life]
+    long = [tr for tr in contact_tracks(frames).values() if len(tr) >= min_life]
     idx: list[float] = []
     for a in range(len(long)):
         for b in range(a + 1, len(long)):
