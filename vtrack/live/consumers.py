@@ -505,12 +505,12 @@ class TrackConsumer(Consumer):
             self.sf = SessionFrames(self.session, modalities=("vision",), depth_stride=depth_stride, **col)
         self.init_pose = init_pose
         self.tracker_opts = tracker_opts
-        from vtrack.tracking.stick import sticking_contacts_for
+        from vtrack.tracking.stick import stick_term_on, sticking_contacts_for
 
         # the sticking-contact term's ids (``--contacts stick``), as offline; with a frames worker its twin in the
         # child builds them (this one stays unused)
         self.sticker = sticking_contacts_for(tracker_opts, self.sf.modalities) if self.mesh is None else None
-        if float(tracker_opts.get("sigma_stick", 0.0) or 0.0) > 0 and self.sticker is None:
+        if stick_term_on(tracker_opts) and self.sticker is None:
             raise InputError(
                 "the sticking-contact term needs touch and SLAM",
                 path=self.session,

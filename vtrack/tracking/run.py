@@ -36,6 +36,7 @@ from vtrack.errors import InputError
 from vtrack.geometry import se3
 from vtrack.io.jsonio import write_json
 from vtrack.threads import single_thread_blas
+from vtrack.tracking.stick import contact_rigidity, fingers_stick, stick_term_on, sticking_contacts_for
 
 SHAPES = ("known_shape", "slam")
 METHODS = ("ours", "icp")
@@ -308,7 +309,7 @@ def track_session(
                 expected="shape slam, method ours, touch among the modalities",
                 got=f"{shape}, {method}, {','.join(modalities)}",
             )
-        if select_runs or float(opts.get("sigma_stick", 0.0) or 0.0) > 0:
+        if select_runs or stick_term_on(opts):
             raise InputError(
                 "the contact-mode choice runs the sticking-contact preset itself",
                 field="select_contacts",
@@ -401,7 +402,6 @@ def track_session(
     early: list = []
     tfs: list = []  # every tracking frame, replayed by the alternative runs (select_runs, select_contacts)
     from vtrack.tracking.slam import SLAM_STICKING_CONTACTS
-    from vtrack.tracking.stick import sticking_contacts_for
 
     # the contact ids go with every frame when the sticking run may be chosen after (the default run ignores them)
     sticker = sticking_contacts_for({**opts, **(SLAM_STICKING_CONTACTS if select_contacts else {})}, modalities)
@@ -450,7 +450,7 @@ def track_session(
         raise RuntimeError("tracker produced non-finite poses")  # guarded against; should never happen
     est, second, est_front, backend = _offline_passes(tracker, early, est, frames.times, keep_frames)
     selection: dict[str, Any] = {}
-    sticking = sticker is not None and float(opts.get("sigma_stick", 0.0) or 0.0) > 0  # the kept run's term
+    sticking = sticker is not None and stick_term_on(opts)  # the kept run's term
     if select_runs or select_contacts:
         # offline: the same tracking frames through SLAM again with each alternative setting; the run kept is chosen
         # from the data alone (no ground truth in the choice)
@@ -483,8 +483,6 @@ def track_session(
                 "select_alternatives": [dict(a) for a in SLAM_SELECT_ALTERNATIVES],
             }
         else:
-            from vtrack.tracking.stick import contact_rigidity, fingers_stick
-
             rigidity, pairs = contact_rigidity(tfs)
             sticking = fingers_stick(rigidity, scores[0], scores[1])
             best = int(sticking)

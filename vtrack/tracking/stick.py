@@ -80,12 +80,17 @@ class StickingContacts:
         return tf
 
 
+def stick_term_on(opts: Mapping[str, Any]) -> bool:
+    """Whether tracker options ``opts`` turn the sticking-contact term on (``sigma_stick`` > 0)."""
+    return float(opts.get("sigma_stick", 0.0) or 0.0) > 0
+
+
 def sticking_contacts_for(opts: Mapping[str, Any], modalities: Iterable[str]) -> StickingContacts | None:
     """The :class:`StickingContacts` a run with tracker options ``opts`` (:class:`~vtrack.tracking.window.
     TrackerOptions` fields) and ``modalities`` needs: one when the sticking-contact term is on (``sigma_stick`` > 0)
     with touch, else None. One rule for the offline run (:func:`vtrack.tracking.run.track_session`) and the live
     track consumer (:class:`vtrack.live.consumers.TrackConsumer`), so both give the tracker the same ids."""
-    if "touch" not in tuple(modalities) or float(opts.get("sigma_stick", 0.0) or 0.0) <= 0:
+    if "touch" not in tuple(modalities) or not stick_term_on(opts):
         return None
     from vtrack.tracking.window import TrackerOptions
 
@@ -101,7 +106,7 @@ def sticking_contacts_for(opts: Mapping[str, Any], modalities: Iterable[str]) ->
 #:   (:func:`~vtrack.tracking.slam.map_consistency_mm` at most ``STICK_CONSISTENCY_RATIO_MAX`` times the default's;
 #:   the preset weighs depth less, so even where the fingers stick its score is up to ~1.15x the default's).
 #: Chosen on blind 2 s heavy-occlusion sessions of both simulator contact modes, seeds 0-2, and checked on seeds 3-5
-#: and at medium / no occlusion (docs/benchmarks/sticking_contacts.md).
+#: and at medium / no occlusion (docs/benchmarks/contacts_auto_live.md).
 STICK_RIGIDITY_MAX = 0.2
 STICK_CONSISTENCY_RATIO_MAX = 1.13
 
