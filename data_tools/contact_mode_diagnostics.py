@@ -2,9 +2,13 @@
 stick, per YCB session, beside the one it uses (docs/benchmarks/contacts_auto_heldout.md).
 
 Per session (the simulator's ``sim.contact_mode`` given by ``--contacts``), from the sticking-contact ids of the frames
-(:class:`vtrack.tracking.stick.StickingContacts`, ids alive >= 5 frames):
-- ``rig_end``: :func:`vtrack.tracking.stick.contact_rigidity` (what ``--contacts auto`` tests: |change of a pair's
-  distance| / its mean displacement, between the first and last frame the pair shares; median over pairs);
+(:class:`vtrack.tracking.stick.StickingContacts`, ids alive >= 5 frames), on their patch centres
+(``stick_patch_points``) unless said otherwise:
+- ``rig_end``: :func:`vtrack.tracking.stick.contact_rigidity` of the ids' patch centres (|change of a pair's
+  distance| / its mean displacement, between the first and last frame the pair shares; median over pairs: what
+  ``--contacts auto`` tested until 2026-11-28 14:00 UTC);
+- ``rig_gel``: the same on the ids' gel points (``stick_points``; what it tests since; column added after the CSVs
+  of docs/benchmarks/contacts_auto_heldout.md were written);
 - ``rig_slope``: the least-squares slope of a pair's distance against its mean displacement from the first shared
   frame, over every shared frame (median over pairs);
 - ``rig_allpairs``: the ``rig_end`` ratio over every pair of shared frames that moved more than 2 mm (median);
@@ -14,7 +18,9 @@ Per session (the simulator's ``sim.contact_mode`` given by ``--contacts``), from
   pipeline);
 - ``slip_pass``: the share of the anchored contact ids that pass the tracker's own slip test in the sticking run
   (``SLAM_STICKING_CONTACTS``; ``WindowTracker._stick_pairs``), and both runs' object-motion errors (mm, scored
-  against gt/).
+  against gt/). The CSVs of docs/benchmarks/contacts_auto_heldout.md were written when the sticking run anchored the
+  patch centres (before 2026-11-28 14:00 UTC); it anchors the gel points since, so ``slip_pass`` and
+  ``preset_err_mm`` differ now.
 
 Usage: ``python data_tools/contact_mode_diagnostics.py SECONDS OCCLUSION SEEDS [OBJECTS] --contacts slide|stick
 [--out PREFIX]`` (2 processes, one thread each; PREFIX.csv, one row per session).
@@ -53,13 +59,13 @@ def rigidity_variants(tracks: dict) -> dict:
     return {"rig_slope": med(slope), "rig_allpairs": med(allp)}
 
 
-def drift_index(frames, poses: np.ndarray, min_life: int = 5) -> float:
+def drift_index(frames, poses: np.ndarray, min_life: int = 5, key: str = "stick_patch_points") -> float:
     """Median over ids (alive >= ``min_life`` frames) of their object-frame drift / the world move of the object point
     under them at their first frame, with object poses ``poses`` (N, 4, 4, T_world_object) of ``frames``."""
     tracks: dict[int, list] = {}
     for tf, T in zip(frames, poses, strict=True):
         Ti = np.linalg.inv(T)
-        for cid, P in zip(tf.info.get("stick_ids", ()), tf.info.get("stick_points", ()), strict=True):
+        for cid, P in zip(tf.info.get("stick_ids", ()), tf.info.get(key, ()), strict=True):
             tracks.setdefault(int(cid), []).append((T, Ti[:3, :3] @ P + Ti[:3, 3]))
     vals = []
     for tr in tracks.values():
@@ -93,8 +99,9 @@ def _run(args: tuple) -> dict:
     sticker = sticking_contacts_for(SLAM_STICKING_CONTACTS, ("touch",))
     for (_, fr), tf in zip(kf["built"], tfs, strict=True):
         sticker.annotate(fr, tf)
-    row["rig_end"] = contact_rigidity(tfs)[0]
-    row.update(rigidity_variants(contact_tracks(tfs)))
+    row["rig_end"] = contact_rigidity(tfs, key="stick_patch_points")[0]
+    row["rig_gel"] = contact_rigidity(tfs)[0]
+    row.update(rigidity_variants(contact_tracks(tfs, "stick_patch_points")))
     row["drift_est"] = drift_index(tfs, est)
     gt = SessionGroundTruth.load(path)  # diagnosis only (see the module doc)
     row["drift_gt"] = drift_index(tfs, gt.poses_at(np.array([tf.t for tf in tfs])))

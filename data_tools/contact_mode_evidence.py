@@ -5,7 +5,9 @@ consistency (:func:`vtrack.tracking.slam.map_consistency_mm`: how well the run's
 map, the blind score of ``--select-run``); and, from the frames alone (no pose), the sticking-contact ids'
 statistics: their median life (frames), the median world speed of their patch centres (mm/s) and the rigidity index
 of pairs of ids alive together (change of their distance / their mean displacement: 0 for contacts fixed to one rigid
-body).
+body), on the ids' gel points as ``--contacts auto`` tests it (the CSVs written before 2026-11-28 14:00 UTC,
+docs/benchmarks/contacts_auto_*.csv, have the index of the patch centres, the test then, and the preset's errors with
+the patch centres anchored; ``contact_mode_rechoose.py`` redoes their choice with the current rigidity test).
 
 The CSV also has ``--contacts auto``'s choice (:func:`vtrack.tracking.stick.fingers_stick` on these two runs) and the
 error of the run it keeps.
@@ -27,7 +29,7 @@ def contact_id_stats(frames) -> dict:
     (:func:`vtrack.tracking.stick.contact_rigidity`, what ``--contacts auto`` tests)."""
     from vtrack.tracking.stick import contact_rigidity, contact_tracks
 
-    tracks = contact_tracks(frames)
+    tracks = contact_tracks(frames, "stick_patch_points")
     long = [tr for tr in tracks.values() if len(tr) >= 5]
     speeds = []
     for tr in long:

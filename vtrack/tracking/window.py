@@ -182,8 +182,9 @@ class TrackerOptions:
     #: accumulates against its anchor; the term then observes the motion over at most this many frames)
     colour_max_age: int = 0
     #: sticking-contact term (0: off), m: a contact that sticks to the object keeps its object-frame point. Each
-    #: sensor's contact patch centre (``frame.info["stick_ids"]`` / ``["stick_points"]``, world, from
-    #: :class:`vtrack.tracking.stick.StickingContacts`: one id per unbroken contact whose patch stays put on the gel)
+    #: sensor's contact point (``frame.info["stick_ids"]`` / ``["stick_points"]``, world, from
+    #: :class:`vtrack.tracking.stick.StickingContacts`: one id per unbroken contact whose patch stays put on the gel;
+    #: the point is the gel point under the id's first patch centre, carried by the sensor pose)
     #: is anchored in the object frame when first seen; later observations must land on the anchor, point-to-point
     #: with this sigma, robust (``kernel_stick``). Blind slip test, besides the patch staying put on the gel: a
     #: contact is used only while its finger carries it ALONG the surface (tangential step since the last frame of at
