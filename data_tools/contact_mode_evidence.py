@@ -7,7 +7,7 @@ statistics: their median life (frames), the median world speed of their patch ce
 of pairs of ids alive together (change of their distance / their mean displacement: 0 for contacts fixed to one rigid
 body), on the ids' gel points as ``--contacts auto`` tests it (the CSVs written before 2026-11-28 14:00 UTC,
 docs/benchmarks/contacts_auto_*.csv, have the index of the patch centres, the test then, and the preset's errors with
-the patch centres anchored; ``contact_mode_rechoose.py`` redoes their choice with the current rigidity test).
+the patch centres anchored; docs/benchmarks/contacts_gel_*.csv are the current ones).
 
 The CSV also has ``--contacts auto``'s choice (:func:`vtrack.tracking.stick.fingers_stick` on these two runs) and the
 error of the run it keeps.
