@@ -26,9 +26,6 @@ Usage: ``python data_tools/contact_mode_diagnostics.py SECONDS OCCLUSION SEEDS [
 [--out PREFIX]`` (2 processes, one thread each; PREFIX.csv, one row per session).
 """
 
-import csv
-from multiprocessing import Pool
-
 import numpy as np
 
 
@@ -129,19 +126,9 @@ def _run(args: tuple) -> dict:
 
 
 def main() -> None:
-    from sweep_cli import parse_sweep, sweep_parser
+    from sweep_cli import run_contact_mode_sweep
 
-    ap = sweep_parser("Other blind measures of sticking contacts, per session.")
-    ap.add_argument("--contacts", default="slide", choices=("slide", "stick"), help="the sessions' sim.contact_mode")
-    sw, a = parse_sweep(ap)
-    jobs = [(o, sw.occlusion, sw.seconds, s, a.contacts) for s in sw.seeds for o in sw.objects]
-    with Pool(2) as pool:
-        rows = pool.map(_run, jobs, chunksize=1)
-    if sw.out:
-        with open(f"{sw.out}.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+    run_contact_mode_sweep("Other blind measures of sticking contacts, per session.", _run)
 
 
 if __name__ == "__main__":

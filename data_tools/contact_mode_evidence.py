@@ -18,7 +18,6 @@ Usage: ``python data_tools/contact_mode_evidence.py SECONDS OCCLUSION SEEDS [OBJ
 """
 
 import csv
-from multiprocessing import Pool
 
 import numpy as np
 
@@ -114,19 +113,9 @@ def main() -> None:
     if sys.argv[1:2] == ["plot"]:  # plot OUT.png CSV...
         plot(sys.argv[3:], sys.argv[2])
         return
-    from sweep_cli import parse_sweep, sweep_parser
+    from sweep_cli import run_contact_mode_sweep
 
-    ap = sweep_parser("Blind evidence for the contact mode, per session.")
-    ap.add_argument("--contacts", default="slide", choices=("slide", "stick"), help="the sessions' sim.contact_mode")
-    sw, a = parse_sweep(ap)
-    jobs = [(o, sw.occlusion, sw.seconds, s, a.contacts) for s in sw.seeds for o in sw.objects]
-    with Pool(2) as pool:
-        rows = pool.map(_run, jobs, chunksize=1)
-    if sw.out:
-        with open(f"{sw.out}.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+    run_contact_mode_sweep("Blind evidence for the contact mode, per session.", _run)
 
 
 if __name__ == "__main__":

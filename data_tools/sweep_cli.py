@@ -42,3 +42,23 @@ def parse_sweep(ap: argparse.ArgumentParser) -> tuple[Sweep, argparse.Namespace]
         a.out,
     )
     return sweep, a
+
+
+def run_contact_mode_sweep(description: str, run) -> None:
+    """The per-session tools over sessions of one simulator contact mode (contact_mode_evidence.py,
+    contact_mode_diagnostics.py): the shared arguments plus ``--contacts slide|stick``; ``run((object, occlusion,
+    seconds, seed, contacts))`` -> row dict on 2 processes; the rows to ``PREFIX.csv`` with ``--out``."""
+    import csv
+    from multiprocessing import Pool
+
+    ap = sweep_parser(description)
+    ap.add_argument("--contacts", default="slide", choices=("slide", "stick"), help="the sessions' sim.contact_mode")
+    sw, a = parse_sweep(ap)
+    jobs = [(o, sw.occlusion, sw.seconds, s, a.contacts) for s in sw.seeds for o in sw.objects]
+    with Pool(2) as pool:
+        rows = pool.map(run, jobs, chunksize=1)
+    if sw.out:
+        with open(f"{sw.out}.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
