@@ -58,7 +58,7 @@ class StickingContacts:
         with the patch's shape (on the soup can's side it drifts on the object about a quarter as far as the object
         moves while the simulated finger sticks). A patch that travels on the gel (rolling, slipping) starts a new id,
         and so a new gel point. The tracker anchors the gel points and :func:`contact_rigidity` tests them
-        (docs/benchmarks/contacts_auto_gel.md)."""
+        (docs/benchmarks/contacts_gel.md)."""
         ids: list[int] = []
         patch: list[np.ndarray] = []
         gel: list[np.ndarray] = []
@@ -121,7 +121,7 @@ def sticking_contacts_for(opts: Mapping[str, Any], modalities: Iterable[str]) ->
 #: The consistency ratio was chosen on blind 2 s heavy-occlusion sessions of both simulator contact modes, seeds 0-2
 #: (docs/benchmarks/contacts_auto_live.md); the rigidity bound on the gel points on seeds 0-5 (sticking fingers
 #: 0.013-0.095, sliding ones 0.121-1.01: the middle of the gap), checked on seeds 6-8 and at medium / no occlusion
-#: (docs/benchmarks/contacts_auto_gel.md).
+#: (docs/benchmarks/contacts_gel.md).
 STICK_RIGIDITY_MAX = 0.11
 STICK_CONSISTENCY_RATIO_MAX = 1.13
 
