@@ -29,20 +29,12 @@ Usage: ``python data_tools/contact_mode_diagnostics.py SECONDS OCCLUSION SEEDS [
 import numpy as np
 
 
-def _pairs(tracks: dict, min_life: int = 5):
-    """(A, B) arrays (K, 3) of the world patch centres of each pair of ids over the frames they share (>= min_life)."""
-    long = [tr for tr in tracks.values() if len(tr) >= min_life]
-    for a in range(len(long)):
-        for b in range(a + 1, len(long)):
-            ts = sorted(set(long[a]) & set(long[b]))
-            if len(ts) >= min_life:
-                yield np.array([long[a][t] for t in ts]), np.array([long[b][t] for t in ts])
-
-
 def rigidity_variants(tracks: dict) -> dict:
     """``rig_slope`` and ``rig_allpairs`` of the id tracks ``tracks`` (see the module doc)."""
+    from vtrack.tracking.stick import contact_pairs
+
     slope, allp = [], []
-    for A, B in _pairs(tracks):
+    for A, B in contact_pairs(tracks):
         d = np.linalg.norm(A - B, axis=1)
         s = 0.5 * (np.linalg.norm(A - A[0], axis=1) + np.linalg.norm(B - B[0], axis=1))
         sc = s - s.mean()

@@ -14,7 +14,7 @@ The tracker anchors each id in the object frame and applies the second slip test
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -136,6 +136,19 @@ def contact_tracks(frames: Iterable[TrackingFrame], key: str = "stick_points") -
     return tracks
 
 
+def contact_pairs(
+    tracks: Mapping[int, Mapping[float, np.ndarray]], min_life: int = 5
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Each pair of the id tracks ``tracks`` (:func:`contact_tracks`) alive together for at least ``min_life`` frames:
+    their points (K, 3 each, m) at the K times they share, in time order."""
+    long = [tr for tr in tracks.values() if len(tr) >= min_life]
+    for a in range(len(long)):
+        for b in range(a + 1, len(long)):
+            ts = sorted(set(long[a]) & set(long[b]))
+            if len(ts) >= min_life:
+                yield np.array([long[a][t] for t in ts]), np.array([long[b][t] for t in ts])
+
+
 def contact_rigidity(
     frames: Iterable[TrackingFrame], min_life: int = 5, min_move: float = 1e-4, key: str = "stick_points"
 ) -> tuple[float, int]:
@@ -146,18 +159,11 @@ def contact_rigidity(
     The points are the ids' gel points (``key`` ``stick_points``, the default: see :meth:`StickingContacts.annotate`)
     or their patch centres (``stick_patch_points``, the test before 2026-11-28 14:00 UTC). Returns (index, number of
     pairs); (NaN, 0) without such pairs."""
-    long = [tr for tr in contact_tracks(frames, key).values() if len(tr) >= min_life]
     idx: list[float] = []
-    for a in range(len(long)):
-        for b in range(a + 1, len(long)):
-            A, B = long[a], long[b]
-            ts = sorted(set(A) & set(B))
-            if len(ts) < min_life:
-                continue
-            t0, t1 = ts[0], ts[-1]
-            move = 0.5 * (np.linalg.norm(A[t1] - A[t0]) + np.linalg.norm(B[t1] - B[t0]))
-            if move > min_move:  # a pair that does not move says nothing about rigidity
-                idx.append(abs(np.linalg.norm(A[t1] - B[t1]) - np.linalg.norm(A[t0] - B[t0])) / move)
+    for A, B in contact_pairs(contact_tracks(frames, key), min_life):
+        move = 0.5 * (np.linalg.norm(A[-1] - A[0]) + np.linalg.norm(B[-1] - B[0]))
+        if move > min_move:  # a pair that does not move says nothing about rigidity
+            idx.append(abs(np.linalg.norm(A[-1] - B[-1]) - np.linalg.norm(A[0] - B[0])) / move)
     return (float(np.median(idx)) if idx else float("nan")), len(idx)
 
 
