@@ -100,3 +100,44 @@ def test_surfel_band_sdf_bit_identical_to_the_dense_formula():
     far = X + 1.0  # nothing within reach: the truncation value, weight 0
     v, w = surfel_band_sdf(far[:5], S, N, W, 0.012, 0.001)
     assert np.all(v == np.float32(0.012)) and np.all(w == 0)
+
+
+def _sphere_surfels(rng: np.random.Generator, n: int = 800) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    d = rng.normal(size=(n, 3))
+    N = d / np.linalg.norm(d, axis=1, keepdims=True)
+    S = 0.03 * N + rng.normal(scale=2e-4, size=(n, 3))
+    N[:25] = 0.0  # a few surfels without normal
+    return S, N, rng.uniform(0.5, 4.0, n)
+
+
+def test_lazy_band_grid_values_are_the_eager_values_bit_for_bit():
+    """A LazyBandGrid computes a pending voxel when a query reads it, from the surfels as they were when it was
+    marked: the same float32 values as one eager surfel_band_sdf call over the whole band, whatever is read first,
+    after the map's weights change in place, in a copy, and through ``values``."""
+    from vtrack.tracking.sdf_grid import LazyBandGrid, SDFGrid, surfel_tree
+
+    rng = np.random.default_rng(3)
+    S, N, W = _sphere_surfels(rng)
+    lo, v, trunc, dmin = np.full(3, -0.05), 0.004, 0.012, 0.001
+    shape = (26, 26, 26)
+    src = np.clip(np.round((S - lo) / v).astype(np.int64), 0, 25)
+    bi = band_voxels(src, np.array(shape), trunc / v + 0.5 * np.sqrt(3))
+    eager = np.full(shape, trunc, np.float32)
+    eager[tuple(bi.T)], _ = surfel_band_sdf(lo + v * bi, S, N, W, trunc, dmin)
+    lazy = LazyBandGrid(np.full(shape, trunc, np.float32), lo, v, trunc, dmin)
+    flat = np.ravel_multi_index(tuple(bi.T), shape)
+    lazy.mark(flat, 7, S, N, W, surfel_tree(S))
+    assert lazy._n_pending == len(bi)
+    W *= 3.0  # the map adds into its weights in place after the update: the marked values must not see it
+    other = lazy.copy_lazy()
+    Q = rng.uniform(-0.035, 0.035, (500, 3))
+    ref = SDFGrid(eager.copy(), lo, v)
+    for g in (lazy, other):
+        d, grad = g.query(Q)
+        d0, g0 = ref.query(Q)
+        assert np.array_equal(d, d0) and np.array_equal(grad, g0)
+        assert 0 < g._n_pending < len(bi)  # only what the queries read was computed
+    assert np.array_equal(lazy.values, eager) and lazy._n_pending == 0
+    assert np.array_equal(other.values, eager)
+    lazy.mark(flat[:0], 8, S, N, W, None)
+    assert lazy._snaps == {}  # nothing pending: the snapshot is released

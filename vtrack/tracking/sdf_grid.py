@@ -69,7 +69,7 @@ class SDFGrid:
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        return tuple(int(s) for s in self.values.shape)  # type: ignore[return-value]
+        return tuple(int(s) for s in self._shape)  # type: ignore[return-value]
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -96,7 +96,7 @@ class SDFGrid:
         i0 = np.minimum(gc.astype(np.int64), self._i_max)  # gc >= 0, so truncation == floor
         f = gc - i0
         sx, sy, sz = self._strides
-        c = self._flat[i0[0] * sx + i0[1] * sy + i0[2] * sz + self._corner_off]  # (8, N), corner order x-major
+        c = self._corners(i0[0] * sx + i0[1] * sy + i0[2] * sz + self._corner_off)  # (8, N), corner order x-major
         fx, fy, fz = f[0], f[1], f[2]
         wy0, wz0 = 1.0 - fy, 1.0 - fz
         w00, w01, w10, w11 = wy0 * wz0, wy0 * fz, fy * wz0, fy * fz  # (y, z) corner weights
@@ -119,6 +119,10 @@ class SDFGrid:
             # Outside the box the distance term dominates; point its gradient back at the box.
             gt[:, far] = outside[:, far] / out_d[far]
         return sdf, np.ascontiguousarray(gt.T)
+
+    def _corners(self, flat: np.ndarray) -> np.ndarray:
+        """Values at flat voxel indices ``flat`` (the trilinear corners of :meth:`query`)."""
+        return self._flat[flat]
 
     # -- persistence --------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
@@ -249,6 +253,14 @@ def surfel_tree(S: np.ndarray):
     return cKDTree(S, leafsize=32, balanced_tree=False, compact_nodes=False)
 
 
+def surfel_prep(S: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-surfel terms of :func:`surfel_band_sdf`: positions and normals as float32 (3, K) rows and whether each
+    surfel has a normal (K,) bool."""
+    Sc = np.ascontiguousarray(S.T, dtype=np.float32)
+    Nc = np.ascontiguousarray(N.T, dtype=np.float32)
+    return Sc, Nc, np.einsum("ij,ij->i", N, N) > 0.25
+
+
 def surfel_band_sdf(
     X: np.ndarray,
     S: np.ndarray,
@@ -258,6 +270,7 @@ def surfel_band_sdf(
     min_dist: float,
     k: int = 4,
     tree=None,
+    prep: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Signed distance at points ``X`` (M, 3) from a surfel map: the inverse-distance- and weight-weighted
     mean, over the ``k`` nearest surfels within ``trunc``, of the point-to-plane distance (point distance
@@ -268,6 +281,8 @@ def surfel_band_sdf(
         trunc: search radius and clamp of the values, m.
         min_dist: inverse-distance weights use ``max(d, min_dist)``, m.
         tree: a ``cKDTree`` of ``S`` to reuse (built here otherwise).
+        prep: :func:`surfel_prep` of ``S``, ``N`` to reuse (computed here otherwise): a caller that queries the same
+            surfels many times in small batches (:class:`LazyBandGrid`) saves its O(K) work per call.
 
     Returns:
         values (M,) float32 in ``[-trunc, trunc]`` (``trunc`` where no surfel is within reach) and the
@@ -293,10 +308,9 @@ def surfel_band_sdf(
     # per coordinate ((3, n) rows: 1-D gathers instead of gathers of 12-byte rows), the float32 3-term sums in the
     # order np.einsum("ij,ij->i") adds them on float32 ((p0 + p1) + p2; tests/tracking/test_sdf_band.py)
     Xc = np.ascontiguousarray(X.T, dtype=np.float32)
-    Sc = np.ascontiguousarray(S.T, dtype=np.float32)
-    Nc = np.ascontiguousarray(N.T, dtype=np.float32)
+    Sc, Nc, has_n_all = surfel_prep(S, N) if prep is None else prep
     dx, dy, dz = Xc[0][row] - Sc[0][iv], Xc[1][row] - Sc[1][iv], Xc[2][row] - Sc[2][iv]
-    has_n = (np.einsum("ij,ij->i", N, N) > 0.25)[iv]  # per surfel once, not per (point, neighbour)
+    has_n = has_n_all[iv]  # per surfel once, not per (point, neighbour)
     sd = np.zeros(dist.shape, np.float32)
     sd.reshape(-1)[flat] = np.where(
         has_n,
@@ -306,3 +320,84 @@ def surfel_band_sdf(
     wsum = wgt.sum(1)
     val = np.where(wsum > 0, np.einsum("ij,ij->i", wgt, sd) / np.maximum(wsum, 1e-12), trunc)
     return np.clip(val, -trunc, trunc).astype(np.float32), wsum
+
+
+class LazyBandGrid(SDFGrid):
+    """An :class:`SDFGrid` of a surfel map whose band voxels get their values when first read.
+
+    A SLAM grid update marks the band voxels of the surfels that moved as *pending*, each with the surfel map as it
+    was at that update (a *snapshot*: positions, normals, weights and their KD-tree). A query computes the pending
+    corners it reads (:func:`surfel_band_sdf` with that snapshot) and stores them. Every voxel's value depends on its
+    own nearest surfels only, so a value computed late is the value an eager update computes, bit for bit
+    (``tests/tracking/test_sdf_band.py``): the tracker reads a small part of the band between two updates (the faces
+    in view; ~15 % of the voxels on the 2 s YCB sessions), and the rest is never computed. Reading ``values``
+    computes every pending voxel first.
+
+    Args:
+        values: (nx, ny, nz) float32 stored values (a pending voxel's entry is a placeholder until read).
+        origin, voxel: as :class:`SDFGrid` (object frame, m).
+        trunc: band half-width and the value clamp of the surfel SDF, m.
+        min_dist: inverse-distance weights floor of :func:`surfel_band_sdf`, m.
+    """
+
+    def __init__(self, values: np.ndarray, origin: np.ndarray, voxel: float, trunc: float, min_dist: float) -> None:
+        self._pending: np.ndarray | None = None
+        super().__init__(values, origin, voxel)
+        self.trunc, self.min_dist = float(trunc), float(min_dist)
+        self._pending = np.zeros(self._flat.size, bool)
+        self._n_pending = 0
+        self._sid = np.zeros(self._flat.size, np.int32)
+        self._snaps: dict[int, tuple] = {}
+
+    @property  # type: ignore[override]
+    def values(self) -> np.ndarray:
+        if self._pending is not None and self._n_pending:
+            self._resolve(np.flatnonzero(self._pending))
+        return self._vals
+
+    @values.setter
+    def values(self, v: np.ndarray) -> None:
+        self._vals = v
+
+    def mark(self, flat: np.ndarray, sid: int, S: np.ndarray, N: np.ndarray, W: np.ndarray, tree) -> None:
+        """Make the voxels at flat indices ``flat`` pending, to be computed from the surfels ``S``, ``N``, ``W``
+        (object frame, m; ``tree`` their KD-tree) under the snapshot id ``sid``; snapshots no voxel waits for any
+        more are released."""
+        if len(flat):
+            # copies: the map adds into its weights in place, and a late value must use them as they are now
+            self._snaps[int(sid)] = (S.copy(), N.copy(), W.copy(), tree, surfel_prep(S, N))
+            self._pending[flat] = True
+            self._sid[flat] = sid
+        self._n_pending = int(np.count_nonzero(self._pending))
+        live = set(np.unique(self._sid[self._pending]).tolist()) if self._n_pending else set()
+        self._snaps = {k: v for k, v in self._snaps.items() if k in live}
+
+    def copy_lazy(self) -> LazyBandGrid:
+        """A copy that computes its pending voxels on its own (the snapshots are shared, read only)."""
+        out = LazyBandGrid(self._vals.copy(), self.origin, self.voxel, self.trunc, self.min_dist)
+        out._pending[:] = self._pending
+        out._sid[:] = self._sid
+        out._n_pending = self._n_pending
+        out._snaps = dict(self._snaps)
+        return out
+
+    def _corners(self, flat: np.ndarray) -> np.ndarray:
+        if self._n_pending:
+            p = self._pending[flat]
+            if p.any():
+                self._resolve(np.unique(flat[p]))
+        return self._flat[flat]
+
+    def _resolve(self, flat: np.ndarray) -> None:
+        """Compute the pending voxels at flat indices ``flat`` (unique, all pending), snapshot by snapshot."""
+        sids = self._sid[flat]
+        for sid in np.unique(sids).tolist():
+            sel = flat if len(sids) and sids[0] == sid and (sids == sid).all() else flat[sids == sid]
+            S, N, W, tree, prep = self._snaps[sid]
+            # the same positions as the eager update's ``lo + v * ijk``
+            ijk = np.stack(np.unravel_index(sel, self._vals.shape), axis=1)
+            X = self.origin + self.voxel * ijk
+            val, _ = surfel_band_sdf(X, S, N, W, self.trunc, self.min_dist, tree=tree, prep=prep)
+            self._flat[sel] = val
+        self._pending[flat] = False
+        self._n_pending -= len(flat)

@@ -127,17 +127,28 @@ class SpherePrior:
 
     def apply(self, grid: np.ndarray, S: np.ndarray, origin: np.ndarray, voxel: float, trunc: float) -> np.ndarray:
         """The tracking grid from the surfels' grid ``grid`` (not changed) and the map's surfels ``S`` (K, 3):
-        ``grid`` itself when no sphere is in force, else a copy with the sphere written in."""
-        if self.mode == "none" or self.dropped:
+        ``grid`` itself when no sphere is in force, else a copy with the sphere written in (:meth:`update` then
+        :meth:`write`)."""
+        if self.update(S) is None:
             return grid
+        return self.write(grid, origin, voxel, trunc)
+
+    def update(self, S: np.ndarray) -> Sphere | None:
+        """Decide, from the map's surfels ``S`` (K, 3, object frame, m), the sphere in force at this grid update
+        (detected, kept or dropped); None when none is."""
+        if self.mode == "none" or self.dropped:
+            return None
         if self.mode == "sphere-fill":
             self.sphere = detect_sphere(S, self.opts, held=self.sphere is not None)
         elif self.sphere is None:
             self.sphere = detect_sphere(S, self.opts)
         elif float(np.mean(np.abs(self.sphere.sdf(S)) < self.opts.keep_dist)) < self.opts.keep_inlier:
             self.sphere, self.dropped = None, True
-        if self.sphere is None:
-            return grid
+        return self.sphere
+
+    def write(self, grid: np.ndarray, origin: np.ndarray, voxel: float, trunc: float) -> np.ndarray:
+        """A copy of the surfels' grid ``grid`` (nx, ny, nz) with the sphere in force (:meth:`update`) written in."""
+        assert self.sphere is not None
         out = grid.copy()
         write_sphere(out, origin, voxel, trunc, self.sphere, only_unobserved=self.mode == "sphere-fill")
         self.updates += 1

@@ -34,7 +34,7 @@ from vtrack.geometry import se3
 from vtrack.geometry.pointcloud import row_norms
 from vtrack.tracking.frame import TrackingFrame
 from vtrack.tracking.posegraph import BackendOptions, Keyframe, interpolate_corrections, refine_keyframes
-from vtrack.tracking.sdf_grid import SDFGrid, band_voxels, surfel_band_sdf, surfel_tree
+from vtrack.tracking.sdf_grid import LazyBandGrid, SDFGrid, band_voxels, surfel_band_sdf, surfel_tree
 from vtrack.tracking.shape_prior import MODES as SHAPE_PRIOR_MODES
 from vtrack.tracking.shape_prior import SpherePrior
 from vtrack.tracking.window import TrackerOptions, WindowTracker
@@ -494,7 +494,7 @@ class SLAMTracker(WindowTracker):
         self._last_refresh = 0
         self._ref_keys = np.zeros(0, np.int64)
         self._ref_P = self._ref_N = np.zeros((0, 3))
-        self._data_values: np.ndarray | None = None  #: the grid from the surfels alone (before the shape prior)
+        self._data_grid: LazyBandGrid | None = None  #: the grid from the surfels alone (before the shape prior)
         self.shape_prior = SpherePrior(so.shape_prior)
         self.observed_gate, self.observed_keep = float(so.observed_gate), float(so.observed_keep)
         self.observed_min_vision = int(so.observed_min_vision)
@@ -842,10 +842,12 @@ class SLAMTracker(WindowTracker):
         if len(src) or self.observed_gate > 0:
             tree = surfel_tree(S)  # shared by the band values and the observed gate
         self._surfel_tree = tree
-        if full or self._data_values is None:
-            grid = np.full(tuple(n), self.trunc, np.float32)
+        min_dist = 0.5 * self.map.voxel
+        if full or self._data_grid is None:
+            grid = LazyBandGrid(np.full(tuple(n), self.trunc, np.float32), lo, v, self.trunc, min_dist)
         else:
-            grid = self._data_values.copy()
+            grid = self._data_grid.copy_lazy()
+        bi = np.zeros((0, 3), np.int64)
         if len(src):
             # voxels that a source surfel can reach: within trunc of it, i.e. trunc / v + half a voxel diagonal (a
             # full update); an incremental one keeps the whole cube: a surfel that moved less than refresh_move is
@@ -857,15 +859,23 @@ class SLAMTracker(WindowTracker):
                 self.trunc / v + 0.5 * np.sqrt(3),
                 ball=full,
             )
+        flat = np.ravel_multi_index(tuple(bi.T), grid.shape)  # flat: the same voxels
+        if neural and len(bi):
             X = lo + v * bi
-            val, wsum = surfel_band_sdf(X, S, N, W, self.trunc, 0.5 * self.map.voxel, tree=tree)
-            if neural:
-                near = wsum > 0
-                nv, _ = self.neural.query(X[near], with_grad=False)
-                val[near] = np.clip(nv, -self.trunc, self.trunc)
-            grid.reshape(-1)[np.ravel_multi_index(tuple(bi.T), grid.shape)] = val  # flat: the same voxels
-        self._data_values = grid
-        self.sdf = SDFGrid(self.shape_prior.apply(grid, S, lo, v, self.trunc), lo, v)
+            val, wsum = surfel_band_sdf(X, S, N, W, self.trunc, min_dist, tree=tree)
+            near = wsum > 0
+            nv, _ = self.neural.query(X[near], with_grad=False)
+            val[near] = np.clip(nv, -self.trunc, self.trunc)
+            grid._flat[flat] = val
+            grid.mark(flat[:0], self._n_refresh, S, N, W, tree)
+        else:
+            # computed when a query first reads them (LazyBandGrid): the tracker reads the faces in view only
+            grid.mark(flat, self._n_refresh, S, N, W, tree)
+        self._data_grid = grid
+        if self.shape_prior.update(S) is None:
+            self.sdf = grid
+        else:
+            self.sdf = SDFGrid(self.shape_prior.write(grid.values, lo, v, self.trunc), lo, v)
 
     # -- outputs -------------------------------------------------------------------------
     def map_metrics(self) -> dict[str, Any]:
