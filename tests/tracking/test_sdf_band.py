@@ -141,3 +141,9 @@ def test_lazy_band_grid_values_are_the_eager_values_bit_for_bit():
     assert np.array_equal(other.values, eager)
     lazy.mark(flat[:0], 8, S, N, W, None)
     assert lazy._snaps == {}  # nothing pending: the snapshot is released
+    # values the caller computed itself (the neural mapper's) are stored at once and no longer pending
+    again = LazyBandGrid(np.full(shape, trunc, np.float32), lo, v, trunc, dmin)
+    again.mark(flat, 9, S, N, W, surfel_tree(S))
+    again.put(flat[:10], np.full(10, -0.001, np.float32))
+    assert again._n_pending == len(flat) - 10
+    assert np.all(again.values.reshape(-1)[flat[:10]] == np.float32(-0.001))

@@ -372,6 +372,13 @@ class LazyBandGrid(SDFGrid):
         live = set(np.unique(self._sid[self._pending]).tolist()) if self._n_pending else set()
         self._snaps = {k: v for k, v in self._snaps.items() if k in live}
 
+    def put(self, flat: np.ndarray, values: np.ndarray) -> None:
+        """Store ``values`` (metres) at the flat voxel indices ``flat`` now (computed by the caller: no longer
+        pending)."""
+        self._flat[flat] = values
+        self._n_pending -= int(np.count_nonzero(self._pending[flat]))
+        self._pending[flat] = False
+
     def copy_lazy(self) -> LazyBandGrid:
         """A copy that computes its pending voxels on its own (the snapshots are shared, read only)."""
         out = LazyBandGrid(self._vals.copy(), self.origin, self.voxel, self.trunc, self.min_dist)
@@ -392,7 +399,7 @@ class LazyBandGrid(SDFGrid):
         """Compute the pending voxels at flat indices ``flat`` (unique, all pending), snapshot by snapshot."""
         sids = self._sid[flat]
         for sid in np.unique(sids).tolist():
-            sel = flat if len(sids) and sids[0] == sid and (sids == sid).all() else flat[sids == sid]
+            sel = flat[sids == sid]
             S, N, W, tree, prep = self._snaps[sid]
             # the same positions as the eager update's ``lo + v * ijk``
             ijk = np.stack(np.unravel_index(sel, self._vals.shape), axis=1)

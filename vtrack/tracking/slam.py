@@ -866,8 +866,7 @@ class SLAMTracker(WindowTracker):
             near = wsum > 0
             nv, _ = self.neural.query(X[near], with_grad=False)
             val[near] = np.clip(nv, -self.trunc, self.trunc)
-            grid._flat[flat] = val
-            grid.mark(flat[:0], self._n_refresh, S, N, W, tree)
+            grid.put(flat, val)
         else:
             # computed when a query first reads them (LazyBandGrid): the tracker reads the faces in view only
             grid.mark(flat, self._n_refresh, S, N, W, tree)
