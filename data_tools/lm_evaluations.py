@@ -1,6 +1,6 @@
 """Window evaluations per LM solve of blind SLAM (``WindowTracker._total`` calls per ``_optimise``, online and second
 pass) and the mean object-motion error (mm, scored against ``gt/`` by the eval code) of blind SLAM over the 6 YCB
-objects, one thread, with the tracker options given as JSON (e.g. ``'{"accept_small_steps": false}'``).
+objects, one thread, with the tracker options given as JSON (e.g. ``'{"small_step": "accept"}'``).
 
 Usage: ``python data_tools/lm_evaluations.py [OPTS_JSON [SECONDS OCCLUSIONS SEEDS]]``; default ``{} 2 none,medium 0``
 (the 12 2 s sessions of the speed figures), e.g. ``python data_tools/lm_evaluations.py '{}' 5 medium 0,1,2``.

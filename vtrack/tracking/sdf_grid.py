@@ -362,10 +362,11 @@ class LazyBandGrid(SDFGrid):
     def mark(self, flat: np.ndarray, sid: int, S: np.ndarray, N: np.ndarray, W: np.ndarray, tree) -> None:
         """Make the voxels at flat indices ``flat`` pending, to be computed from the surfels ``S``, ``N``, ``W``
         (object frame, m; ``tree`` their KD-tree) under the snapshot id ``sid``; snapshots no voxel waits for any
-        more are released."""
+        more are released. ``S`` and ``N`` are kept as they are (the caller does not change them afterwards:
+        ``SurfelMap.surfels`` makes them anew each time); ``W`` is copied."""
         if len(flat):
-            # copies: the map adds into its weights in place, and a late value must use them as they are now
-            self._snaps[int(sid)] = (S.copy(), N.copy(), W.copy(), tree, surfel_prep(S, N))
+            # the map adds into its weights in place, and a late value must use them as they are now
+            self._snaps[int(sid)] = (S, N, W.copy(), tree, surfel_prep(S, N))
             self._pending[flat] = True
             self._sid[flat] = sid
         self._n_pending = int(np.count_nonzero(self._pending))
