@@ -19,6 +19,12 @@ def test_prefetched_frames_give_identical_poses(tiny_session, shape, tmp_path):
     m_off, (t_off, T_off) = track_session(tiny_session, "", prefetch="off", **kw)
     m_on, (t_on, T_on) = track_session(tiny_session, "", prefetch="on", **kw)
     assert m_off["prefetch"] is False and m_on["prefetch"] is True
+    # vision and touch: the tactile pipelines run in a process of their own, the frame builder takes their contacts
+    assert m_off["prefetch_processes"] == 0 and m_on["prefetch_processes"] == 2
+    if shape == "slam":  # the ablation: one child for both
+        m_one, (_, T_one) = track_session(tiny_session, "", prefetch="single", **kw)
+        assert m_one["prefetch_processes"] == 1
+        np.testing.assert_allclose(T_one, T_off, rtol=0, atol=1e-12)
     assert m_on["frames"] == m_off["frames"] == 12
     assert np.array_equal(t_on, t_off)
     # the child's SessionFrames starts from frame 0 as a fresh one does (the known shape's initialisation built
@@ -92,3 +98,45 @@ def test_corrupt_chunk_in_the_child_is_the_same_one_line_error(tiny_session, tmp
         for i, *_ in PrefetchedFrames(s, {"max_frames": 8}).frames(expected=8):
             got.append(i)
     assert "\n" not in str(e.value) and got == [0, 1, 2]  # the frames before the damaged one arrive
+
+
+def test_touch_process_error_reaches_the_parent_as_one_line(tiny_session, tmp_path):
+    """A damaged tactile chunk is met in the touch process: the frame builder hands its message on, the frames
+    before it arrive, and both children end."""
+    import shutil
+
+    from vtrack.io.session import CorruptDataError
+
+    s = tmp_path / "s"
+    shutil.copytree(tiny_session, s)
+    chunk = s / "data.zarr" / "tactile" / "digit_index" / "image" / "c" / "3" / "0" / "0" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    chunk.write_bytes(bytes(data))
+    from vtrack.frames.prefetch import PrefetchedFrames
+
+    pf = PrefetchedFrames(s, {"max_frames": 12})
+    assert pf.processes == 2
+    got = []
+    with pytest.raises(CorruptDataError, match=r"tactile/digit_index/image.*frame") as e:
+        for i, *_ in pf.frames(expected=12):
+            got.append(i)
+    # tactile frames 12..15 are in chunk 3: camera frame 6 (60 Hz touch, 30 Hz camera) is the first to need it
+    assert "\n" not in str(e.value) and got == list(range(6))
+    assert not any(p.is_alive() for p in pf._procs)
+
+
+def test_a_dead_touch_process_is_reported(tiny_session):
+    from vtrack.frames.prefetch import PrefetchedFrames
+
+    pf = PrefetchedFrames(tiny_session, {"max_frames": 30}, queue_frames=1)
+    it = pf.frames(expected=30)
+    next(it)
+    touch = pf._procs[0]
+    assert touch.name == "vtrack-touch"
+    touch.kill()
+    touch.join(5)
+    with pytest.raises(RuntimeError, match="vtrack-touch|touch process"):
+        for _ in it:
+            pass
+    assert not any(p.is_alive() for p in pf._procs)

@@ -3,8 +3,10 @@
 Blind SLAM (the default options) over every shared YCB object (5 s sessions at medium occlusion,
 ``VTRACK_BENCH_SPEED_SECONDS`` / ``VTRACK_BENCH_SPEED_OCC``; seeds ``--seeds``), each session tracked twice in turn:
 ``in process`` (read, segmentation, tactile pipelines, colour tracks and the tracker step one after the other on one
-core) and ``prefetch`` (the frames built in a second process ahead of the tracker, :mod:`vtrack.frames.prefetch`;
-``vtrack track --prefetch``). This process runs one thread either way.
+core), ``prefetch`` (the frames built ahead of the tracker in child processes, the tactile pipelines in one,
+segmentation and the rest in the other, :mod:`vtrack.frames.prefetch`; ``vtrack track --prefetch``) and ``prefetch,
+one child`` (``--prefetch single``: both in one child, the layout before 2026-11-28; an ablation). This process runs
+one thread either way, and so does each child.
 
 Per run: ``poses_per_s`` (frames / wall time of the per-frame loop, the child's start included; ``wall_ms`` its
 inverse), ``steady_poses_per_s``
@@ -22,7 +24,7 @@ import time
 
 from vtrack.bench.harness import BenchTable, add_seed_means, bench_seeds
 
-VARIANTS = {"in process": "off", "prefetch": "on"}
+VARIANTS = {"in process": "off", "prefetch": "on", "prefetch, one child": "single"}
 
 
 def run(quick: bool = False) -> BenchTable:
@@ -49,8 +51,7 @@ def run(quick: bool = False) -> BenchTable:
     for k, (seed, obj) in enumerate((s, b) for s in seeds for b in objects):
         sess = ycb_session(obj, occ, seconds, seed=seed)
         order = list(VARIANTS.items())
-        if k % 2:
-            order.reverse()  # alternate which goes first: the machine's speed drifts over minutes
+        order = order[k % len(order) :] + order[: k % len(order)]  # rotate who goes first: the machine's speed drifts
         poses = {}
         for name, mode in order:
             t0 = time.perf_counter()
@@ -72,8 +73,9 @@ def run(quick: bool = False) -> BenchTable:
                 motion_err_mm=m["motion_err_mm"],
                 frames=n,
             )
-        diff = float(np.abs(poses["prefetch"] - poses["in process"]).max())
-        table.rows[-1]["max_pose_diff"] = table.rows[-2]["max_pose_diff"] = diff
+        diff = max(float(np.abs(poses[v] - poses["in process"]).max()) for v in VARIANTS)
+        for row in table.rows[-len(VARIANTS) :]:
+            row["max_pose_diff"] = diff
         if diff > 1e-9:
             table.notes.append(f"{obj} seed {seed}: prefetched poses differ from in-process ones by {diff:.3g}")
     add_seed_means(
@@ -84,16 +86,21 @@ def run(quick: bool = False) -> BenchTable:
     )
     final = "all" if len(seeds) > 1 else seeds[0]
     means = {r["method"]: r for r in table.rows if r.get("object") == "all" and r.get("seed") == final}
-    if len(means) == 2:
-        a, b = means["in process"], means["prefetch"]
+    if len(means) == len(VARIANTS):
+        a = means["in process"]
         table.notes.append(
-            f"mean over {a['n_objects']} objects: in process {a['poses_per_s']:.1f} poses/s, prefetch "
-            f"{b['poses_per_s']:.1f} poses/s ({b['steady_poses_per_s']:.1f} without the child's start); whole call "
-            f"{a['wall_s']:.1f} -> {b['wall_s']:.1f} s"
+            f"mean over {a['n_objects']} objects: in process {a['poses_per_s']:.1f} poses/s; "
+            + "; ".join(
+                f"{v} {means[v]['poses_per_s']:.1f} poses/s ({means[v]['steady_poses_per_s']:.1f} without the "
+                f"children's start, whole call {means[v]['wall_s']:.1f} s)"
+                for v in VARIANTS
+                if v != "in process"
+            )
+            + f"; in process whole call {a['wall_s']:.1f} s"
         )
     table.notes.append(
-        f"blind SLAM, {seconds:g} s sessions at {occ} occlusion; {available_cpus()} CPUs; this process 1 thread, the "
-        f"prefetch child 1 thread; ms: CPU per frame of build + step (both processes, reading excluded); "
+        f"blind SLAM, {seconds:g} s sessions at {occ} occlusion; {available_cpus()} CPUs; this process 1 thread, each "
+        f"prefetch child 1 thread; ms: CPU per frame of build + step (all processes, reading excluded); "
         f"{time.perf_counter() - t_all:.0f} s wall."
     )
     return table

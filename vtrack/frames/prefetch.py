@@ -36,8 +36,9 @@ MIN_FRAMES = 120
 START_TIMEOUT_S = 180.0
 
 
-#: the frame prefetch modes (``track_session(prefetch=...)``, ``--prefetch``)
-PREFETCH_MODES = ("auto", "on", "off")
+#: the frame prefetch modes (``track_session(prefetch=...)``, ``--prefetch``): ``single`` = on, with the tactile
+#: pipelines in the frame builder's process (no touch process: the layout before 2026-11-28, an ablation)
+PREFETCH_MODES = ("auto", "on", "off", "single")
 
 
 def check_prefetch_mode(mode: str, field: str = "prefetch") -> str:
@@ -55,16 +56,16 @@ def worth_prefetching(mode: str | bool, n_frames: int | None) -> bool:
     if isinstance(mode, bool):
         return mode
     if check_prefetch_mode(mode) != "auto":
-        return mode == "on"
+        return mode in ("on", "single")
     from vtrack.threads import available_cpus, thread_limit
 
     single = thread_limit() == 1
     return (n_frames is None or n_frames >= MIN_FRAMES) and available_cpus() >= 2 and not single
 
 
-def _timed_read(sf: Any, i: int) -> tuple[dict, float]:
+def _timed_read(sf: Any, i: int, touch: bool = True) -> tuple[dict, float]:
     c0 = time.thread_time()
-    raw = sf.read(i)
+    raw = sf.read(i, touch=touch)
     return raw, (time.thread_time() - c0) * 1e3
 
 
@@ -87,74 +88,176 @@ def _skip_open3d_plotly() -> None:
     sys.modules[name] = stub
 
 
-def _build_frames(session: str, kwargs: dict, n: int, queue: Any) -> None:
+def _error_message(e: Exception) -> tuple[str, str, str]:
+    """``("error", kind, message)`` for the parent to re-raise (kind: ``corrupt`` / ``input`` / ``other``)."""
+    from vtrack.io.session import CorruptDataError
+
+    kind = "corrupt" if isinstance(e, CorruptDataError) else "input" if isinstance(e, InputError) else "other"
+    return ("error", kind, f"{type(e).__name__}: {e}" if kind == "other" else str(e))
+
+
+def _child_setup() -> None:
+    from vtrack.threads import limit_threads
+
+    limit_threads(1)  # one stream of work: a BLAS pool would only spin beside the other processes
+    _skip_open3d_plotly()
+
+
+def _get_touch(touch_q: Any, timeout_s: float = START_TIMEOUT_S) -> tuple:
+    """The touch process's next message (the frame builder's side); a RuntimeError when none comes in time."""
+    import queue
+
+    try:
+        return touch_q.get(timeout=timeout_s)
+    except queue.Empty:
+        raise RuntimeError(f"touch process: no contacts in {timeout_s:.0f} s") from None
+
+
+def _touch_contacts(session: str, kwargs: dict, n: int, touch_q: Any) -> None:
+    """Touch child process: a touch-only ``SessionFrames`` (the same frame times and sensor poses as the builder's:
+    the cameras set the times either way), then per frame ``0..n-1`` its contacts into ``touch_q`` as
+    ``("contacts", i, [(sensor, Contact)], read_cpu_ms, cpu_ms)``; ``("done", cpu_s)`` at the end; ``("error", kind,
+    message)`` on any exception (the builder hands it on)."""
+    try:
+        _child_setup()
+        from vtrack.frames.session import SessionFrames
+
+        sf = SessionFrames(session, **{**kwargs, "modalities": ("touch",), "colour": False})
+        n = min(n, len(sf)) if n > 0 else len(sf)
+        c_start = time.process_time()
+        for i in range(n):
+            c0 = time.process_time()
+            raw = sf.read_touch(i)
+            c1 = time.process_time()
+            got = sf.touch_contacts(raw, sf.frame_sensor_poses(i))
+            touch_q.put(("contacts", i, got, (c1 - c0) * 1e3, (time.process_time() - c1) * 1e3))
+        touch_q.put(("done", time.process_time() - c_start))
+    except Exception as e:  # noqa: BLE001 - every failure goes on as one line
+        touch_q.put(_error_message(e))
+
+
+def _build_frames(session: str, kwargs: dict, n: int, queue: Any, touch_q: Any = None) -> None:
     """Child process: ``SessionFrames(session, **kwargs)``, then frames ``0..n-1`` into ``queue`` as
     ``("frame", i, Frame, read_cpu_ms, build_cpu_ms)``; ``("done", cpu_s)`` at the end; ``("error", kind, message)``
-    on any exception (the parent re-raises it)."""
+    on any exception (the parent re-raises it). With ``touch_q`` the contacts of each frame come from the touch
+    process (:func:`_touch_contacts`; its read and CPU time are added to the frame's, its CPU to ``cpu_s``)."""
     try:
-        from vtrack.threads import limit_threads
-
-        limit_threads(1)  # one stream of work: a BLAS pool would only spin beside the parent's tracker
-        _skip_open3d_plotly()
+        _child_setup()
         from vtrack.frames.session import SessionFrames
 
         sf = SessionFrames(session, **kwargs)
         n = min(n, len(sf)) if n > 0 else len(sf)
         queue.put(("ready", n))  # the number of frames it will build
         c_start = time.process_time()
+        touch = touch_q is None
         with ThreadPoolExecutor(1) as reader:
             # frame i + 1 is read (disk, decompression: mostly outside the GIL) while frame i is built
-            nxt = reader.submit(_timed_read, sf, 0) if n else None
+            nxt = reader.submit(_timed_read, sf, 0, touch) if n else None
             for i in range(n):
                 raw, read_ms = nxt.result()
-                nxt = reader.submit(_timed_read, sf, i + 1) if i + 1 < n else None
+                nxt = reader.submit(_timed_read, sf, i + 1, touch) if i + 1 < n else None
+                touch_ms = 0.0
+                if touch_q is not None:
+                    msg = _get_touch(touch_q)
+                    if msg[0] == "error":
+                        queue.put(msg)
+                        return
+                    _, j, raw["touch"], touch_read_ms, touch_ms = msg
+                    if j != i:
+                        raise RuntimeError(f"touch process sent frame {j}, expected {i}")
+                    read_ms += touch_read_ms
                 c1 = time.thread_time()
                 fr = sf.build(raw)
-                queue.put(("frame", i, fr, read_ms, (time.thread_time() - c1) * 1e3))
-        queue.put(("done", time.process_time() - c_start))
+                queue.put(("frame", i, fr, read_ms, (time.thread_time() - c1) * 1e3 + touch_ms))
+        cpu_s = time.process_time() - c_start
+        if touch_q is not None:
+            msg = _get_touch(touch_q)
+            if msg[0] == "error":
+                queue.put(msg)
+                return
+            cpu_s += float(msg[1]) if msg[0] == "done" else 0.0
+        queue.put(("done", cpu_s))
     except Exception as e:  # noqa: BLE001 - every failure goes to the parent as one line
-        from vtrack.io.session import CorruptDataError
-
-        kind = "corrupt" if isinstance(e, CorruptDataError) else "input" if isinstance(e, InputError) else "other"
-        queue.put(("error", kind, f"{type(e).__name__}: {e}" if kind == "other" else str(e)))
+        queue.put(_error_message(e))
 
 
-def _kill(proc: Any) -> None:
-    if proc.is_alive():
-        proc.kill()
+def _kill(procs: list) -> None:
+    for proc in procs:
+        if proc.is_alive():
+            proc.kill()
+
+
+def touch_apart(frames_kwargs: dict) -> bool:
+    """Whether the frames of ``SessionFrames(**frames_kwargs)`` have a touch stage worth a process of its own: both
+    modalities (touch alone: the touch stage is all the building there is)."""
+    mods = tuple(frames_kwargs.get("modalities", ("vision", "touch")))
+    return "touch" in mods and "vision" in mods
 
 
 class PrefetchedFrames:
     """``(i, Frame, read_cpu_ms, build_cpu_ms)`` for ``i = 0..n-1`` of a session (:meth:`frames`), built in a child
     process that starts at once (so its start overlaps the caller's own set-up).
 
+    With ``touch_process`` (and both modalities, :func:`touch_apart`) a second child reads the tactile images and runs
+    the tactile pipelines, frame by frame in order (their state carries over as in one process), and hands each
+    frame's contacts to the frame builder, which then reads and segments the camera images only: three streams of
+    work (touch, frame building, tracking) on two cores instead of two, whose longer one, the frame builder, set the
+    pace (docs/benchmarks/prefetch_touch_process.md). The frames are the same.
+
     Args:
         session: session directory.
         frames_kwargs: the keyword arguments of the parent's :class:`~vtrack.frames.session.SessionFrames` (picklable).
         n: frames to build (the first ``n``; 0 = all, as many as ``SessionFrames(session, **frames_kwargs)`` has).
         queue_frames: frames the child may build ahead.
+        touch_process: the tactile pipelines in a process of their own (above); False: all in one child.
 
-    ``cpu_s`` (after the iteration ends) is the child's CPU time over the frames. Use as a context manager (or call
-    :meth:`close`): leaving early ends the child.
+    ``cpu_s`` (after the iteration ends) is the children's CPU time over the frames. Use as a context manager (or
+    call :meth:`close`): leaving early ends the children.
     """
 
-    def __init__(self, session: str | Path, frames_kwargs: dict, n: int = 0, queue_frames: int = QUEUE_FRAMES) -> None:
+    def __init__(
+        self,
+        session: str | Path,
+        frames_kwargs: dict,
+        n: int = 0,
+        queue_frames: int = QUEUE_FRAMES,
+        touch_process: bool = True,
+    ) -> None:
         import multiprocessing as mp
 
         ctx = mp.get_context("spawn")
         self.session = str(session)
         self.cpu_s = 0.0
         self._q = ctx.Queue(maxsize=max(1, int(queue_frames)))
+        apart = touch_process and touch_apart(frames_kwargs)
+        self._touch_q = ctx.Queue(maxsize=max(1, int(queue_frames))) if apart else None
+        self._procs: list = []
+        if self._touch_q is not None:
+            self._procs.append(
+                ctx.Process(
+                    target=_touch_contacts,
+                    args=(self.session, dict(frames_kwargs), int(n), self._touch_q),
+                    daemon=True,
+                    name="vtrack-touch",
+                )
+            )
         self._proc = ctx.Process(
             target=_build_frames,
-            args=(self.session, dict(frames_kwargs), int(n), self._q),
+            args=(self.session, dict(frames_kwargs), int(n), self._q, self._touch_q),
             daemon=True,
             name="vtrack-frames",
         )
-        self._proc.start()
-        # an exception between here and the iteration (the caller's initialisation) must not leave the child
-        # blocked on a full queue for the rest of the process: it is killed when this object goes
-        self._finalizer = weakref.finalize(self, _kill, self._proc)
+        self._procs.append(self._proc)
+        for p in self._procs:
+            p.start()
+        # an exception between here and the iteration (the caller's initialisation) must not leave the children
+        # blocked on a full queue for the rest of the process: they are killed when this object goes
+        self._finalizer = weakref.finalize(self, _kill, self._procs)
+
+    @property
+    def processes(self) -> int:
+        """Child processes started (1: the frame builder; 2: and the touch process)."""
+        return len(self._procs)
 
     def _get(self) -> tuple:
         import queue
@@ -165,10 +268,12 @@ class PrefetchedFrames:
                 msg = self._q.get(timeout=1.0)
                 break
             except queue.Empty:
-                if not self._proc.is_alive():
-                    raise RuntimeError(
-                        f"frame builder process for {self.session} ended unexpectedly (exit code {self._proc.exitcode})"
-                    ) from None
+                for p in self._procs:
+                    if not p.is_alive() and (p is self._proc or p.exitcode != 0):
+                        self.close()
+                        raise RuntimeError(
+                            f"{p.name} process for {self.session} ended unexpectedly (exit code {p.exitcode})"
+                        ) from None
                 if time.monotonic() > deadline:
                     raise RuntimeError(
                         f"frame builder process for {self.session}: no frame in {START_TIMEOUT_S:.0f} s"
@@ -203,14 +308,17 @@ class PrefetchedFrames:
             self.close()
 
     def close(self) -> None:
-        """End the child (waits briefly, then kills it)."""
-        if self._proc.is_alive():
-            self._proc.join(0.5 if self.cpu_s else 0.0)
-            if self._proc.is_alive():
-                self._proc.kill()
-                self._proc.join(2.0)
-        self._q.close()
-        self._q.cancel_join_thread()  # frames left in the queue are not wanted: do not block on them
+        """End the children (waits briefly, then kills them)."""
+        for p in self._procs:
+            if p.is_alive():
+                p.join(0.5 if self.cpu_s else 0.0)
+                if p.is_alive():
+                    p.kill()
+                    p.join(2.0)
+        for q in (self._q, self._touch_q):
+            if q is not None:
+                q.close()
+                q.cancel_join_thread()  # frames left in the queue are not wanted: do not block on them
 
     def __enter__(self) -> PrefetchedFrames:
         return self

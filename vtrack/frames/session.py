@@ -349,8 +349,10 @@ class SessionFrames:
         return len(self.times)
 
     # ------------------------------------------------------------------ per frame
-    def read(self, i: int) -> dict:
-        """Decoded arrays of frame ``i`` (disk IO + decompression; not part of the per-frame compute)."""
+    def read(self, i: int, touch: bool = True) -> dict:
+        """Decoded arrays of frame ``i`` (disk IO + decompression; not part of the per-frame compute).
+        ``touch=False``: without the tactile images (``raw["touch"]`` empty; a caller that has the frame's contacts
+        from elsewhere, :meth:`read_touch` + :meth:`touch_contacts` in another process, puts them there)."""
         t = float(self.times[i])
         raw: dict = {"i": i, "cams": [], "touch": []}
         if "vision" in self.modalities:
@@ -368,13 +370,42 @@ class SessionFrames:
                 if c.tracks is not None:  # the colour term: RGB, and depth at full resolution for its tracks
                     raw.setdefault("rgb", {})[c.name] = np.asarray(c.stream["rgb"][j])
                     raw.setdefault("depth_full", {})[c.name] = d_full
-        if self.touch is not None:
-            for s in self.touch.sensors:
-                if self.sensor_poses and s not in self.sensor_poses:
-                    continue
-                j = int(self.touch.streams[s].index_at(t)[0])
-                raw["touch"].append((s, self.touch.read(s, j)))
+        if touch:
+            raw["touch"] = self.read_touch(i)
         return raw
+
+    def read_touch(self, i: int) -> list[tuple[str, Any]]:
+        """``(sensor, decoded input)`` of frame ``i`` for each tactile sensor (the newest tactile frame at the frame's
+        time; sensors the hand does not mount are left out); empty without touch."""
+        out: list[tuple[str, Any]] = []
+        if self.touch is None:
+            return out
+        t = float(self.times[i])
+        for s in self.touch.sensors:
+            if self.sensor_poses and s not in self.sensor_poses:
+                continue
+            j = int(self.touch.streams[s].index_at(t)[0])
+            out.append((s, self.touch.read(s, j)))
+        return out
+
+    def frame_sensor_poses(self, i: int) -> dict[str, np.ndarray]:
+        """``T_world_sensor`` (4x4, m) of each mounted sensor at frame ``i`` (NaN where the joints are unknown)."""
+        return {s: P[i] for s, P in self.sensor_poses.items()}
+
+    def touch_contacts(
+        self, raw_touch: list[tuple[str, Any]], poses: dict[str, np.ndarray]
+    ) -> list[tuple[str, Contact]]:
+        """The contacts of one time step: ``(sensor, Contact)`` for each entry of ``raw_touch`` (what
+        :meth:`read_touch` gave, or contacts already computed, kept as they are) whose sensor has a finite pose in
+        ``poses``, in ``raw_touch``'s order. The images go through their pipelines together
+        (:meth:`~vtrack.frames.touch.TouchSource.contacts`: the same contacts as one by one, less CPU). The pipelines
+        keep state from frame to frame (a background taken from a frame), so one caller feeds them every frame in
+        order: :meth:`build`, or the process that computes the contacts for it (:mod:`vtrack.frames.prefetch`)."""
+        keep = [(s, d) for s, d in raw_touch if s in poses and np.all(np.isfinite(poses[s]))]
+        todo = [(s, d) for s, d in keep if not isinstance(d, Contact)]
+        assert self.touch is not None or not todo
+        batched = dict(zip([s for s, _ in todo], self.touch.contacts(todo), strict=True)) if todo else {}  # type: ignore[union-attr]
+        return [(s, d if isinstance(d, Contact) else batched[s]) for s, d in keep]
 
     def build(self, raw: dict) -> Frame:
         """World-frame observations from decoded arrays (the per-frame work a live pipeline does)."""
@@ -386,7 +417,7 @@ class SessionFrames:
             i = int(raw["i"])
             t = float(self.times[i])
             q = None if self.q is None else self.q[i]
-            poses = {s: P[i] for s, P in self.sensor_poses.items()}
+            poses = self.frame_sensor_poses(i)
         info: dict = {}
         cids: list = []
         cpts: list[np.ndarray] = []
@@ -394,20 +425,10 @@ class SessionFrames:
         tp, tn, pen, sid, free = [], [], [], [], []
         in_contact: list[tuple[str, np.ndarray, Contact]] = []  # for the gel points beside the patches (see below)
         contacts: dict[str, Contact] = {}
-        assert self.touch is not None or not raw["touch"]
-        # the images of this time step through their pipelines together (same contacts as one by one, less CPU);
-        # a Contact already computed is kept (the live pipeline runs the tactile pipeline as the images arrive)
-        todo = [
-            (s, data)
-            for s, data in raw["touch"]
-            if not isinstance(data, Contact) and s in poses and np.all(np.isfinite(poses[s]))
-        ]
-        batched = dict(zip([s for s, _ in todo], self.touch.contacts(todo), strict=True)) if todo else {}  # type: ignore[union-attr]
-        for s, data in raw["touch"]:
-            T_ws = poses.get(s)
-            if T_ws is None or not np.all(np.isfinite(T_ws)):
-                continue
-            c: Contact = data if isinstance(data, Contact) else batched[s]
+        # a Contact already computed is kept (the live pipeline runs the tactile pipeline as the images arrive; the
+        # offline prefetch in a process of its own); sensors without a finite pose are left out
+        for s, c in self.touch_contacts(raw["touch"], poses):
+            T_ws = poses[s]
             contacts[s] = c
             if c.in_contact:
                 tp.append(se3.transform_points(T_ws, c.points))

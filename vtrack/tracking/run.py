@@ -286,8 +286,9 @@ def track_session(
             contacts move as one rigid body and it explains its depth points about as well
             (:func:`~vtrack.tracking.stick.fingers_stick`; blind); the metrics say ``contacts_choice``.
         prefetch: build the frames in a child process ahead of the tracker (:mod:`vtrack.frames.prefetch`):
-            ``on`` / ``off`` / ``auto`` (long sessions on >= 2 CPUs; the CLI's default). The same poses; the
-            metrics' ``frames_wall_s`` and ``poses_per_s`` show the wall time.
+            ``on`` / ``off`` / ``auto`` (long sessions on >= 2 CPUs; the CLI's default), ``single`` (on, the
+            tactile pipelines in the same child rather than one of their own: an ablation). The same poses; the
+            metrics' ``frames_wall_s`` and ``poses_per_s`` show the wall time, ``prefetch_processes`` the children.
         **opts: tracker options (:class:`~vtrack.tracking.window.TrackerOptions` fields, ...).
     """
     from vtrack.frames.session import ORACLE_SEGMENTATIONS, SessionFrames
@@ -338,7 +339,11 @@ def track_session(
     # ``auto`` it is ended again if the session turns out short.
     # (a directory only: an open reader given instead cannot be reopened in the child)
     on_disk = isinstance(session_dir, (str, os.PathLike))
-    ahead = PrefetchedFrames(session_dir, frames_kwargs) if on_disk and worth_prefetching(prefetch, None) else None
+    ahead = (
+        PrefetchedFrames(session_dir, frames_kwargs, touch_process=prefetch != "single")
+        if on_disk and worth_prefetching(prefetch, None)
+        else None
+    )
     frames = SessionFrames(session_dir, **frames_kwargs)
     if ahead is not None and not worth_prefetching(prefetch, len(frames)):
         ahead.close()
@@ -524,6 +529,7 @@ def track_session(
         # frames built in a child process (prefetch) on the other core: the loop's wall time per frame is about
         # max(build, track); cpu_ms_per_frame_mean counts both processes' work either way
         "prefetch": ahead is not None,
+        "prefetch_processes": ahead.processes if ahead is not None else 0,
         "frames_wall_s": float(wall_loop),
         "first_wait_s": float(ms_prep[0] / 1e3) if n else 0.0,  # the wait for the first frame (the child's start)
         **({"prefetch_child_cpu_s": float(prefetch_cpu_s)} if ahead is not None else {}),

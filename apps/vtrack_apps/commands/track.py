@@ -58,8 +58,9 @@ def contacts_opts(
 
 #: ``--prefetch`` of ``vtrack track`` and ``vtrack reconstruct`` (:mod:`vtrack.frames.prefetch`)
 PREFETCH_HELP = (
-    "build the frames (segmentation, tactile pipelines) in a second process ahead of the tracker: auto (sessions "
-    "of >= 120 frames on >= 2 CPUs, not with --threads 1) | on | off; the same poses"
+    "build the frames ahead of the tracker in child processes (segmentation in one, the tactile pipelines in "
+    "another): auto (sessions of >= 120 frames on >= 2 CPUs, not with --threads 1) | on | off | single (one child "
+    "for both, an ablation); the same poses"
 )
 
 
