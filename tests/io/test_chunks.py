@@ -113,3 +113,6 @@ def test_other_layouts_are_read_through_zarr(tmp_path):
         assert np.array_equal(np.stack([fr[i] for i in range(6)]), x)
     fr = FieldReader(big, 6, "test/big")
     assert fr._files is not None and np.array_equal(np.stack([fr[i] for i in range(6)]), x)
+    # slices (the live replay's block reads) from any frame, not only a chunk's first
+    for sl in (slice(1, 5), slice(2, 6), slice(3, 4), slice(0, 6, 2), slice(5, 2)):
+        assert np.array_equal(fr[sl], x[sl]), sl

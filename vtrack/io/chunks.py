@@ -3,9 +3,9 @@
 A session's arrays are Zarr v3 arrays that :class:`vtrack.io.session.SessionWriter` writes with one layout: chunks
 along the frame axis only, codecs ``bytes -> zstd -> crc32c``, the default chunk-key encoding, on a local disk.
 Reading such a chunk through Zarr costs about twice the decompression itself (its event loop, thread hand-offs and
-buffer copies): 13.6 against 6.8 ms of CPU per camera frame for one camera's RGB-D and four DIGITs, measured on
-the 5 s mustard session (``data_tools/read_cost.py``). For that layout :class:`ChunkFiles` reads the chunk file,
-checks its CRC32C and decompresses it into the output with the same libraries Zarr uses (numcodecs' Zstd,
+buffer copies): 13.6 against 7.8 ms of CPU per camera frame for one camera's RGB-D and four DIGITs, mean of 3
+alternated rounds on the 5 s mustard session (``data_tools/read_cost.py``). For that layout :class:`ChunkFiles`
+reads the chunk file, checks its CRC32C and decompresses it with the same libraries Zarr uses (numcodecs' Zstd,
 google-crc32c), and Zarr's own metadata gives the file names. Any other array (another codec, sharding, a remote
 store, a chunk file that is missing) is read through Zarr as before: :meth:`ChunkFiles.of` returns None, or
 :meth:`ChunkFiles.read` returns None for the block. ``tests/io/test_chunks.py`` checks the two agree bit for bit.

@@ -491,6 +491,9 @@ class FieldReader:
             return cached[1][j - c0].copy()
         if isinstance(idx, slice):
             r = range(*idx.indices(self.n))
+            if self._index is None and r.step == 1 and len(r) and self._files is not None:
+                c0 = r.start - r.start % self._chunk  # whole chunks are decoded either way (Zarr too)
+                return self._read(lambda: self._block(c0, r.stop)[r.start - c0 :], f"{r.start}..{r.stop - 1}")
             if self._index is None:
                 return self._read(
                     lambda: self._a[slice(r.start, r.stop, r.step)], f"{r.start}..{r.stop - 1}" if len(r) else "(none)"
