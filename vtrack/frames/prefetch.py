@@ -7,7 +7,8 @@ wall time per frame drops from ``build + track`` to about ``max(build, track)``.
 parent's own :meth:`~vtrack.frames.session.SessionFrames.build` would give: the child's
 :class:`~vtrack.frames.session.SessionFrames` is made with the same arguments and starts from its first frame, as a
 freshly made (or :meth:`~vtrack.frames.session.SessionFrames.reset`) one does
-(``tests/frames/test_prefetch.py`` checks identical tracker poses).
+(``tests/frames/test_prefetch.py`` checks identical tracker poses). With vision and touch, a second child computes
+the tactile contacts and hands them to the frame builder (:class:`PrefetchedFrames`, ``touch_process``).
 
 The child is spawned (not forked: the parent may already run threads, e.g. zarr's event loop) and capped at one
 thread. Its start (imports, opening the session) costs ~1-3 s, so it pays only on sessions of more than a few
