@@ -104,14 +104,28 @@ def _child_setup() -> None:
     _skip_open3d_plotly()
 
 
-def _get_touch(touch_q: Any, timeout_s: float = START_TIMEOUT_S) -> tuple:
-    """The touch process's next message (the frame builder's side); a RuntimeError when none comes in time."""
+class _TouchFailed(Exception):
+    """The touch process's ``("error", kind, message)``, for the frame builder to hand on as it is."""
+
+    def __init__(self, msg: tuple) -> None:
+        super().__init__(msg[2])
+        self.msg = msg
+
+
+def _get_touch(touch_q: Any, expect: str, timeout_s: float = START_TIMEOUT_S) -> tuple:
+    """The touch process's next message, of kind ``expect`` (the frame builder's side): :class:`_TouchFailed` when
+    it sent an error, a RuntimeError when none comes in time or it is of another kind."""
     import queue
 
     try:
-        return touch_q.get(timeout=timeout_s)
+        msg = touch_q.get(timeout=timeout_s)
     except queue.Empty:
         raise RuntimeError(f"touch process: no contacts in {timeout_s:.0f} s") from None
+    if msg[0] == "error":
+        raise _TouchFailed(msg)
+    if msg[0] != expect:
+        raise RuntimeError(f"touch process sent {msg[0]!r}, expected {expect!r}")
+    return msg
 
 
 def _touch_contacts(session: str, kwargs: dict, n: int, touch_q: Any) -> None:
@@ -159,11 +173,7 @@ def _build_frames(session: str, kwargs: dict, n: int, queue: Any, touch_q: Any =
                 nxt = reader.submit(_timed_read, sf, i + 1, touch) if i + 1 < n else None
                 touch_ms = 0.0
                 if touch_q is not None:
-                    msg = _get_touch(touch_q)
-                    if msg[0] == "error":
-                        queue.put(msg)
-                        return
-                    _, j, raw["touch"], touch_read_ms, touch_ms = msg
+                    _, j, raw["touch"], touch_read_ms, touch_ms = _get_touch(touch_q, "contacts")
                     if j != i:
                         raise RuntimeError(f"touch process sent frame {j}, expected {i}")
                     read_ms += touch_read_ms
@@ -172,12 +182,10 @@ def _build_frames(session: str, kwargs: dict, n: int, queue: Any, touch_q: Any =
                 queue.put(("frame", i, fr, read_ms, (time.thread_time() - c1) * 1e3 + touch_ms))
         cpu_s = time.process_time() - c_start
         if touch_q is not None:
-            msg = _get_touch(touch_q)
-            if msg[0] == "error":
-                queue.put(msg)
-                return
-            cpu_s += float(msg[1]) if msg[0] == "done" else 0.0
+            cpu_s += float(_get_touch(touch_q, "done")[1])
         queue.put(("done", cpu_s))
+    except _TouchFailed as e:  # the touch process's own message (its kind and text)
+        queue.put(e.msg)
     except Exception as e:  # noqa: BLE001 - every failure goes to the parent as one line
         queue.put(_error_message(e))
 
