@@ -59,6 +59,7 @@ def test_a_damaged_chunk_is_reported_a_missing_one_left_to_zarr(tiny_session, tm
     arr_dir = s / "data.zarr" / "camera" / "cam0" / "depth"
     a = zarr.open_array(str(arr_dir), mode="r")
     cf = ChunkFiles.of(a)
+    frame2 = np.asarray(a[2])
     chunk = arr_dir / "c" / "2" / "0" / "0"
     data = bytearray(chunk.read_bytes())
     data[len(data) // 2] ^= 0xFF  # one flipped byte, the length unchanged
@@ -77,6 +78,15 @@ def test_a_damaged_chunk_is_reported_a_missing_one_left_to_zarr(tiny_session, tm
     chunk.write_bytes(body + np.uint32(google_crc32c.value(body)).tobytes())
     with pytest.raises(ValueError, match="decompressed to 10 bytes"):
         cf.read(2, 3)
+    # the header declares the chunk's full size (the path that decodes into the output directly), but the data
+    # ends early, or a second frame follows: damage too, never a half-filled frame
+    full = Zstd(3).encode(frame2.tobytes())
+    for bad in (full[: len(full) * 3 // 4], full + Zstd(3).encode(b"x" * 10)):
+        chunk.write_bytes(bad + np.uint32(google_crc32c.value(bad)).tobytes())
+        with pytest.raises(ValueError, match="chunk 2"):
+            cf.read(2, 3)
+    chunk.write_bytes(full + np.uint32(google_crc32c.value(full)).tobytes())
+    assert np.array_equal(cf.read(2, 3)[0], frame2)
     chunk.unlink()  # missing: not this reader's call (Zarr gives the fill value or its own error)
     assert cf.read(2, 3) is None and cf.read(0, 2) is not None
 
@@ -116,3 +126,19 @@ def test_other_layouts_are_read_through_zarr(tmp_path):
     # slices (the live replay's block reads) from any frame, not only a chunk's first
     for sl in (slice(1, 5), slice(2, 6), slice(3, 4), slice(0, 6, 2), slice(5, 2)):
         assert np.array_equal(fr[sl], x[sl]), sl
+
+
+def test_zstd_frame_content_size_is_read_from_the_header():
+    from numcodecs import Zstd
+
+    from vtrack.io.chunks import frame_content_size
+
+    rng = np.random.default_rng(0)
+    # 1-, 2- (+256), 4- and 8-byte size fields; levels that write the header differently
+    for n in (0, 7, 255, 256, 300, 65791, 70000, 1 << 20):
+        for level in (1, 3, 19):
+            data = rng.integers(0, 4, n).astype(np.uint8)
+            assert frame_content_size(np.frombuffer(Zstd(level).encode(data), np.uint8)) == n, (n, level)
+    assert frame_content_size(b"not a zstd frame") is None and frame_content_size(b"\x28\xb5") is None
+    # a streamed frame may leave the size out (descriptor 0x00: no size field, not single-segment)
+    assert frame_content_size(b"\x28\xb5\x2f\xfd\x00\x58\x00\x00") is None

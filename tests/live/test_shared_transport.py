@@ -50,6 +50,29 @@ def test_ring_round_trips_frames_and_catches_a_reused_slot():
     assert not os.path.exists(path)
 
 
+def test_ring_memory_is_allocated_before_the_replay_starts(monkeypatch):
+    """The ring's pages are allocated when it is created (not by the reader's first write into each slot during
+    the replay), and a ring that does not fit fails there, with an OSError the replay turns into the pipe."""
+    ring = FrameRing.create({"tactile/a": {"image": ((320, 240, 3), np.uint8)}}, 16)
+    try:
+        st = os.stat(ring.layout.path)
+        assert st.st_size == ring.layout.nbytes and st.st_blocks * 512 >= ring.layout.nbytes  # not a sparse file
+        seq, _ = ring.write("tactile/a", {"image": np.full((320, 240, 3), 7, np.uint8)})
+        assert int(ring.slots("tactile/a", seq)["image"].read().sum()) == 7 * 320 * 240 * 3
+    finally:
+        ring.close()
+    # no room after all (another process filled /dev/shm since the check): refused here, the file gone again
+    before = set(os.listdir("/dev/shm"))
+
+    def full(fd, off, n):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", full)
+    with pytest.raises(OSError, match="No space"):
+        FrameRing.create({"tactile/a": {"image": ((32, 24, 3), np.uint8)}}, 4)
+    assert set(os.listdir("/dev/shm")) == before
+
+
 class Collect(Consumer):
     """Keeps a checked copy of every frame's fields (as a consumer in the tracker's process would read them)."""
 

@@ -78,11 +78,20 @@ class SharedSlot:
 _MAPS: dict[str, Any] = {}
 
 
-def _mapped(path: str) -> Any:
-    """The ring file mapped in this process (once per process and file)."""
+def _mapped(path: str, populate: bool = False) -> Any:
+    """The ring file mapped in this process (once per process and file). ``populate``: every page mapped at once
+    (``MAP_POPULATE`` where the OS has it), for the process that writes every slot: one page-table pass before the
+    replay's clock starts instead of a page fault per 4 KB page all through the first lap of the slots (a 5 s
+    session's replay is mostly its first lap). A consumer maps lazily: it touches only its streams' slots."""
     mm = _MAPS.get(path)
     if mm is None:
-        mm = _MAPS[path] = np.memmap(path, dtype=np.uint8, mode="r+")
+        import mmap
+
+        with open(path, "r+b") as f:
+            size = os.fstat(f.fileno()).st_size
+            flags = mmap.MAP_SHARED | (getattr(mmap, "MAP_POPULATE", 0) if populate else 0)
+            m = mmap.mmap(f.fileno(), size, flags=flags, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+        mm = _MAPS[path] = np.frombuffer(m, np.uint8)
     return mm
 
 
@@ -97,9 +106,11 @@ class FrameRing:
     Created by the process that owns the replay (:meth:`create`, removed by :meth:`close`); the writer
     (reader process) and the consumers' processes map it by path."""
 
-    def __init__(self, layout: RingLayout) -> None:
+    def __init__(self, layout: RingLayout, writer: bool = True) -> None:
         self.layout = layout
         self.counts: dict[str, int] = {}
+        # the writer (the replay's reader process) writes every slot: its whole mapping now, before the clock
+        _mapped(layout.path, populate=writer)
 
     @classmethod
     def create(cls, shapes: Mapping[str, Mapping[str, tuple[tuple[int, ...], Any]]], slots: int) -> FrameRing:
@@ -120,9 +131,20 @@ class FrameRing:
         if base is None:
             raise OSError(f"no room for a {off / 1e6:.0f} MB frame ring in /dev/shm or the temporary directory")
         fd, path = tempfile.mkstemp(prefix=f"vtrack-live-{os.getpid()}-{uuid.uuid4().hex[:8]}-", dir=base)
-        os.ftruncate(fd, max(off, 8))
+        try:
+            if hasattr(os, "posix_fallocate"):
+                # the pages are allocated (and zeroed) now, before the replay's clock starts, not by the reader's
+                # first write into each slot; a full /dev/shm fails here (OSError: the caller falls back to the
+                # pipe) instead of killing the writer with SIGBUS later
+                os.posix_fallocate(fd, 0, max(off, 8))
+            else:
+                os.ftruncate(fd, max(off, 8))
+        except OSError:
+            os.close(fd)
+            os.unlink(path)
+            raise
         os.close(fd)
-        ring = cls(RingLayout(path, int(slots), fields, seq, off))
+        ring = cls(RingLayout(path, int(slots), fields, seq, off), writer=False)
         ring._finalizer = weakref.finalize(ring, _remove, path)  # also at exit or when dropped unclosed
         mm = _mapped(path)
         for o in seq.values():  # no frame in any slot yet

@@ -143,6 +143,11 @@ def _reader_process(
 
         limit_threads(1)  # decoding is one stream of work; a BLAS pool here would only spin beside the consumers
         reader = open_session(path)
+        ring = None
+        if layout is not None:
+            from vtrack.live.shared import FrameRing
+
+            ring = FrameRing(layout)  # mapped (its pages too) before the clock starts
     except Exception as e:
         q.put(f"{type(e).__name__}: {e}")
         return
@@ -151,12 +156,6 @@ def _reader_process(
     c0 = time.process_time()
     while wall0_v.value == 0.0 and not stop.is_set():
         time.sleep(0.001)
-
-    ring = None
-    if layout is not None:
-        from vtrack.live.shared import FrameRing
-
-        ring = FrameRing(layout)
 
     # the frames due at the same time (4 tactile images, a joint state, a camera frame) go through the queue as
     # one message: a fifth of the queue's pickling, pipe writes and wake-ups here and in the emitter
