@@ -8,6 +8,8 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
 - ``real_time_factor`` (wall time; lowered by whatever else runs on the machine) and
   ``real_time_factor_cpu`` (each worker thread's CPU time: what it reaches with a core to itself);
 - latency of a pose after its camera frame (mean / p95), dropped tactile / camera frames (%), poses/s;
+- ``track_runq_ms``: ms per tracked frame the tracker's thread waited on the OS run queue for a core (Linux): how
+  much of a step's wall time the machine's load added (wall = CPU + this + waits for the GIL or a helper);
 - ``motion_err_mm``: object-motion error of the live poses (ADD; ADD-S for symmetric objects);
 - ``ms``: CPU ms of one camera frame (segmentation + tracking; the tactile pipeline too in the ``touch in
   camera step`` variant), ``frames_cpu_ms``: its segmentation / frame-building part when that is a stage of its
@@ -157,6 +159,8 @@ def run(quick: bool = False) -> BenchTable:
                 dropped_tactile_pct=sm.get("dropped_tactile_pct"),
                 dropped_camera_pct=sm.get("dropped_camera_pct"),
                 poses_per_s=sm.get("poses_per_s"),
+                # ms per tracked frame the tracker's thread waited for a core (the machine's load, not the pipeline)
+                track_runq_ms=sm.get("runq_ms_mean"),
                 cpu_s_per_session_s=sm.get("cpu_s_per_session_s"),
                 cpu_main_s_per_session_s=round(res["cpu"]["main_s"] / max(res["cpu"]["session_s"], 1e-9), 3),
                 speed=speed,

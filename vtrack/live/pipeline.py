@@ -87,6 +87,8 @@ class ConsumerStats:
     errors: int = 0
     busy_by_stream: dict[str, float] = field(default_factory=dict)
     cpu_by_stream: dict[str, float] = field(default_factory=dict)
+    #: seconds the worker thread waited on the OS run queue for a core while processing (Linux; absent elsewhere)
+    runq_by_stream: dict[str, float] = field(default_factory=dict)
     latency_by_stream: dict[str, list[float]] = field(default_factory=dict)
 
     def summary(self, wall_s: float) -> dict[str, Any]:
@@ -101,6 +103,9 @@ class ConsumerStats:
                     "rate_hz": round(self.processed.get(s, 0) / max(wall_s, 1e-9), 2),
                     "busy_ms_mean": round(1e3 * self.busy_by_stream.get(s, 0.0) / max(self.processed.get(s, 0), 1), 2),
                     "cpu_ms_mean": round(1e3 * self.cpu_by_stream.get(s, 0.0) / max(self.processed.get(s, 0), 1), 2),
+                    "runq_ms_mean": round(1e3 * self.runq_by_stream[s] / max(self.processed.get(s, 0), 1), 2)
+                    if s in self.runq_by_stream
+                    else None,
                     "latency_ms_mean": _r(np.mean(self.latency_by_stream[s]))
                     if self.latency_by_stream.get(s)
                     else None,
@@ -121,6 +126,17 @@ class ConsumerStats:
 
 def _r(x: float) -> float:
     return round(float(x), 2)
+
+
+def thread_sched_ns() -> tuple[int, int] | None:
+    """(ns on a CPU, ns waiting on the run queue for one) of the calling thread so far, from Linux's
+    ``/proc/thread-self/schedstat``; None where the OS does not say."""
+    try:
+        with open("/proc/thread-self/schedstat", "rb") as f:
+            on_cpu, waiting = f.read().split()[:2]
+        return int(on_cpu), int(waiting)
+    except (OSError, ValueError):
+        return None
 
 
 class _Worker(threading.Thread):
@@ -171,7 +187,7 @@ class _Worker(threading.Thread):
                 if not self.slots and self.closed:
                     return
                 evs = self._take()
-            t0, c0 = time.perf_counter(), time.thread_time()
+            t0, c0, q0 = time.perf_counter(), time.thread_time(), thread_sched_ns()
             try:
                 if len(evs) == 1 and not self.consumer.batch:
                     self.consumer.process(evs[0])
@@ -185,7 +201,8 @@ class _Worker(threading.Thread):
                 if self.error is None:
                     self.error = e
                 ok = [True] * len(evs)  # processed (with an error), as before batching
-            t1 = time.perf_counter()
+            t1, q1 = time.perf_counter(), thread_sched_ns()
+            runq = None if q0 is None or q1 is None else (q1[1] - q0[1]) * 1e-9
             st = self.stats
             # + CPU the consumer spent in a helper process for these frames (its own thread only waited); read
             # once: a frame handled next (joints) must not count the previous frame's offloaded CPU again
@@ -203,6 +220,8 @@ class _Worker(threading.Thread):
                 st.busy_s += (t1 - t0) / n
                 st.busy_by_stream[ev.stream] = st.busy_by_stream.get(ev.stream, 0.0) + (t1 - t0) / n
                 st.cpu_by_stream[ev.stream] = st.cpu_by_stream.get(ev.stream, 0.0) + cpu / n
+                if runq is not None:
+                    st.runq_by_stream[ev.stream] = st.runq_by_stream.get(ev.stream, 0.0) + runq / n
                 st.latency_ms.append((t1 - ev.wall) * 1e3)
                 st.latency_by_stream.setdefault(ev.stream, []).append((t1 - ev.wall) * 1e3)
                 st.processed[ev.stream] = st.processed.get(ev.stream, 0) + 1
@@ -301,6 +320,9 @@ def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dic
       worker's mailbox (the worst worker that takes the stream).
     - ``latency_ms_mean`` / ``latency_ms_p95``: from a camera frame's emission to the end of its processing
       (the pose), in the ``track`` consumer (else the first consumer).
+    - ``runq_ms_mean``: per processed camera frame of the ``track`` consumer (else the first), ms its worker thread
+      waited on the OS run queue for a core (Linux, ``/proc/thread-self/schedstat``; None elsewhere). A step's wall
+      time is its CPU time + this + waits for the GIL or a helper process: a machine short of cores shows here.
     - ``poses_per_s``: tracker steps / active seconds (``track`` consumer).
     - ``cpu_s_per_session_s``: CPU seconds of every process of the pipeline (this one, a reader process, the
       consumers' helper processes) per second of replayed recording. Independent of the machine's load (to
@@ -359,6 +381,7 @@ def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dic
         if cams:
             s0 = next(iter(cams.values()))
             out["latency_ms_mean"], out["latency_ms_p95"] = s0["latency_ms_mean"], s0["latency_ms_p95"]
+            out["runq_ms_mean"] = s0.get("runq_ms_mean")
         steps = cons[main].get("result", {}).get("steps")
         if steps is not None:
             out["poses_per_s"] = round(steps / active, 2)
