@@ -15,6 +15,7 @@ a time step instead of four).
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections import deque
@@ -128,14 +129,27 @@ def _r(x: float) -> float:
     return round(float(x), 2)
 
 
-def thread_sched_ns() -> tuple[int, int] | None:
+def thread_sched_ns(fd: int | None = None) -> tuple[int, int] | None:
     """(ns on a CPU, ns waiting on the run queue for one) of the calling thread so far, from Linux's
-    ``/proc/thread-self/schedstat``; None where the OS does not say."""
+    ``/proc/thread-self/schedstat``; None where the OS does not say. ``fd``: that file opened by this thread
+    (:func:`open_thread_sched`), read again in place: ~2 instead of ~14 us a call, twice per frame a stage handles."""
     try:
-        with open("/proc/thread-self/schedstat", "rb") as f:
-            on_cpu, waiting = f.read().split()[:2]
+        if fd is not None:
+            raw = os.pread(fd, 128, 0)
+        else:
+            with open("/proc/thread-self/schedstat", "rb") as f:
+                raw = f.read()
+        on_cpu, waiting = raw.split()[:2]
         return int(on_cpu), int(waiting)
     except (OSError, ValueError):
+        return None
+
+
+def open_thread_sched() -> int | None:
+    """The calling thread's ``/proc/thread-self/schedstat`` opened for :func:`thread_sched_ns` (None if absent)."""
+    try:
+        return os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+    except (OSError, AttributeError):
         return None
 
 
@@ -180,6 +194,14 @@ class _Worker(threading.Thread):
         return [ev]
 
     def run(self) -> None:
+        sched = open_thread_sched()  # this thread's: opened here, in the thread it describes
+        try:
+            self._run(sched)
+        finally:
+            if sched is not None:
+                os.close(sched)
+
+    def _run(self, sched: int | None) -> None:
         while True:
             with self.cv:
                 while not self.slots and not self.closed:
@@ -187,7 +209,7 @@ class _Worker(threading.Thread):
                 if not self.slots and self.closed:
                     return
                 evs = self._take()
-            t0, c0, q0 = time.perf_counter(), time.thread_time(), thread_sched_ns()
+            t0, c0, q0 = time.perf_counter(), time.thread_time(), thread_sched_ns(sched)
             try:
                 if len(evs) == 1 and not self.consumer.batch:
                     self.consumer.process(evs[0])
@@ -201,7 +223,7 @@ class _Worker(threading.Thread):
                 if self.error is None:
                     self.error = e
                 ok = [True] * len(evs)  # processed (with an error), as before batching
-            t1, q1 = time.perf_counter(), thread_sched_ns()
+            t1, q1 = time.perf_counter(), thread_sched_ns(sched)
             runq = None if q0 is None or q1 is None else (q1[1] - q0[1]) * 1e-9
             st = self.stats
             # + CPU the consumer spent in a helper process for these frames (its own thread only waited); read
