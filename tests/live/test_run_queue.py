@@ -1,5 +1,5 @@
-"""The live pipeline reports how long a stage's thread waited for a core (Linux schedstat): zero on an idle CPU,
-the time the other processes held its core when it has to share one."""
+"""The live pipeline reports how long a stage's thread waited for a core (Linux schedstat): next to nothing when it
+has a core, the time the other processes held its core when it has to share one."""
 
 from __future__ import annotations
 
@@ -39,8 +39,9 @@ class Spin(Consumer):
             pass
 
 
-def _busy(cpu: int, stop) -> None:
+def _busy(cpu: int, started, stop) -> None:
     os.sched_setaffinity(0, {cpu})
+    started.release()
     while not stop.is_set():
         pass
 
@@ -65,12 +66,13 @@ def test_run_queue_wait_is_the_time_another_process_held_the_core():
     alone = _run(None)
     assert alone["runq_ms_mean"] is not None and alone["runq_ms_mean"] >= 0.0
     ctx = mp.get_context("spawn")
-    stop = ctx.Event()
-    hogs = [ctx.Process(target=_busy, args=(cpu, stop), daemon=True) for _ in range(2)]
+    stop, started = ctx.Event(), ctx.Semaphore(0)
+    hogs = [ctx.Process(target=_busy, args=(cpu, started, stop), daemon=True) for _ in range(2)]
     for h in hogs:
         h.start()
     try:
-        time.sleep(0.5)  # the hogs are spinning on that CPU
+        for _ in hogs:  # both spin on that CPU before the stage runs (a spawned process takes ~1 s to start)
+            assert started.acquire(timeout=60), "a busy process did not start"
         shared = _run(cpu)
     finally:
         stop.set()
