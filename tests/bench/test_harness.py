@@ -3,18 +3,30 @@
 from __future__ import annotations
 
 import csv
+import re
 import time
 from pathlib import Path
 
 import numpy as np
 
-from vtrack.bench.harness import BenchTable, time_call, write_results
+from vtrack.bench.harness import BenchTable, speed_probe_ms, time_call, write_results
 
 
 def test_time_call_measures_sleep() -> None:
     r = time_call(lambda: time.sleep(0.01), warmup=1, repeat=5)
     assert r["n_timed"] == 5
     assert 9.0 <= r["ms_median"] < 60.0 and r["ms_p95"] >= r["ms_median"] and r["ms_min"] <= r["ms_median"]
+
+
+def test_speed_probe_measures_its_work() -> None:
+    """The probe times work, not overhead: three times the workload takes about three times the CPU (interleaved
+    so that a change of the machine's speed during the test hits both arms)."""
+    one, three = [], []
+    for _ in range(3):
+        one.append(speed_probe_ms(repeats=1))
+        three.append(speed_probe_ms(repeats=1, scale=3))
+    assert 0.05 < min(one) < 1000.0
+    assert 2.0 < min(three) / min(one) < 4.5
 
 
 def test_pareto_front_lower_and_higher_is_better() -> None:
@@ -39,6 +51,7 @@ def test_write_results_files(tmp_path: Path) -> None:
     assert len(rows) == 6 and {"method", "setting", "ms", "err", "pareto"} <= set(rows[0])
     md = paths["md"].read_text()
     assert "★" in md and "a note" in md and "demo_stage.png" in md
+    assert re.search(r"speed probe \d+(\.\d+)? ms", md)  # the cores' speed at the time, on the Machine line
     from PIL import Image
 
     im = np.asarray(Image.open(paths["png"]).convert("L"))

@@ -72,6 +72,13 @@ def test_live_command(tmp_path: Path) -> None:
     assert live["source"]["emitted"]["camera/cam0"] + live["source"]["skipped_late"].get("camera/cam0", 0) == 15
     bad = invoke("live", sess, "--consumer", "nonsense")
     assert isinstance(bad.exception, InputError) and "track|reconstruct|null" in str(bad.exception)
+    # faster than the recording (what `bench live`'s headroom sweep does): 0.5 s of recording in ~1/4 of the time,
+    # every frame scheduled (emitted, or skipped as late on a loaded machine)
+    res = invoke("live", sess, "--consumer", "null", "--speed", 4, "--json", tmp_path / "fast.json")
+    assert res.exit_code == 0, res.output
+    fast = json.loads((tmp_path / "fast.json").read_text())
+    assert fast["source"]["emitted"]["camera/cam0"] + fast["source"]["skipped_late"].get("camera/cam0", 0) == 15
+    assert 0.08 < fast["active_s"] < 0.5 and fast["cpu"]["session_s"] == pytest.approx(4 * fast["active_s"], rel=1e-2)
 
 
 def test_live_command_known_shape_and_given_poses(tmp_path: Path) -> None:

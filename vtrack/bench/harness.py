@@ -69,6 +69,34 @@ def git_revision() -> str:
         return "unknown"
 
 
+def _probe_workload(scale: int = 1) -> float:
+    """The fixed work of :func:`speed_probe_ms`: many small numpy calls (the per-frame pattern of the pipeline's
+    stages) and plain interpreter work; returns a checksum so that nothing is optimised away."""
+    a = np.random.default_rng(0).random(4096)
+    acc = 0.0
+    for _ in range(60 * scale):
+        b = np.sqrt(a * a + 1.0)
+        acc += float(np.sort(b)[100]) + float(b.sum())
+    d: dict[int, int] = {}
+    for i in range(20000 * scale):
+        d[i & 1023] = d.get(i & 1023, 0) + i
+    return acc + sum(d.values())
+
+
+def speed_probe_ms(repeats: int = 5, scale: int = 1) -> float:
+    """CPU ms of this thread for a fixed reference workload (best of ``repeats``): how fast this machine's cores
+    are right now. The CPU speed of a shared machine changes within hours (up to ~1.8x seen here) while the load
+    average stays low, so a benchmark figure in wall or CPU time is comparable with another only at a similar
+    probe. Thread CPU time, so waiting for a core on a loaded machine does not count (``load1`` shows that).
+    About 8 ms per repeat on a fast phase of the 2-core machine of 2026-11-29."""
+    best = float("inf")
+    for _ in range(max(1, repeats)):
+        c0 = time.thread_time()
+        _probe_workload(scale)
+        best = min(best, (time.thread_time() - c0) * 1e3)
+    return round(best, 3)
+
+
 def machine_info() -> dict[str, Any]:
     info = {
         "machine": platform.machine(),
@@ -76,6 +104,7 @@ def machine_info() -> dict[str, Any]:
         "cpus": os.cpu_count(),
         "python": platform.python_version(),
         "git": git_revision(),
+        "speed_probe_ms": speed_probe_ms(),
     }
     try:
         import torch  # noqa: F401  (only if already importable; records the thread setting)
@@ -244,7 +273,9 @@ def write_results(table: BenchTable, out_dir: Path | None = None, columns: list[
         f"time column: `{table.time_key}`. Pareto-optimal rows are marked ★.",
         "",
         f"Machine: {info['cpus']} CPUs, {info['processor']}, Python {info['python']}, "
-        f"threads {table.threads}, git `{info['git']}`, {time.strftime('%Y-%m-%d %H:%M')}.",
+        f"threads {table.threads}, git `{info['git']}`, {time.strftime('%Y-%m-%d %H:%M')}, "
+        f"speed probe {info['speed_probe_ms']:g} ms (`vtrack.bench.harness.speed_probe_ms`: CPU time of a fixed "
+        "workload, lower = faster cores right now).",
         "",
     ]
     lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]

@@ -16,7 +16,8 @@ through each sensor's calibrated pipeline; the session's ``gt/`` is read only af
   own (in the child process), ``touch_cpu_ms``: CPU ms per tactile image in the touch worker;
 - ``cpu_s_per_session_s``: CPU seconds of all the pipeline's processes per second of recording;
 - ``load1``: the machine's 1-minute load average at the start of the row (2 cores: above 2, every figure
-  measured in wall time is inflated).
+  measured in wall time is inflated); ``speed_probe_ms``: :func:`vtrack.bench.harness.speed_probe_ms` just before
+  the row (the cores' speed at the time: a shared machine's changes by up to ~1.8x within hours at a low load).
 
 Variants: ``default`` (what ``vtrack live`` does: the tactile pipeline on every tactile image as it arrives in a
 child process, segmentation with the colour term's feature tracks on the camera's RGB image a stage ahead of the
@@ -46,7 +47,7 @@ import time
 
 import numpy as np
 
-from vtrack.bench.harness import BenchTable
+from vtrack.bench.harness import BenchTable, speed_probe_ms
 
 VARIANTS = {
     "default (touch process, frames process, reader process)": {},
@@ -83,10 +84,33 @@ def _cases(quick: bool) -> list[tuple[str, str, float, str, int]]:
     return [("006_mustard_bottle", "none", 2.0, "slide", 0)] if quick else [(*c, "slide", 0) for c in CASES]
 
 
-def _speed() -> float:
-    """Replay speed: ``VTRACK_BENCH_LIVE_SPEED`` (default 1 = real time). On a loaded machine a slower replay
-    (e.g. 0.25) processes every frame, so ``cpu_s_per_session_s`` is the full CPU demand of real time."""
-    return float(os.environ.get("VTRACK_BENCH_LIVE_SPEED", "1") or 1)
+def _speeds() -> list[float]:
+    """Replay speeds: ``VTRACK_BENCH_LIVE_SPEED``, one or a comma-separated list (default 1 = real time). Below 1
+    (e.g. 0.25) every frame is processed on a loaded machine, so ``cpu_s_per_session_s`` is the full CPU demand of
+    real time. Above 1 the recording plays faster than it was taken: for the pipeline's per-frame budget the same
+    as cores that many times slower, so a sweep (``1,1.5,1.8,2.2``) measures the headroom of the live target: the
+    slowdown of the machine it survives.
+
+    Raises:
+        InputError: not a list of distinct numbers in (0, 10].
+    """
+    from vtrack.errors import InputError
+
+    raw = os.environ.get("VTRACK_BENCH_LIVE_SPEED", "").strip()
+    if not raw:
+        return [1.0]
+    try:
+        speeds = [float(v) for v in raw.split(",")]
+    except ValueError:
+        speeds = []
+    if not speeds or not all(0.0 < v <= 10.0 for v in speeds) or len(set(speeds)) != len(speeds):
+        raise InputError(
+            "bad live replay speed",
+            field="VTRACK_BENCH_LIVE_SPEED",
+            expected="distinct numbers in (0, 10], e.g. 1,1.5,2",
+            got=raw,
+        )
+    return speeds
 
 
 def run_live(session, variant: dict, speed: float = 1.0) -> dict:
@@ -125,11 +149,12 @@ def run(quick: bool = False) -> BenchTable:
     only = os.environ.get("VTRACK_BENCH_LIVE_VARIANTS")
     if only:
         variants = {k: v for k, v in variants.items() if any(o.strip() and o.strip() in k for o in only.split(";"))}
-    speed = _speed()
+    speeds = _speeds()
     for name, occ, seconds, contacts, seed in _cases(quick):
         sess = ycb_session(name, occ, seconds, contact_mode=contacts, seed=seed)
-        for vname, v in variants.items():
+        for (vname, v), speed in ((vv, sp) for vv in variants.items() for sp in speeds):
             load1 = os.getloadavg()[0]
+            probe = speed_probe_ms()
             t0 = time.perf_counter()
             res = run_live(sess, v, speed)
             sm = res["summary"]
@@ -140,7 +165,7 @@ def run(quick: bool = False) -> BenchTable:
             touch = res["consumers"].get("track.touch", {}).get("streams", {})
             touch_cpu = [s["cpu_ms_mean"] for s in touch.values() if s["processed"]]
             table.add(
-                method=vname,
+                method=vname if speed == 1.0 else f"{vname} @ {speed:g}x",
                 setting=f"{name} / {occ} / {seconds:g} s"
                 + (f" / {contacts} fingers" if contacts != "slide" else "")
                 + (f" / seed {seed}" if seed else ""),
@@ -183,6 +208,7 @@ def run(quick: bool = False) -> BenchTable:
                     if v.get("real_time_factor_cpu") is not None
                 ),
                 load1=round(load1, 2),
+                speed_probe_ms=probe,
                 wall_s=round(time.perf_counter() - t0, 1),
                 error=tr.get("first_error", ""),
             )
@@ -195,7 +221,9 @@ def run(quick: bool = False) -> BenchTable:
         "cpu_s_per_session_s: CPU seconds of all the pipeline's processes (main, touch, reader) per second of "
         "recording, independent of the load; real time on 2 cores needs < 2 (with margin: the OS, the emitter's "
         "timing). `VTRACK_BENCH_LIVE_SPEED=0.25` replays at quarter speed so that no frame is dropped and it is "
-        "the full demand; `VTRACK_BENCH_LIVE_VARIANTS='default;reader thread'` selects rows."
+        "the full demand; above 1 (a list: `1,1.5,1.8`) the replay is faster than the recording, as if the cores "
+        "were that much slower (rows `@ 1.5x`): the headroom of the live target; "
+        "`VTRACK_BENCH_LIVE_VARIANTS='default;reader thread'` selects rows."
     )
     table.notes.append(
         "Measured on a shared 2-core machine: `load1` is the load average when the row started; with a load "
