@@ -124,23 +124,44 @@ def bench_seeds() -> list[int]:
     Raises:
         InputError: the variable is not a comma-separated list of distinct non-negative integers.
     """
+    return env_list(
+        "VTRACK_BENCH_SEEDS",
+        int,
+        [0],
+        lambda s: s >= 0,
+        "bad benchmark seeds",
+        field="VTRACK_BENCH_SEEDS / --seeds",
+        expected="distinct integers >= 0, e.g. 0,1,2",
+    )
+
+
+def env_list(
+    var: str,
+    kind: Callable[[str], Any],
+    default: list,
+    valid: Callable[[Any], bool],
+    message: str,
+    field: str,
+    expected: str,
+) -> list:
+    """A comma-separated list of distinct values from the environment variable ``var`` (``kind`` parses each item,
+    ``valid`` checks it); ``default`` when unset or blank.
+
+    Raises:
+        InputError: an item does not parse or is not valid, or two are equal (``message``, ``field``, ``expected``).
+    """
     from vtrack.errors import InputError
 
-    raw = os.environ.get("VTRACK_BENCH_SEEDS", "").strip()
+    raw = os.environ.get(var, "").strip()
     if not raw:
-        return [0]
+        return list(default)
     try:
-        seeds = [int(s) for s in raw.split(",")]
+        values = [kind(v) for v in raw.split(",")]
     except ValueError:
-        seeds = []
-    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
-        raise InputError(
-            "bad benchmark seeds",
-            field="VTRACK_BENCH_SEEDS / --seeds",
-            expected="distinct integers >= 0, e.g. 0,1,2",
-            got=raw,
-        )
-    return seeds
+        values = []
+    if not values or not all(valid(v) for v in values) or len(set(values)) != len(values):
+        raise InputError(message, field=field, expected=expected, got=raw)
+    return values
 
 
 def add_seed_means(

@@ -47,7 +47,7 @@ import time
 
 import numpy as np
 
-from vtrack.bench.harness import BenchTable, speed_probe_ms
+from vtrack.bench.harness import BenchTable, env_list, speed_probe_ms
 
 VARIANTS = {
     "default (touch process, frames process, reader process)": {},
@@ -94,23 +94,15 @@ def _speeds() -> list[float]:
     Raises:
         InputError: not a list of distinct numbers in (0, 10].
     """
-    from vtrack.errors import InputError
-
-    raw = os.environ.get("VTRACK_BENCH_LIVE_SPEED", "").strip()
-    if not raw:
-        return [1.0]
-    try:
-        speeds = [float(v) for v in raw.split(",")]
-    except ValueError:
-        speeds = []
-    if not speeds or not all(0.0 < v <= 10.0 for v in speeds) or len(set(speeds)) != len(speeds):
-        raise InputError(
-            "bad live replay speed",
-            field="VTRACK_BENCH_LIVE_SPEED",
-            expected="distinct numbers in (0, 10], e.g. 1,1.5,2",
-            got=raw,
-        )
-    return speeds
+    return env_list(
+        "VTRACK_BENCH_LIVE_SPEED",
+        float,
+        [1.0],
+        lambda v: 0.0 < v <= 10.0,
+        "bad live replay speed",
+        field="VTRACK_BENCH_LIVE_SPEED",
+        expected="distinct numbers in (0, 10], e.g. 1,1.5,2",
+    )
 
 
 def run_live(session, variant: dict, speed: float = 1.0) -> dict:
