@@ -408,3 +408,47 @@ def live_summary(res: dict[str, Any], consumers: list[str] | None = None) -> dic
         if steps is not None:
             out["poses_per_s"] = round(steps / active, 2)
     return out
+
+
+def live_advice(res: dict[str, Any]) -> list[str]:
+    """What a user should know when a live run did not keep up (``LivePipeline.run`` output with its ``summary``):
+    one line each, empty when the run met real time (real-time factor >= 1 and < 5 % of the tactile frames dropped).
+
+    It tells a machine short of cores (a worker that would keep up with a core to itself: ``real_time_factor_cpu``
+    >= 1 > ``real_time_factor``) from work too heavy for this CPU (both below 1). Measured margins of the default
+    pipeline: docs/benchmarks/live_headroom.md."""
+    sm = res.get("summary") or {}
+    cons = res.get("consumers") or {}
+    out: list[str] = []
+    rtf, rtf_cpu = sm.get("real_time_factor"), sm.get("real_time_factor_cpu")
+    if rtf is not None and rtf < 1.0:
+        slow = min(
+            (n for n in cons if cons[n].get("real_time_factor") is not None),
+            key=lambda n: cons[n]["real_time_factor"],
+            default="?",
+        )
+        cam = sm.get("dropped_camera_pct")
+        out.append(
+            f"real-time factor {rtf:g} < 1: worker '{slow}' cannot keep up"
+            + (f" ({cam:g} % of the camera frames dropped)" if cam is not None else "")
+        )
+        runq = sm.get("runq_ms_mean")
+        if rtf_cpu is not None and rtf_cpu >= 1.0:
+            out.append(
+                f"it would keep up with a core of its own (CPU-time factor {rtf_cpu:g}): the machine is short of cores"
+                + (f" (the tracker waited {runq:g} ms per step for one)" if runq else "")
+                + "; the pipeline's processes and any other program share them"
+            )
+        else:
+            out.append("it would not keep up with a core of its own either: this CPU is too slow for the configuration")
+        if "track" in cons:
+            # (a camera stride or depth-only tracking do not raise the factor, which counts every camera frame of the
+            # recording: measured on the 5 s mug replayed at 2.2x, 0.774 default, 0.717 --no-colour, 0.759 stride <= 2)
+            out.append("to track every camera frame: replay slower (--speed 0.5) or track offline (vtrack track)")
+    tac = sm.get("dropped_tactile_pct")
+    if tac is not None and tac >= 5.0:
+        out.append(
+            f"{tac:g} % of the tactile frames dropped (>= 5 %): the touch stage falls behind; the pipeline needs "
+            "the machine's cores to itself"
+        )
+    return out

@@ -73,7 +73,7 @@ def register(app: typer.Typer) -> None:
             limit_threads(1)
         from vtrack.io.poses import parse_pose
         from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
-        from vtrack.live.pipeline import LivePipeline
+        from vtrack.live.pipeline import LivePipeline, live_advice
         from vtrack.live.sources import SessionReplaySource
         from vtrack_apps.commands.track import contacts_opts
         from vtrack_apps.output import print_table, write_json
@@ -136,5 +136,7 @@ def register(app: typer.Typer) -> None:
             + ", ".join(f"{k} {v}" for k, v in sm.items())
             + " (real-time factor = capacity / demand of the busiest worker; see docs/recording.md)"
         )
+        for line in live_advice(res):
+            typer.secho(line, fg="yellow")
         if json_out:
             write_json(json_out, res)
