@@ -42,6 +42,7 @@ variant.
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 
@@ -144,7 +145,7 @@ def run(quick: bool = False) -> BenchTable:
     speeds = _speeds()
     for name, occ, seconds, contacts, seed in _cases(quick):
         sess = ycb_session(name, occ, seconds, contact_mode=contacts, seed=seed)
-        for (vname, v), speed in ((vv, sp) for vv in variants.items() for sp in speeds):
+        for (vname, v), speed in itertools.product(variants.items(), speeds):
             load1 = os.getloadavg()[0]
             probe = speed_probe_ms()
             t0 = time.perf_counter()
