@@ -92,8 +92,7 @@ def test_live_replay_with_sticking_contacts_tracks_the_driven_object(stick_sessi
     the preset gives 0.60 mm against 1.69 on this session (tests/tracking/test_stick.py). Live, the default run takes
     each sensor's newest contact when its frame is built, so it depends on timing: 1.558 mm alone (three runs, the
     preset 0.866 in each: ratio 0.556), 1.446 / 1.474 beside a busy process (0.568 / 0.588), 1.361 in a CI run beside
-    the other test worker (0.636). Hence the bound
-    of 0.7 (still a 30 % gain) and an absolute one on the preset."""
+    the other test worker (0.636). Hence the bound of 0.7 (still a 30 % gain) and an absolute one on the preset."""
     pytest.importorskip("open3d")
     from vtrack.live.consumers import make_consumer, replay_fields, replay_streams
     from vtrack.live.pipeline import LivePipeline
